@@ -1,0 +1,42 @@
+# edgerv: every target installs what it needs by itself (see README.md).
+SHELL := /bin/bash
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: install test test-unit test-integration lint demo bench clean
+
+install: $(STAMP)
+
+$(STAMP): pyproject.toml
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "edgerv needs Python >= 3.11; set PYTHON=/path/to/python3.11")'
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[ros,operator,dev]'
+	touch $(STAMP)
+
+lint: install
+	$(BIN)/ruff check handler operator tests bench
+	$(BIN)/ruff format --check handler operator tests bench
+	$(BIN)/mypy
+	$(BIN)/lint-imports
+
+test-unit: install
+	$(BIN)/pytest -q tests/unit
+
+test-integration: install
+	$(BIN)/pytest -q tests/integration
+
+# All tiers: lint, unit (fast, no ROS), integration (real ROS 2), e2e (a real cluster, when present).
+test: lint
+	$(BIN)/pytest -q tests
+
+demo: install
+	bash examples/demo.sh
+
+bench: install
+	$(BIN)/python bench/run_all.py
+
+clean:
+	rm -rf $(VENV) demo-output .pytest_cache .mypy_cache .ruff_cache

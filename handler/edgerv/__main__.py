@@ -1,0 +1,5 @@
+import sys
+
+from edgerv.cli import main
+
+sys.exit(main())

@@ -1,0 +1,122 @@
+"""The ``edgerv`` command line.
+
+Exit codes: 0 no monitor violated, 1 a monitor was violated, 2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from edgerv import __version__
+from edgerv.core.checker import CheckRun, MonitorResult, check_types
+from edgerv.core.diagnostics import Diagnostic, InputError
+from edgerv.core.documents import load_monitors
+from edgerv.core.monitor import CompiledMonitor, compile_monitors
+from edgerv.core.traces import Trace
+from edgerv.report import print_table, to_json
+
+EXIT_OK, EXIT_VIOLATED, EXIT_INPUT = 0, 1, 2
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.print_usage(sys.stderr)
+        self.exit(EXIT_INPUT, f"{self.prog}: error: {message}\n")
+
+
+def _report(diagnostics: Sequence[Diagnostic]) -> None:
+    for d in diagnostics:
+        print(d.render(), file=sys.stderr)
+
+
+def load_compiled(path: str) -> list[CompiledMonitor]:
+    """Load and compile the monitors of a file or directory, printing warnings."""
+    compiled, warnings = compile_monitors(load_monitors(path))
+    _report(warnings)
+    return compiled
+
+
+def _emit(results: list[MonitorResult], as_json: bool) -> None:
+    if as_json:
+        print(to_json(results))
+    else:
+        print_table(results, sys.stdout)
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    try:
+        monitors = load_compiled(args.monitors)
+        run = CheckRun(monitors)
+        trace = Trace(Path(args.trace))
+        total = trace.inspect(run.topics)
+        type_errors = check_types(monitors, trace.msgtypes)
+        if type_errors:
+            raise InputError(type_errors)
+    except InputError as exc:
+        _report(exc.diagnostics)
+        return EXIT_INPUT
+    try:
+        if sys.stderr.isatty() and total and not args.no_progress:
+            from rich.progress import Progress
+
+            with Progress(transient=True) as bar:
+                task = bar.add_task(f"checking {args.trace}", total=total)
+                run.feed(trace.events(run.topics, lambda n: bar.advance(task, n)))
+        else:
+            run.feed(trace.events(run.topics))
+    except InputError as exc:
+        _emit(run.finish(), args.json)
+        _report(exc.diagnostics)
+        print(
+            "edgerv: the trace stopped at that error; the verdicts above cover the events "
+            "before it",
+            file=sys.stderr,
+        )
+        return EXIT_INPUT
+    results = run.finish()
+    _emit(results, args.json)
+    return (
+        EXIT_VIOLATED
+        if any(v.verdict == "violated" for r in results for v in r.verdicts)
+        else EXIT_OK
+    )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="edgerv", description="Runtime verification for ROS 2 robots.")
+    parser.add_argument("--version", action="version", version=f"edgerv {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    check = sub.add_parser(
+        "check",
+        help="verify a recorded run (JSON Lines trace or rosbag2 bag)",
+        description="Run the monitors over a recorded run. Exit 0: no monitor violated; "
+        "1: a monitor was violated; 2: bad input.",
+    )
+    check.add_argument(
+        "monitors", help="a Monitor YAML file (several documents allowed) or a directory of them"
+    )
+    check.add_argument(
+        "trace", help="a .jsonl trace, or a rosbag2 bag (.mcap, .db3 or its directory)"
+    )
+    check.add_argument("--json", action="store_true", help="print the verdicts as JSON")
+    check.add_argument("--no-progress", action="store_true", help="no progress bar")
+    check.set_defaults(func=cmd_check)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        code: int = args.func(args)
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:
+        return EXIT_OK
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,777 @@
+"""The assertion language: atoms become placeholders p0..pn, the rest is parsed by Spot.
+
+As in the paper (section IV), every atom of an assertion -- a boolean signal, or
+a comparison between a signal, a parameter and a literal -- is replaced by a
+placeholder proposition ``p<i>``. What remains is LTL/PSL in Spot's infix
+syntax, which Spot's own parser reads. PSL's keyword operators, which Spot's
+parser does not know, are first rewritten into Spot operators:
+
+=================  =====================================  ==========================
+PSL                Spot                                   binding
+=================  =====================================  ==========================
+``always f``       ``G(f)``                               up to the end of the group
+``never f``        ``G!(f)``                              up to the end of the group
+``eventually! f``  ``F(f)``                               up to the end of the group
+``next f``         ``X f`` (``next!``, ``next[n]`` alike) like ``X``
+``next_e[i..j] f`` ``F[i..j] f``                          like ``F``
+``next_a[i..j] f`` ``G[i..j] f``                          like ``G``
+``a until b``      ``a W b``                              like ``W``
+``a until! b``     ``a U b``                              like ``U``
+``a until_ b``     ``a W (a & b)``                        like ``W``
+``a until!_ b``    ``a U (a & b)``                        like ``U``
+``a before b``     ``a R !b``                             like ``R``
+``a before! b``    ``a M !b``                             like ``M``
+``a before_ b``    ``!b W a``                             like ``W``
+``a before!_ b``   ``!b U a``                             like ``U``
+=================  =====================================  ==========================
+
+``always``, ``never`` and ``eventually!`` bind more loosely than every other
+operator, as in PSL, so ``always a -> b`` means ``always (a -> b)``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import operator
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, Literal, cast
+
+import spot
+
+from edgerv.core.diagnostics import Diagnostic, InputError, did_you_mean
+from edgerv.core.documents import MonitorSpec, Value
+from edgerv.core.msgtypes import ValueKind
+
+CmpOp = Literal["<", "<=", ">", ">=", "==", "!="]
+
+_CMP_FUNCS: dict[str, Callable[[Any, Any], bool]] = {
+    "<": operator.lt,
+    "<=": operator.le,
+    ">": operator.gt,
+    ">=": operator.ge,
+    "==": operator.eq,
+    "!=": operator.ne,
+}
+_FLIP: dict[str, CmpOp] = {"<": ">", "<=": ">=", ">": "<", ">=": "<=", "==": "==", "!=": "!="}
+
+# Longest first: the lexer takes the longest operator that matches.
+_OPERATORS = sorted(
+    [
+        "<==>",
+        "<-->",
+        "<=>",
+        "<->",
+        "==>",
+        "-->",
+        "|->",
+        "|=>",
+        "->",
+        "=>",
+        "<>",
+        "<=",
+        ">=",
+        "==",
+        "!=",
+        "&&",
+        "||",
+        "<",
+        ">",
+        "=",
+        "&",
+        "|",
+        "!",
+        "^",
+        ";",
+        ":",
+        "(",
+        ")",
+        "{",
+        "}",
+        "-",
+        "+",
+        "*",
+        ",",
+    ],
+    key=len,
+    reverse=True,
+)
+_CMP_TOKENS = {"<", "<=", ">", ">=", "==", "=", "!="}
+_BOOL_BINOPS = {
+    "<==>",
+    "<-->",
+    "<=>",
+    "<->",
+    "==>",
+    "-->",
+    "|->",
+    "|=>",
+    "->",
+    "=>",
+    "&&",
+    "||",
+    "&",
+    "|",
+    "^",
+    "xor",
+    ";",
+    ":",
+    ",",
+}
+_TEMPORAL_BINOPS = {"U", "W", "R", "M"}
+_SPOT_WORDS = {"G", "F", "X", "U", "W", "R", "M", "xor", "true", "false"}
+_PSL_WORDS = {"always", "never", "eventually", "next", "next_e", "next_a", "until", "before"}
+_NUMBER = re.compile(r"(\d+\.?\d*(?:[eE][+-]?\d+)?|\.\d+(?:[eE][+-]?\d+)?)")
+_IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+# PSL binary keyword operators: Spot text with L and R for the operands.
+_TEMPLATE_TOKENS = re.compile(r"\{[LR]\}|[()!&WURM]")
+_TEMPLATE_ROLES = {
+    "(": "open",
+    ")": "close",
+    "!": "unary",
+    "&": "bbin",
+    "W": "tbin",
+    "U": "tbin",
+    "R": "tbin",
+    "M": "tbin",
+}
+_PSL_BINARY = {  # {L} and {R} stand for the left and right operands
+    "until_": "(({L}) W (({L}) & ({R})))",
+    "until!_": "(({L}) U (({L}) & ({R})))",
+    "before": "(({L}) R !({R}))",
+    "before!": "(({L}) M !({R}))",
+    "before_": "(!({R}) W ({L}))",
+    "before!_": "(!({R}) U ({L}))",
+}
+
+
+@dataclass(frozen=True)
+class Token:
+    kind: Literal["ident", "number", "string", "bracket", "op"]
+    text: str
+    start: int
+    end: int
+
+
+@dataclass(frozen=True)
+class Operand:
+    """One side of a comparison: a signal (by name) or a constant."""
+
+    signal: str | None
+    value: Value | None = None
+
+    def describe(self) -> str:
+        return self.signal if self.signal is not None else repr(self.value)
+
+
+@dataclass(frozen=True)
+class Atom:
+    """A proposition over signal values; ``placeholder`` is its bit in a letter."""
+
+    lhs: Operand
+    op: CmpOp
+    rhs: Operand
+    text: str  # as the user wrote it, for messages
+
+    @property
+    def signals(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(o.signal for o in (self.lhs, self.rhs) if o.signal is not None))
+
+    def key(self) -> tuple[Any, ...]:
+        def k(o: Operand) -> tuple[Any, ...]:
+            return ("s", o.signal) if o.signal is not None else ("c", type(o.value), o.value)
+
+        return (k(self.lhs), self.op, k(self.rhs))
+
+
+@dataclass(frozen=True)
+class ParsedAssertion:
+    spec: MonitorSpec
+    formula: Any  # spot.formula over p0..p{n-1}
+    atoms: tuple[Atom, ...]  # atoms[i] is placeholder p<i>
+    spot_text: str  # the text given to Spot's parser
+    constraint: Any  # spot.formula: the letters that can occur (see feasible_letters)
+    warnings: tuple[Diagnostic, ...]
+
+
+@dataclass
+class _Out:
+    """An output token for Spot, with the source span it came from."""
+
+    text: str
+    start: int
+    end: int
+    role: str = "other"  # atom, unary, loose, tbin, bbin, pbin, open, close, other
+
+
+def tokenize(text: str, fail: Callable[[int, int, str, str | None], None]) -> list[Token]:
+    tokens: list[Token] = []
+    i, n = 0, len(text)
+    while i < n:
+        ch = text[i]
+        if ch.isspace():
+            i += 1
+            continue
+        if ch == '"':
+            j = text.find('"', i + 1)
+            if j < 0:
+                fail(i, n - i, "unterminated string", 'close it with "')
+                return tokens
+            tokens.append(Token("string", text[i : j + 1], i, j + 1))
+            i = j + 1
+            continue
+        if ch == "[":
+            j = text.find("]", i + 1)
+            if j < 0:
+                fail(i, 1, "unclosed '['", "close it with ']'")
+                return tokens
+            tokens.append(Token("bracket", text[i : j + 1], i, j + 1))
+            i = j + 1
+            continue
+        m = _NUMBER.match(text, i)
+        if m and (ch.isdigit() or ch == "."):
+            tokens.append(Token("number", m.group(), i, m.end()))
+            i = m.end()
+            continue
+        m = _IDENT.match(text, i)
+        if m:
+            j = m.end()
+            word = m.group()
+            if word in _PSL_WORDS and j < n and text[j] == "!":
+                j += 1
+                if word in ("until", "before") and j < n and text[j] == "_":
+                    j += 1
+            elif word in ("until", "before") and j < n and text[j] == "_":
+                j += 1
+            tokens.append(Token("ident", text[i:j], i, j))
+            i = j
+            continue
+        for op in _OPERATORS:
+            if text.startswith(op, i):
+                tokens.append(Token("op", op, i, i + len(op)))
+                i += len(op)
+                break
+        else:
+            fail(i, 1, f"unexpected character '{ch}'", None)
+            i += 1
+    return tokens
+
+
+class _Parser:
+    def __init__(self, spec: MonitorSpec) -> None:
+        self.spec = spec
+        self.text = spec.assertion
+        self.diagnostics: list[Diagnostic] = []
+        self.atoms: list[Atom] = []
+        self.atom_index: dict[tuple[Any, ...], int] = {}
+
+    def fail(self, start: int, length: int, message: str, hint: str | None = None) -> None:
+        loc = self.spec.locate_assertion(start, length)
+        self.diagnostics.append(Diagnostic(loc, message, hint=hint))
+
+    # -- atoms ---------------------------------------------------------------------------
+
+    def _operand(self, toks: Sequence[Token], i: int) -> tuple[Operand, str, int] | None:
+        """An operand starting at toks[i]: (operand, kind, tokens used), or None."""
+        t = toks[i] if i < len(toks) else None
+        if t is None:
+            return None
+        sign = 1.0
+        used = 0
+        if t.kind == "op" and t.text in ("-", "+") and i + 1 < len(toks):
+            nxt = toks[i + 1]
+            if nxt.kind == "number" and nxt.start == t.end:
+                sign = -1.0 if t.text == "-" else 1.0
+                t, used = nxt, 1
+        if t.kind == "number":
+            number: int | float = int(t.text) if t.text.isdigit() else float(t.text)
+            return Operand(None, -number if sign < 0 else number), "number", used + 1
+        if t.kind == "string":
+            return Operand(None, t.text[1:-1]), "string", 1
+        if t.kind == "ident":
+            if t.text in ("true", "false"):
+                return Operand(None, t.text == "true"), "bool", 1
+            if t.text in self.spec.signals:
+                kind = self.spec.signals[t.text].kind
+                return Operand(t.text), "number" if kind in ("int", "float") else kind, 1
+            if t.text in self.spec.parameters:
+                v = self.spec.parameters[t.text]
+                k = "bool" if isinstance(v, bool) else "string" if isinstance(v, str) else "number"
+                return Operand(None, v), k, 1
+        return None
+
+    def _add_atom(self, atom: Atom) -> int:
+        key = atom.key()
+        if key not in self.atom_index:
+            self.atom_index[key] = len(self.atoms)
+            self.atoms.append(atom)
+        return self.atom_index[key]
+
+    def _unknown(self, t: Token) -> None:
+        candidates = [*self.spec.signals, *self.spec.parameters]
+        self.fail(
+            t.start,
+            t.end - t.start,
+            f"unknown signal or parameter '{t.text}'",
+            did_you_mean(t.text, candidates) or "declare it under spec.signals or spec.parameters",
+        )
+
+    def _comparison(self, toks: Sequence[Token], i: int) -> tuple[str, int] | None:
+        """Parse ``operand CMP operand`` at toks[i]; return (Spot text, tokens used)."""
+        j = i + 1
+        left = self._operand(toks, i)
+        if left is not None:
+            j = i + left[2]
+        if j >= len(toks) or toks[j].kind != "op" or toks[j].text not in _CMP_TOKENS:
+            return None
+        cmp_tok = toks[j]
+        right = self._operand(toks, j + 1)
+        after = toks[j + 1] if j + 1 < len(toks) else None
+        if left is None or right is None:  # report one error for the whole comparison
+            if left is None and toks[i].kind == "ident":
+                self._unknown(toks[i])
+            elif left is None:
+                return None
+            elif after is not None and after.kind == "ident" and after.text not in _SPOT_WORDS:
+                self._unknown(after)
+            else:
+                found = f"'{after.text}'" if after is not None else "nothing"
+                self.fail(
+                    cmp_tok.start,
+                    cmp_tok.end - cmp_tok.start,
+                    f"'{cmp_tok.text}' must be followed by a signal, parameter or number, "
+                    f"found {found}",
+                )
+            used = j - i + 1 + (right[2] if right else 1 if after and after.kind != "op" else 0)
+            return "p", used
+        start = toks[i].start
+        end = toks[j + right[2]].end
+        source = self.text[start:end]
+        (lo, lkind, _), (ro, rkind, _) = left, right
+        op: CmpOp = "==" if cmp_tok.text == "=" else cast(CmpOp, cmp_tok.text)
+        if lo.signal is None and ro.signal is None:
+            self.fail(
+                start,
+                end - start,
+                f"'{source}' compares two constants",
+                "a comparison needs a signal on at least one side",
+            )
+            return "p", j + right[2] + 1 - i
+        if lkind != rkind:
+            self.fail(
+                start,
+                end - start,
+                f"type mismatch in '{source}': {lo.describe()} is {_kind_name(lkind)}, "
+                f"{ro.describe()} is {_kind_name(rkind)}",
+            )
+            return "p", j + right[2] + 1 - i
+        if lkind in ("bool", "string") and op not in ("==", "!="):
+            self.fail(
+                cmp_tok.start,
+                cmp_tok.end - cmp_tok.start,
+                f"'{cmp_tok.text}' does not apply to {lkind}s, in '{source}'",
+                "only == and != compare bools and strings",
+            )
+            return "p", j + right[2] + 1 - i
+        if lo.signal is None:  # constant on the left: put the signal first
+            lo, ro, op = ro, lo, _FLIP[op]
+        negate = False
+        if op == "!=":  # a != b is !(a == b), also for NaN: one placeholder serves both
+            op, negate = "==", True
+        if lkind == "bool" and ro.signal is None:  # running == false is !running
+            if ro.value is False:
+                negate = not negate
+            ro = Operand(None, True)
+        index = self._add_atom(Atom(lo, op, ro, source))
+        return ("!" if negate else "") + f"p{index}", j + right[2] + 1 - i
+
+    # -- the whole assertion ---------------------------------------------------------------
+
+    def check_brackets(self, toks: Sequence[Token]) -> None:
+        """Unbalanced ( ) and { } are reported at the user's own bracket."""
+        stack: list[Token] = []
+        pairs = {")": "(", "}": "{"}
+        for t in toks:
+            if t.kind != "op":
+                continue
+            if t.text in "({":
+                stack.append(t)
+            elif t.text in ")}":
+                if not stack or stack[-1].text != pairs[t.text]:
+                    self.fail(
+                        t.start,
+                        1,
+                        f"'{t.text}' closes nothing",
+                        "remove it or add the opening bracket",
+                    )
+                    return
+                stack.pop()
+        if stack:
+            t = stack[-1]
+            self.fail(
+                t.start,
+                1,
+                f"'{t.text}' is never closed",
+                f"add '{')' if t.text == '(' else '}'}' where the group ends",
+            )
+
+    def translate(self, toks: Sequence[Token]) -> list[_Out]:
+        self.check_brackets(toks)
+        out: list[_Out] = []
+        i = 0
+        while i < len(toks):
+            t = toks[i]
+            cmp_ = self._comparison(toks, i)
+            if cmp_ is not None:
+                text, used = cmp_
+                out.append(_Out(text, t.start, toks[i + used - 1].end, "atom"))
+                i += used
+                continue
+            if t.kind == "op" and t.text in _CMP_TOKENS:
+                self.fail(
+                    t.start,
+                    t.end - t.start,
+                    f"'{t.text}' needs a signal, parameter or number on its left",
+                )
+            elif t.kind == "ident":
+                i += self._word(t, toks[i + 1] if i + 1 < len(toks) else None, out) - 1
+            elif t.kind == "number":
+                if t.text in ("0", "1"):
+                    out.append(_Out(t.text, t.start, t.end, "atom"))
+                else:
+                    self.fail(
+                        t.start,
+                        t.end - t.start,
+                        f"number {t.text} outside a comparison",
+                        "compare it with a signal, e.g. speed < 100",
+                    )
+            elif t.kind == "string":
+                self.fail(t.start, t.end - t.start, f"string {t.text} outside a comparison")
+            elif t.kind == "bracket":
+                out.append(_Out(t.text, t.start, t.end, "unary" if t.text == "[]" else "other"))
+            else:
+                role = (
+                    "open"
+                    if t.text in "({"
+                    else "close"
+                    if t.text in ")}"
+                    else "bbin"
+                    if t.text in _BOOL_BINOPS
+                    else "unary"
+                    if t.text in ("!", "<>")
+                    else "other"
+                )
+                out.append(_Out(t.text, t.start, t.end, role))
+            i += 1
+        return out
+
+    def _word(self, t: Token, nxt: Token | None, out: list[_Out]) -> int:
+        """Translate a word (and the bracket right after it, for X[..], next_e[..]).
+
+        Returns how many tokens were used.
+        """
+        w, s, e = t.text, t.start, t.end
+        bracket = nxt.text if nxt is not None and nxt.kind == "bracket" and nxt.start == e else None
+        takes_bracket = w in (
+            "G",
+            "F",
+            "X",
+            "next",
+            "next!",
+            "next_e",
+            "next_e!",
+            "next_a",
+            "next_a!",
+        )
+        used = 2 if bracket is not None and takes_bracket else 1
+        if w in self.spec.signals:
+            sig = self.spec.signals[w]
+            if sig.kind != "bool":
+                self.fail(
+                    s,
+                    e - s,
+                    f"'{w}' is a {sig.kind} signal, not a proposition",
+                    f"compare it, e.g. {w} > 0",
+                )
+                return used
+            index = self._add_atom(Atom(Operand(w), "==", Operand(None, True), w))
+            out.append(_Out(f"p{index}", s, e, "atom"))
+        elif w in self.spec.parameters:
+            self.fail(
+                s,
+                e - s,
+                f"parameter '{w}' used as a proposition",
+                "parameters are constants: compare a signal with it, e.g. speed < " + w,
+            )
+        elif w in ("G", "F", "X"):
+            if bracket is not None:
+                out.append(_Out(w + bracket, s, e + len(bracket), "unary"))
+            else:
+                out.append(_Out(w, s, e, "unary"))
+        elif w in _TEMPORAL_BINOPS:
+            out.append(_Out(w, s, e, "tbin"))
+        elif w == "xor":
+            out.append(_Out(w, s, e, "bbin"))
+        elif w in ("true", "false"):
+            out.append(_Out(w, s, e, "atom"))
+        elif w in ("always", "never", "eventually!"):
+            spot_op = {"always": "G", "never": "G!", "eventually!": "F"}[w]
+            out.append(_Out(spot_op, s, e, "loose"))
+        elif w in ("next", "next!"):
+            out.append(_Out("X" + (bracket or ""), s, e + len(bracket or ""), "unary"))
+        elif w in ("next_e", "next_e!", "next_a", "next_a!"):
+            if bracket is None:
+                self.fail(s, e - s, f"'{w}' needs a range", f"write e.g. {w}[1..3] f")
+                return used
+            op = "F" if w.startswith("next_e") else "G"
+            out.append(_Out(op + bracket.replace(" to ", ".."), s, e + len(bracket), "unary"))
+        elif w == "until":
+            out.append(_Out("W", s, e, "tbin"))
+        elif w == "until!":
+            out.append(_Out("U", s, e, "tbin"))
+        elif w in _PSL_BINARY:
+            out.append(_Out(w, s, e, "pbin"))
+        elif w == "eventually":
+            self.fail(
+                s, e - s, "PSL's 'eventually' is written 'eventually!'", "or use the LTL operator F"
+            )
+        elif (m := re.fullmatch(r"([GFX]+)([A-Za-z_]\w*)?", w)) and (
+            m.group(2) is None or m.group(2) in self.spec.signals
+        ):
+            # Spot's compact spelling: GFp is G F p, XF( is X F ( (Spot prints formulas so)
+            for k, op in enumerate(m.group(1)):
+                out.append(_Out(op, s + k, s + k + 1, "unary"))
+            if m.group(2) is not None:
+                rest = len(m.group(1))
+                self._word(Token("ident", m.group(2), s + rest, e), None, out)
+        else:
+            self._unknown(t)
+        return used
+
+
+def _kind_name(kind: str) -> str:
+    return {"number": "a number", "bool": "a boolean", "string": "a string"}.get(kind, kind)
+
+
+def _operand_end(out: list[_Out], i: int, step: int) -> int:
+    """Index one past the operand of out[i] in direction step (+1 right, -1 left)."""
+    depth = 0
+    j = i + step
+    while 0 <= j < len(out):
+        role = out[j].role
+        opens, closes = ("open", "close") if step > 0 else ("close", "open")
+        if role == opens:
+            depth += 1
+        elif role == closes:
+            if depth == 0:
+                break
+            depth -= 1
+        elif depth == 0 and (role in ("bbin", "pbin") or (step < 0 and role in ("tbin", "loose"))):
+            break
+        j += step
+    return j
+
+
+def _rewrite_psl_binary(out: list[_Out]) -> list[_Out]:
+    """Rewrite until_/before* into Spot operators, rightmost first (they are right-associative)."""
+    while True:
+        idx = [i for i, o in enumerate(out) if o.role == "pbin"]
+        if not idx:
+            return out
+        i = idx[-1]
+        kw = out[i]
+        lo = _operand_end(out, i, -1) + 1
+        hi = _operand_end(out, i, +1)
+        left, right = out[lo:i], out[i + 1 : hi]
+        pieces: list[_Out] = []
+        for part in _TEMPLATE_TOKENS.findall(_PSL_BINARY[kw.text]):
+            if part in ("{L}", "{R}"):
+                operand = left if part == "{L}" else right
+                pieces += [_Out(o.text, o.start, o.end, o.role) for o in operand]
+            else:
+                pieces.append(_Out(part, kw.start, kw.end, _TEMPLATE_ROLES[part]))
+        out = out[:lo] + pieces + out[hi:]
+
+
+def _wrap_loose(out: list[_Out]) -> list[_Out]:
+    """``always f`` becomes ``G(f)`` with f running to the end of the enclosing group."""
+    for i in range(len(out) - 1, -1, -1):
+        if out[i].role != "loose":
+            continue
+        kw = out[i]
+        end = _group_end(out, i)
+        out = [
+            *out[:i],
+            _Out(kw.text, kw.start, kw.end, "unary"),
+            _Out("(", kw.start, kw.end, "open"),
+            *out[i + 1 : end],
+            _Out(")", kw.start, kw.end, "close"),
+            *out[end:],
+        ]
+    return out
+
+
+def _group_end(out: list[_Out], i: int) -> int:
+    depth = 0
+    for j in range(i + 1, len(out)):
+        if out[j].role == "open":
+            depth += 1
+        elif out[j].role == "close":
+            if depth == 0:
+                return j
+            depth -= 1
+    return len(out)
+
+
+def _spot_errors(text: str, offsets: list[tuple[int, _Out]]) -> list[tuple[_Out, str]]:
+    """Parse Spot's error listing and map each caret back to an output token."""
+    parsed = spot.parse_infix_psl(text)
+    stream = spot.ostringstream()
+    if not parsed.format_errors(stream):
+        return []
+    found: list[tuple[_Out, str]] = []
+    blocks = [b for b in stream.str().split("\n\n") if b.strip()]
+    for block in blocks:
+        lines = block.split("\n")
+        caret = next((ln for ln in lines if ln.strip().startswith("^")), None)
+        message = lines[-1].strip()
+        if found:
+            break  # Spot's first error is the one to fix; the rest often follow from it
+        col = (caret.index("^") - 4) if caret else 0
+        token = offsets[-1][1]
+        for off, tok in offsets:
+            if off <= col:
+                token = tok
+        found.append((token, message))
+    return found
+
+
+def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
+    """Replace atoms by placeholders and parse the formula with Spot; raise InputError."""
+    p = _Parser(spec)
+    tokens = tokenize(spec.assertion, p.fail)
+    out = p.translate(tokens)
+    if p.diagnostics:
+        raise InputError(p.diagnostics)
+    out = _wrap_loose(_rewrite_psl_binary(out))
+    pieces, offsets, pos = [], [], 0
+    for o in out:
+        offsets.append((pos, o))
+        pieces.append(o.text)
+        pos += len(o.text) + 1
+    text = " ".join(pieces)
+    if not text.strip():
+        p.fail(0, max(1, len(spec.assertion)), "the assertion is empty")
+        raise InputError(p.diagnostics)
+    for tok, message in _spot_errors(text, offsets):
+        p.fail(tok.start, max(1, tok.end - tok.start), message)
+    if p.diagnostics:
+        raise InputError(p.diagnostics)
+    formula = spot.parse_infix_psl(text).f
+    atoms = tuple(p.atoms)
+    constraint = feasible_letters(spec, atoms)
+    warnings = _vacuity_warnings(spec, formula, constraint)
+    return ParsedAssertion(spec, formula, atoms, text, constraint, tuple(warnings))
+
+
+def _vacuity_warnings(spec: MonitorSpec, formula: Any, constraint: Any) -> list[Diagnostic]:
+    g = spot.formula.G(constraint)
+    loc = spec.locate_assertion(0, len(spec.assertion.rstrip()))
+    if spot.translate(spot.formula.And([g, formula])).is_empty():
+        return [
+            Diagnostic(
+                loc,
+                "the assertion can never hold: every run violates it at step 1",
+                "warning",
+                "check the comparisons and the temporal operators",
+            )
+        ]
+    if spot.translate(spot.formula.And([g, spot.formula.Not(formula)])).is_empty():
+        return [
+            Diagnostic(
+                loc,
+                "the assertion always holds: no run can violate it",
+                "warning",
+                "a monitor that cannot fail checks nothing; check the formula",
+            )
+        ]
+    return []
+
+
+def _samples(kind: ValueKind, constants: list[Value]) -> list[Value]:
+    """Values covering every region that comparisons with ``constants`` can tell apart."""
+    if kind == "bool":
+        return [False, True]
+    if kind == "string":
+        strs = [c for c in constants if isinstance(c, str)]
+        return [*strs, "\x00" + "".join(strs)]
+    nums = sorted({float(c) for c in constants if isinstance(c, int | float)})
+    if kind == "int":
+        points: set[Value] = {0}
+        for c in nums:
+            points |= {math.floor(c) - 1, math.floor(c), math.ceil(c), math.ceil(c) + 1}
+        return sorted(points)
+    points_f: set[float] = {0.0, -math.inf, math.inf}
+    for a, b in itertools.pairwise(nums):
+        points_f.add((a + b) / 2)
+    for c in nums:
+        points_f |= {c, c - 1.0, c + 1.0}
+    return [*sorted(points_f), math.nan]
+
+
+def feasible_letters(spec: MonitorSpec, atoms: Sequence[Atom]) -> Any:
+    """A boolean formula over the placeholders true of exactly the letters that can occur.
+
+    Atoms that read the same single signal are not independent (``speed < 50`` and
+    ``speed > 100`` are never both true). Monitoring over the letters that can occur
+    gives the exact verdicts of the assertion over signal values: a prefix is bad
+    when no continuation of *possible* letters satisfies the formula.
+    """
+    by_signal: dict[str, list[int]] = {}
+    for i, a in enumerate(atoms):
+        if a.rhs.signal is None and a.lhs.signal is not None:
+            by_signal.setdefault(a.lhs.signal, []).append(i)
+    parts = []
+    for name, idxs in by_signal.items():
+        if len(idxs) < 2 and spec.signals[name].kind != "float":
+            continue
+        consts = [atoms[i].rhs.value for i in idxs if atoms[i].rhs.value is not None]
+        rows = set()
+        for v in _samples(spec.signals[name].kind, consts):  # type: ignore[arg-type]
+            rows.add(tuple(_compare(v, atoms[i].op, atoms[i].rhs.value) for i in idxs))
+        if len(rows) == 2 ** len(idxs):
+            continue
+        disjuncts = [
+            spot.formula.And(
+                [
+                    spot.formula.ap(f"p{i}") if bit else spot.formula.Not(spot.formula.ap(f"p{i}"))
+                    for i, bit in zip(idxs, row, strict=True)
+                ]
+            )
+            for row in sorted(rows)
+        ]
+        parts.append(spot.formula.Or(disjuncts))
+    return spot.formula.And(parts) if parts else spot.formula.tt()
+
+
+def _compare(value: Any, op: str, const: Any) -> bool:
+    try:
+        return bool(_CMP_FUNCS[op](value, const))
+    except TypeError:
+        return False
+
+
+def compile_atom(atom: Atom, index_of: dict[str, int]) -> Callable[[list[Any]], bool]:
+    """A function from the signal values (by index) to the atom's truth value."""
+    func = _CMP_FUNCS[atom.op]
+    if atom.lhs.signal is None:  # never: constants are put on the right
+        raise ValueError(atom)
+    li = index_of[atom.lhs.signal]
+    if atom.rhs.signal is not None:
+        ri = index_of[atom.rhs.signal]
+        return lambda values: bool(func(values[li], values[ri]))
+    const = atom.rhs.value
+    return lambda values: bool(func(values[li], const))

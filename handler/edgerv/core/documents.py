@@ -1,0 +1,473 @@
+"""Monitor documents: the YAML a user applies with kubectl, validated into :class:`MonitorSpec`.
+
+Errors name the file, line and column of the offending node and its field path
+(``spec.signals.speed.type``). All documents of a file are checked, and all
+errors are reported together.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, cast
+
+import yaml
+
+from edgerv.core.diagnostics import Diagnostic, InputError, Location, did_you_mean
+from edgerv.core.msgtypes import FieldError, ValueKind, field_kind, normalize_type
+
+API_VERSION = "edgerv.io/v1alpha1"
+KIND = "Monitor"
+DEFAULT_SORT_THRESHOLD = 1
+DEFAULT_BUFFER_CAPACITY = 4096
+
+Value = bool | int | float | str
+OnVerdict = Literal["reset", "halt"]
+
+_NAME = re.compile(r"^[a-z0-9]([-a-z0-9.]{0,251}[a-z0-9])?$")  # Kubernetes object name
+_IDENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+# Words of the assertion language that cannot name a signal or a parameter.
+RESERVED = frozenset(
+    {
+        "G",
+        "F",
+        "X",
+        "U",
+        "W",
+        "R",
+        "M",
+        "xor",
+        "true",
+        "false",
+        "always",
+        "never",
+        "next",
+        "next_a",
+        "next_e",
+        "eventually",
+        "until",
+        "until_",
+        "before",
+        "before_",
+        "abort",
+    }
+)
+
+
+@dataclass(frozen=True)
+class SignalSpec:
+    name: str
+    topic: str
+    msg_type: str
+    field: str
+    kind: ValueKind
+    initial: Value | None
+    location: Location
+
+
+@dataclass(frozen=True)
+class MonitorSpec:
+    name: str
+    assertion: str
+    signals: dict[str, SignalSpec]
+    parameters: dict[str, Value]
+    sort_threshold: int
+    on_verdict: OnVerdict
+    buffer_capacity: int
+    location: Location
+    # Maps (offset, length) in the assertion text to its place in the file.
+    locate_assertion: Callable[[int, int], Location] = field(repr=False, compare=False)
+
+    @property
+    def topics(self) -> list[str]:
+        """The topics this monitor reads, in order of first use by its signals."""
+        return list(dict.fromkeys(s.topic for s in self.signals.values()))
+
+
+class _Doc:
+    """One YAML document: its composed node tree, for positions, and the file text."""
+
+    def __init__(self, path: str, text: str, root: yaml.Node) -> None:
+        self.path = path
+        self.lines = text.splitlines()
+        self.text = text
+        self.root = root
+        self.diagnostics: list[Diagnostic] = []
+
+    def loc(self, node: yaml.Node | None, length: int = 1) -> Location:
+        if node is None:
+            return Location(self.path)
+        mark = node.start_mark
+        src = self.lines[mark.line] if mark.line < len(self.lines) else None
+        return Location(self.path, mark.line + 1, mark.column + 1, length, src)
+
+    def error(
+        self, node: yaml.Node | None, where: str, message: str, hint: str | None = None
+    ) -> None:
+        length = 1
+        if isinstance(node, yaml.ScalarNode) and node.start_mark.line == node.end_mark.line:
+            length = max(1, node.end_mark.column - node.start_mark.column)
+        self.diagnostics.append(
+            Diagnostic(self.loc(node, length), f"{where}: {message}", hint=hint)
+        )
+
+    def scalar_locator(self, node: yaml.ScalarNode) -> Callable[[int, int], Location]:
+        """Locate characters of a scalar's value in the file, whatever its quoting style.
+
+        The value's characters appear in the raw text in order (escapes and folded
+        line breaks aside), so a greedy alignment of value to raw text finds them.
+        """
+        raw_start = node.start_mark.index
+        raw = self.text[raw_start : node.end_mark.index]
+        value = str(node.value)
+        index_of: list[int] = []
+        j = 0
+        for ch in value:
+            k = raw.find(ch, j)
+            if k < 0:
+                index_of.append(index_of[-1] if index_of else 0)
+                continue
+            index_of.append(k)
+            j = k + 1
+        index_of.append(j)
+
+        def locate(offset: int, length: int) -> Location:
+            offset = min(max(offset, 0), len(value))
+            absolute = raw_start + index_of[offset]
+            line = self.text.count("\n", 0, absolute)
+            col = absolute - (self.text.rfind("\n", 0, absolute) + 1)
+            src = self.lines[line] if line < len(self.lines) else None
+            return Location(self.path, line + 1, col + 1, max(1, length), src)
+
+        return locate
+
+
+def _mapping(node: yaml.Node) -> dict[str, tuple[yaml.Node, yaml.Node]]:
+    assert isinstance(node, yaml.MappingNode)
+    return {str(k.value): (k, v) for k, v in node.value}
+
+
+def _construct(node: yaml.Node) -> Any:
+    return yaml.SafeLoader("").construct_object(node, deep=True)
+
+
+def _check_keys(
+    doc: _Doc, node: yaml.Node, where: str, allowed: set[str], required: set[str]
+) -> dict[str, tuple[yaml.Node, yaml.Node]]:
+    if not isinstance(node, yaml.MappingNode):
+        doc.error(node, where, "must be a mapping")
+        return {}
+    items = _mapping(node)
+    for key, (knode, _) in items.items():
+        if key not in allowed:
+            doc.error(knode, f"{where}.{key}", "unknown field", did_you_mean(key, allowed))
+    for key in sorted(required - items.keys()):
+        doc.error(node, where, f"missing required field '{key}'")
+    return items
+
+
+def _parse_value(
+    doc: _Doc, node: yaml.Node, where: str, kinds: tuple[type, ...] = (bool, int, float, str)
+) -> Value | None:
+    if not isinstance(node, yaml.ScalarNode):
+        doc.error(node, where, "must be a single value")
+        return None
+    try:
+        value = _construct(node)
+    except yaml.YAMLError as exc:
+        doc.error(node, where, f"invalid value: {exc}")
+        return None
+    if not isinstance(value, kinds) or (isinstance(value, float) and math.isnan(value)):
+        doc.error(node, where, f"must be one of: {', '.join(k.__name__ for k in kinds)}")
+        return None
+    return cast(Value, value)
+
+
+def _value_fits(value: Value, kind: ValueKind) -> bool:
+    if kind == "bool":
+        return isinstance(value, bool)
+    if kind == "string":
+        return isinstance(value, str)
+    if isinstance(value, bool):
+        return False
+    if kind == "int":
+        return isinstance(value, int)
+    return isinstance(value, int | float)
+
+
+def _parse_signal(doc: _Doc, name: str, knode: yaml.Node, node: yaml.Node) -> SignalSpec | None:
+    where = f"spec.signals.{name}"
+    if not _IDENT.match(name) or name in RESERVED:
+        doc.error(
+            knode,
+            where,
+            f"'{name}' cannot name a signal",
+            "use a letter or _ then letters, digits or _, not an operator such as G or until",
+        )
+        return None
+    items = _check_keys(doc, node, where, {"topic", "type", "field", "initial"}, {"topic", "type"})
+    if not items or "topic" not in items or "type" not in items:
+        return None
+    topic = _parse_value(doc, items["topic"][1], f"{where}.topic", (str,))
+    msg_type = _parse_value(doc, items["type"][1], f"{where}.type", (str,))
+    fld: Value | None = "data"
+    if "field" in items:
+        fld = _parse_value(doc, items["field"][1], f"{where}.field", (str,))
+    if not isinstance(topic, str) or not isinstance(msg_type, str) or not isinstance(fld, str):
+        return None
+    if not re.match(r"^/?[A-Za-z_~{][A-Za-z0-9_/{}~]*$", topic):
+        doc.error(items["topic"][1], f"{where}.topic", f"'{topic}' is not a ROS topic name")
+        return None
+    if not topic.startswith("/"):
+        topic = "/" + topic
+    try:
+        kind = field_kind(msg_type, fld)
+        msg_type = normalize_type(msg_type)
+    except FieldError as exc:
+        about = exc.about if exc.about == "type" or "field" in items else "type"
+        doc.error(items[about][1], f"{where}.{about}", str(exc), exc.hint)
+        return None
+    initial: Value | None = None
+    if "initial" in items:
+        initial = _parse_value(doc, items["initial"][1], f"{where}.initial")
+        if initial is not None and not _value_fits(initial, kind):
+            doc.error(
+                items["initial"][1],
+                f"{where}.initial",
+                f"{initial!r} is not a {kind} value, but {msg_type} field '{fld}' is {kind}",
+            )
+            return None
+    return SignalSpec(name, topic, msg_type, fld, kind, initial, doc.loc(knode, len(name)))
+
+
+def _parse_int(
+    doc: _Doc, items: dict[str, tuple[yaml.Node, yaml.Node]], key: str, default: int, minimum: int
+) -> int:
+    if key not in items:
+        return default
+    value = _parse_value(doc, items[key][1], f"spec.{key}", (int,))
+    if value is None or isinstance(value, bool) or not isinstance(value, int):
+        return default
+    if value < minimum:
+        doc.error(items[key][1], f"spec.{key}", f"must be at least {minimum}, not {value}")
+    return value
+
+
+def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
+    top = _check_keys(
+        doc,
+        doc.root,
+        "document",
+        {"apiVersion", "kind", "metadata", "spec", "status"},
+        {"apiVersion", "kind", "metadata", "spec"},
+    )
+    if not top or not {"apiVersion", "kind", "metadata", "spec"} <= top.keys():
+        return None
+    api = _parse_value(doc, top["apiVersion"][1], "apiVersion", (str,))
+    if api is not None and api != API_VERSION:
+        doc.error(top["apiVersion"][1], "apiVersion", f"must be {API_VERSION}, not '{api}'")
+    kind = _parse_value(doc, top["kind"][1], "kind", (str,))
+    if kind is not None and kind != KIND:
+        doc.error(
+            top["kind"][1],
+            "kind",
+            f"must be {KIND}, not '{kind}'",
+            "edgerv reads only Monitor documents; keep other objects in another file",
+        )
+    meta = _check_keys(
+        doc,
+        top["metadata"][1],
+        "metadata",
+        {
+            "name",
+            "namespace",
+            "labels",
+            "annotations",
+            "uid",
+            "resourceVersion",
+            "generation",
+            "creationTimestamp",
+            "managedFields",
+        },
+        {"name"},
+    )
+    name: Value | None = None
+    if "name" in meta:
+        name = _parse_value(doc, meta["name"][1], "metadata.name", (str,))
+        if isinstance(name, str) and not _NAME.match(name):
+            doc.error(
+                meta["name"][1],
+                "metadata.name",
+                f"'{name}' is not a valid object name",
+                "use lower-case letters, digits, '-' and '.', starting and ending alphanumeric",
+            )
+    spec = _check_keys(
+        doc,
+        top["spec"][1],
+        "spec",
+        {"assertion", "signals", "parameters", "sortThreshold", "onVerdict", "bufferCapacity"},
+        {"assertion", "signals"},
+    )
+    if not spec:
+        return None
+    assertion_node = spec.get("assertion", (None, None))[1]
+    assertion = None
+    if assertion_node is not None:
+        assertion = _parse_value(doc, assertion_node, "spec.assertion", (str,))
+        if isinstance(assertion, str) and not assertion.strip():
+            doc.error(assertion_node, "spec.assertion", "is empty")
+    signals: dict[str, SignalSpec] = {}
+    if "signals" in spec:
+        snode = spec["signals"][1]
+        if not isinstance(snode, yaml.MappingNode) or not snode.value:
+            doc.error(snode, "spec.signals", "must map each signal name to its topic and type")
+        else:
+            for sname, (kn, vn) in _mapping(snode).items():
+                sig = _parse_signal(doc, sname, kn, vn)
+                if sig is not None:
+                    signals[sname] = sig
+    parameters: dict[str, Value] = {}
+    if "parameters" in spec:
+        pnode = spec["parameters"][1]
+        if not isinstance(pnode, yaml.MappingNode):
+            doc.error(pnode, "spec.parameters", "must map each parameter name to a value")
+        else:
+            for pname, (kn, vn) in _mapping(pnode).items():
+                where = f"spec.parameters.{pname}"
+                if not _IDENT.match(pname) or pname in RESERVED:
+                    doc.error(kn, where, f"'{pname}' cannot name a parameter")
+                elif pname in signals:
+                    doc.error(kn, where, f"'{pname}' names a signal too; rename one of them")
+                else:
+                    pvalue = _parse_value(doc, vn, where)
+                    if pvalue is not None:
+                        parameters[pname] = pvalue
+    on_verdict: OnVerdict = "reset"
+    if "onVerdict" in spec:
+        ov = _parse_value(doc, spec["onVerdict"][1], "spec.onVerdict", (str,))
+        if ov in ("reset", "halt"):
+            on_verdict = "reset" if ov == "reset" else "halt"
+        elif ov is not None:
+            doc.error(spec["onVerdict"][1], "spec.onVerdict", f"must be reset or halt, not '{ov}'")
+    sort_threshold = _parse_int(doc, spec, "sortThreshold", DEFAULT_SORT_THRESHOLD, 1)
+    buffer_capacity = _parse_int(doc, spec, "bufferCapacity", DEFAULT_BUFFER_CAPACITY, 1)
+    if sort_threshold > buffer_capacity:
+        doc.error(
+            spec["sortThreshold"][1],
+            "spec.sortThreshold",
+            f"{sort_threshold} is more than bufferCapacity ({buffer_capacity})",
+        )
+    if doc.diagnostics or not isinstance(name, str) or not isinstance(assertion, str):
+        return None
+    assert isinstance(assertion_node, yaml.ScalarNode)
+    return MonitorSpec(
+        name=name,
+        assertion=assertion,
+        signals=signals,
+        parameters=parameters,
+        sort_threshold=sort_threshold,
+        on_verdict=on_verdict,
+        buffer_capacity=buffer_capacity,
+        location=doc.loc(meta["name"][1]),
+        locate_assertion=doc.scalar_locator(assertion_node),
+    )
+
+
+def _documents(path: str, text: str) -> Iterator[_Doc]:
+    try:
+        for root in yaml.compose_all(text, Loader=yaml.SafeLoader):
+            if root is not None:
+                yield _Doc(path, text, root)
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark
+        lines = text.splitlines()
+        loc = (
+            Location(
+                path,
+                mark.line + 1,
+                mark.column + 1,
+                1,
+                lines[mark.line] if mark.line < len(lines) else None,
+            )
+            if mark is not None
+            else Location(path)
+        )
+        raise InputError([Diagnostic(loc, f"invalid YAML: {exc.problem}")]) from None
+
+
+def load_monitors_text(path: str, text: str) -> list[MonitorSpec]:
+    """Parse and validate every Monitor document of one file; raise :class:`InputError`."""
+    monitors: list[MonitorSpec] = []
+    diagnostics: list[Diagnostic] = []
+    seen: dict[str, Location] = {}
+    for doc in _documents(path, text):
+        spec = _parse_monitor(doc)
+        diagnostics += doc.diagnostics
+        if spec is None:
+            continue
+        if spec.name in seen:
+            diagnostics.append(
+                Diagnostic(
+                    spec.location,
+                    f"metadata.name: monitor '{spec.name}' "
+                    f"is defined twice (first at {seen[spec.name]})",
+                )
+            )
+            continue
+        seen[spec.name] = spec.location
+        monitors.append(spec)
+    if diagnostics:
+        raise InputError(diagnostics)
+    if not monitors:
+        raise InputError([Diagnostic(Location(path), "no Monitor document in this file")])
+    return monitors
+
+
+def monitor_files(path: Path) -> list[Path]:
+    """A file, or the ``*.yaml``/``*.yml`` files of a directory in name order."""
+    if path.is_dir():
+        return sorted(p for p in path.iterdir() if p.suffix in (".yaml", ".yml") and p.is_file())
+    return [path]
+
+
+def load_monitors(path: str | Path) -> list[MonitorSpec]:
+    """Load all monitors from a file or a directory; monitor names must be unique across them."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError([Diagnostic(Location(str(p)), "no such file or directory")])
+    files = monitor_files(p)
+    if not files:
+        raise InputError([Diagnostic(Location(str(p)), "no .yaml file in this directory")])
+    out: list[MonitorSpec] = []
+    diagnostics: list[Diagnostic] = []
+    seen: dict[str, Location] = {}
+    for f in files:
+        try:
+            text = f.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            diagnostics.append(Diagnostic(Location(str(f)), f"cannot read: {exc}"))
+            continue
+        try:
+            specs = load_monitors_text(str(f), text)
+        except InputError as exc:
+            diagnostics += exc.diagnostics
+            continue
+        for s in specs:
+            if s.name in seen:
+                diagnostics.append(
+                    Diagnostic(
+                        s.location,
+                        f"metadata.name: monitor '{s.name}' is defined twice "
+                        f"(first at {seen[s.name]})",
+                    )
+                )
+            else:
+                seen[s.name] = s.location
+                out.append(s)
+    if diagnostics:
+        raise InputError(diagnostics)
+    return out

@@ -1,0 +1,67 @@
+"""A compiled monitor: its spec, placeholders, atom functions and transition table."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from edgerv.core.assertion import ParsedAssertion, compile_atom, parse_assertion
+from edgerv.core.diagnostics import Diagnostic, InputError
+from edgerv.core.documents import MonitorSpec
+from edgerv.core.synthesis import MonitorTable, SynthesisError, synthesize
+
+
+@dataclass(frozen=True)
+class CompiledMonitor:
+    spec: MonitorSpec
+    parsed: ParsedAssertion
+    table: MonitorTable
+    signal_names: tuple[str, ...]  # signal index -> name
+    atom_funcs: tuple[Callable[[list[Any]], bool], ...]  # placeholder i -> its truth value
+    atoms_of_signal: tuple[tuple[int, ...], ...]  # signal index -> placeholders reading it
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def warnings(self) -> tuple[Diagnostic, ...]:
+        return self.parsed.warnings
+
+
+def compile_monitor(spec: MonitorSpec) -> CompiledMonitor:
+    """Parse, check and synthesize one monitor; raise :class:`InputError` on bad input."""
+    parsed = parse_assertion(spec)
+    try:
+        table = synthesize(parsed.formula, parsed.constraint, len(parsed.atoms))
+    except SynthesisError as exc:
+        loc = spec.locate_assertion(0, len(spec.assertion))
+        raise InputError([Diagnostic(loc, str(exc))]) from None
+    names = tuple(spec.signals)
+    index_of = {n: i for i, n in enumerate(names)}
+    funcs = tuple(compile_atom(a, index_of) for a in parsed.atoms)
+    readers = tuple(
+        tuple(i for i, a in enumerate(parsed.atoms) if name in a.signals) for name in names
+    )
+    return CompiledMonitor(spec, parsed, table, names, funcs, readers)
+
+
+def compile_monitors(
+    specs: Sequence[MonitorSpec],
+) -> tuple[list[CompiledMonitor], list[Diagnostic]]:
+    """Compile every monitor; collect the errors of all of them (raise if any) and the warnings."""
+    compiled: list[CompiledMonitor] = []
+    errors: list[Diagnostic] = []
+    warnings: list[Diagnostic] = []
+    for spec in specs:
+        try:
+            monitor = compile_monitor(spec)
+        except InputError as exc:
+            errors += exc.diagnostics
+            continue
+        compiled.append(monitor)
+        warnings += monitor.warnings
+    if errors:
+        raise InputError(errors + warnings)
+    return compiled, warnings

@@ -1,0 +1,155 @@
+"""ROS 2 message type introspection without rclpy.
+
+Field types come from the message definitions that ``rosbags`` ships for ROS 2
+Jazzy (std_msgs, geometry_msgs, nav_msgs, sensor_msgs, diagnostic_msgs, ...),
+so the core can check a signal's ``type`` and ``field`` before any ROS node
+exists. A field path is dotted (``twist.twist.linear.x``) with ``[i]`` for an
+element of an array or sequence (``ranges[0]``).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from functools import cache
+from typing import Any, Literal
+
+ValueKind = Literal["bool", "int", "float", "string"]
+
+_BASE_KINDS: dict[str, ValueKind] = {
+    "bool": "bool",
+    "float32": "float",
+    "float64": "float",
+    "string": "string",
+    "wstring": "string",
+    **{t: "int" for t in ("byte", "char", "octet")},
+    **{f"{s}int{n}": "int" for s in ("", "u") for n in (8, 16, 32, 64)},
+}
+
+_PART = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)$")
+_TYPE = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)/(?:msg/)?([A-Za-z_][A-Za-z0-9_]*)$")
+
+
+class FieldError(Exception):
+    """A message type or field that does not exist; ``hint`` says what does."""
+
+    def __init__(
+        self, message: str, hint: str | None = None, about: Literal["type", "field"] = "field"
+    ) -> None:
+        super().__init__(message)
+        self.hint = hint
+        self.about = about
+
+
+@dataclass(frozen=True)
+class FieldStep:
+    """One step of a resolved field path: an attribute name, then zero or more indexes."""
+
+    name: str
+    indexes: tuple[int, ...]
+
+
+@cache
+def _typestore() -> Any:
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def known_types() -> list[str]:
+    return sorted(_typestore().fielddefs)
+
+
+def normalize_type(msg_type: str) -> str:
+    """``std_msgs/Bool`` and ``std_msgs/msg/Bool`` both name ``std_msgs/msg/Bool``."""
+    m = _TYPE.match(msg_type.strip())
+    if not m:
+        raise FieldError(
+            f"'{msg_type}' is not a message type name",
+            "write it as package/msg/Type, e.g. std_msgs/msg/Float64",
+            about="type",
+        )
+    return f"{m.group(1)}/msg/{m.group(2)}"
+
+
+def parse_field_path(path: str) -> tuple[FieldStep, ...]:
+    steps = []
+    for part in path.split("."):
+        m = _PART.match(part)
+        if not m:
+            raise FieldError(
+                f"'{path}' is not a field path",
+                "use dotted names with [i] for array elements, e.g. pose.position.x or ranges[0]",
+            )
+        indexes = tuple(int(i) for i in re.findall(r"\[(\d+)\]", m.group(2)))
+        steps.append(FieldStep(m.group(1), indexes))
+    return tuple(steps)
+
+
+def field_kind(msg_type: str, path: str) -> ValueKind:
+    """The kind of value at ``path`` in ``msg_type``; raises :class:`FieldError`."""
+    store = _typestore()
+    current = normalize_type(msg_type)
+    if current not in store.fielddefs:
+        import difflib
+
+        close = difflib.get_close_matches(current, store.fielddefs, n=2, cutoff=0.7)
+        hint = (
+            "did you mean " + " or ".join(close) + "?"
+            if close
+            else "edgerv knows the standard ROS 2 Jazzy message packages"
+        )
+        raise FieldError(f"unknown message type '{msg_type}'", hint, about="type")
+    node: tuple[Any, Any] = (2, current)  # (Nodetype.NAME, name)
+    walked: list[str] = []
+    for step in parse_field_path(path):
+        kind_code, payload = int(node[0]), node[1]
+        if kind_code != 2:
+            raise FieldError(
+                f"field '{'.'.join(walked)}' of {msg_type} is not a message, "
+                f"so it has no field '{step.name}'"
+            )
+        fields = dict(store.fielddefs[payload][1])
+        if step.name not in fields:
+            raise FieldError(
+                f"{payload} has no field '{step.name}'"
+                + (f" (at '{'.'.join(walked)}')" if walked else ""),
+                "its fields: " + ", ".join(fields),
+            )
+        node = fields[step.name]
+        walked.append(step.name)
+        for _ in step.indexes:
+            if int(node[0]) not in (3, 4):  # ARRAY, SEQUENCE
+                raise FieldError(f"field '{'.'.join(walked)}' of {msg_type} is not an array")
+            node = node[1][0]
+    kind_code, payload = int(node[0]), node[1]
+    if kind_code in (3, 4):
+        raise FieldError(
+            f"field '{path}' of {msg_type} is an array",
+            f"pick one element, e.g. {path}[0]",
+        )
+    if kind_code == 2:
+        sub = ", ".join(name for name, _ in store.fielddefs[payload][1])
+        raise FieldError(
+            f"field '{path}' of {msg_type} is a {payload} message, not a value",
+            f"pick one of its fields: {sub}",
+        )
+    base = payload[0]
+    if base not in _BASE_KINDS:
+        raise FieldError(f"field '{path}' of {msg_type} has unsupported type {base}")
+    return _BASE_KINDS[base]
+
+
+def make_getter(path: str) -> Any:
+    """A function reading ``path`` from a message given as nested dicts/lists or objects."""
+    steps = parse_field_path(path)
+
+    def get(msg: Any) -> Any:
+        value = msg
+        for step in steps:
+            value = value[step.name] if isinstance(value, dict) else getattr(value, step.name)
+            for i in step.indexes:
+                value = value[i]
+        return value
+
+    return get

@@ -1,0 +1,287 @@
+"""The event pipeline of the paper's Fig. 2, shared by ``edgerv check`` and the live handler.
+
+callback -> :meth:`MonitorRuntime.offer` puts ``(timestamp, values)`` in the event
+buffer -> once it holds ``sortThreshold`` events it is sorted by timestamp (ties
+keep arrival order) -> each event updates the signal values and the placeholders
+are evaluated and bit-packed into one letter per event, without its timestamp
+(the timestamps are kept beside, only to report when a verdict was decided) ->
+:meth:`MonitorRuntime.evaluate` consumes the letters through the transition table.
+
+:class:`Router` is the "one subscription per topic" part: it reads each field
+once per message and hands every monitor that reads the topic its updates.
+"""
+
+from __future__ import annotations
+
+from array import array
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from operator import itemgetter
+from typing import Any, Literal
+
+from edgerv.core.monitor import CompiledMonitor
+from edgerv.core.msgtypes import ValueKind, make_getter
+
+VerdictKind = Literal["violated", "satisfied"]
+MonitorState = Literal["pending", "violated", "satisfied", "halted"]
+Update = tuple[int, Any]  # (signal index in the monitor, new value)
+_UNSET = object()
+_STAMP = itemgetter(0)
+
+
+@dataclass(frozen=True)
+class Verdict:
+    monitor: str
+    verdict: VerdictKind
+    stamp: int  # nanoseconds: the timestamp of the event whose letter decided it
+    step: int  # 1-based letter index since the monitor started, never reset
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"verdict": self.verdict, "stamp": self.stamp, "step": self.step}
+
+
+def letter_typecode(bits: int) -> str:
+    """The narrowest array type holding ``bits`` placeholder bits per letter."""
+    return "B" if bits <= 8 else "H" if bits <= 16 else "L"
+
+
+@dataclass
+class MonitorRuntime:
+    """One monitor's buffers and state. Not thread-safe: one thread drives it."""
+
+    monitor: CompiledMonitor
+    events: list[tuple[int, int, Sequence[Update]]] = field(default_factory=list)
+    letters: array = field(init=False)  # type: ignore[type-arg]
+    stamps: array = field(init=False)  # type: ignore[type-arg]
+    values: list[Any] = field(init=False)
+    missing: int = field(init=False)  # signals without a value yet
+    valuation: int = 0  # the placeholder bits after the last compressed event
+    state: int = 0  # the automaton state: the one integer a migration moves
+    step: int = 0  # letters evaluated so far
+    halted: bool = False
+    late_events: int = 0  # events released after a newer one (beyond the sort window)
+    last_released: int | None = None
+    counts: dict[str, int] = field(default_factory=lambda: {"violated": 0, "satisfied": 0})
+
+    def __post_init__(self) -> None:
+        spec = self.monitor.spec
+        self.letters = array(letter_typecode(self.monitor.table.bits))
+        self.stamps = array("q")
+        self.values = [
+            _UNSET if spec.signals[n].initial is None else spec.signals[n].initial
+            for n in self.monitor.signal_names
+        ]
+        self.missing = sum(v is _UNSET for v in self.values)
+        if not self.missing:
+            self.valuation = self._full_valuation()
+
+    @property
+    def name(self) -> str:
+        return self.monitor.name
+
+    @property
+    def buffered(self) -> int:
+        """Events held in the event buffer plus letters not yet evaluated."""
+        return len(self.events) + len(self.letters)
+
+    @property
+    def status(self) -> MonitorState:
+        if self.halted:
+            return "halted"
+        if self.step and self.state == self.monitor.table.violated:
+            return "violated"
+        if self.step and self.state == self.monitor.table.satisfied:
+            return "satisfied"
+        return "pending"
+
+    def offer(self, stamp: int, seq: int, updates: Sequence[Update]) -> bool:
+        """Buffer one event; sort and compress the buffer once it holds sortThreshold events.
+
+        Returns True when letters were produced and :meth:`evaluate` has work.
+        """
+        if self.halted:
+            return False
+        self.events.append((stamp, seq, updates))
+        if len(self.events) >= self.monitor.spec.sort_threshold:
+            return self.flush()
+        return False
+
+    def flush(self) -> bool:
+        """Sort and compress whatever the event buffer holds now."""
+        if not self.events:
+            return False
+        batch = self.events
+        self.events = []
+        batch.sort(key=_STAMP)  # stable: equal timestamps keep their arrival order
+        if self.last_released is not None:
+            self.late_events += sum(1 for e in batch if e[0] < self.last_released)
+        self.last_released = batch[-1][0]
+        self._compress(batch)
+        return len(self.letters) > 0
+
+    def _full_valuation(self) -> int:
+        bits = 0
+        for i, fn in enumerate(self.monitor.atom_funcs):
+            if fn(self.values):
+                bits |= 1 << i
+        return bits
+
+    def _compress(self, batch: Iterable[tuple[int, int, Sequence[Update]]]) -> None:
+        values, funcs, readers = self.values, self.monitor.atom_funcs, self.monitor.atoms_of_signal
+        letters, stamps = self.letters, self.stamps
+        bits = self.valuation
+        for stamp, _seq, updates in batch:
+            for sig, value in updates:
+                if values[sig] is _UNSET:
+                    self.missing -= 1
+                    values[sig] = value
+                    if not self.missing:
+                        bits = self._full_valuation()
+                    continue
+                values[sig] = value
+                if self.missing:
+                    continue
+                for atom in readers[sig]:
+                    if funcs[atom](values):
+                        bits |= 1 << atom
+                    else:
+                        bits &= ~(1 << atom)
+            if not self.missing:
+                letters.append(bits)
+                stamps.append(stamp)
+        self.valuation = bits
+
+    def evaluate(self) -> list[Verdict]:
+        """Consume every compressed letter; return the verdicts they decided."""
+        letters = self.letters
+        if not letters or self.halted:
+            return []
+        table = self.monitor.table
+        rows, bits, live = table.table, table.bits, table.live
+        halt = self.monitor.spec.on_verdict == "halt"
+        verdicts: list[Verdict] = []
+        state = self.state
+        consumed = len(letters)
+        for i, letter in enumerate(letters):
+            state = rows[(state << bits) | letter]
+            if state >= live:
+                kind: VerdictKind = "violated" if state == live else "satisfied"
+                verdicts.append(Verdict(self.name, kind, self.stamps[i], self.step + i + 1))
+                self.counts[kind] += 1
+                if halt:
+                    self.halted = True
+                    consumed = i + 1
+                    break
+        self.state = state
+        self.step += consumed
+        del letters[:]
+        del self.stamps[:]
+        if self.halted:
+            self.events.clear()
+        return verdicts
+
+
+class ValueTypeError(Exception):
+    """A message field whose value does not fit the signal's declared kind."""
+
+
+def _checker(kind: ValueKind) -> Callable[[Any], bool]:
+    if kind == "bool":
+        return lambda v: isinstance(v, bool)
+    if kind == "string":
+        return lambda v: isinstance(v, str)
+    if kind == "int":
+        return lambda v: isinstance(v, int) and not isinstance(v, bool)
+    return lambda v: isinstance(v, int | float) and not isinstance(v, bool)
+
+
+@dataclass
+class TopicRoute:
+    """Everything that reads one topic: its distinct fields and the monitors' bindings."""
+
+    topic: str
+    msg_type: str
+    fields: list[str] = field(default_factory=list)
+    kinds: list[ValueKind] = field(default_factory=list)
+    getters: list[Callable[[Any], Any]] = field(default_factory=list)
+    checks: list[Callable[[Any], bool]] = field(default_factory=list)
+    # (runtime, [(signal index, field index)])
+    readers: list[tuple[MonitorRuntime, list[tuple[int, int]]]] = field(default_factory=list)
+
+    def field_index(self, path: str, kind: ValueKind) -> int:
+        if path not in self.fields:
+            self.fields.append(path)
+            self.kinds.append(kind)
+            self.getters.append(make_getter(path))
+            self.checks.append(_checker(kind))
+        return self.fields.index(path)
+
+    def extract(self, msg: Any) -> list[Any]:
+        """The value of each field; raises LookupError/AttributeError/ValueTypeError."""
+        out = []
+        for path, get, ok, kind in zip(
+            self.fields, self.getters, self.checks, self.kinds, strict=True
+        ):
+            value = get(msg)
+            if not ok(value):
+                raise ValueTypeError(f"field '{path}' is {value!r}, not a {kind} value")
+            out.append(value)
+        return out
+
+
+class Router:
+    """Routes each message to the monitors that read its topic (one extraction per field)."""
+
+    def __init__(self, runtimes: Iterable[MonitorRuntime] = ()) -> None:
+        self.routes: dict[str, TopicRoute] = {}
+        self.runtimes: dict[str, MonitorRuntime] = {}
+        self.seq = 0
+        for rt in runtimes:
+            self.add(rt)
+
+    def add(self, runtime: MonitorRuntime) -> None:
+        spec = runtime.monitor.spec
+        self.runtimes[spec.name] = runtime
+        bindings: dict[str, list[tuple[int, int]]] = {}
+        for i, name in enumerate(runtime.monitor.signal_names):
+            sig = spec.signals[name]
+            route = self.routes.setdefault(sig.topic, TopicRoute(sig.topic, sig.msg_type))
+            bindings.setdefault(sig.topic, []).append((i, route.field_index(sig.field, sig.kind)))
+        for topic, pairs in bindings.items():
+            self.routes[topic].readers.append((runtime, pairs))
+
+    def remove(self, name: str) -> MonitorRuntime | None:
+        runtime = self.runtimes.pop(name, None)
+        if runtime is None:
+            return None
+        for topic in list(self.routes):
+            route = self.routes[topic]
+            route.readers = [(rt, b) for rt, b in route.readers if rt is not runtime]
+            if not route.readers:
+                del self.routes[topic]
+        return runtime
+
+    def dispatch(self, topic: str, stamp: int, msg: Any) -> list[MonitorRuntime]:
+        """Offer one message to its monitors; return those with letters to evaluate."""
+        route = self.routes.get(topic)
+        if route is None:
+            return []
+        values = route.extract(msg)
+        self.seq += 1
+        ready = []
+        for runtime, pairs in route.readers:
+            if runtime.offer(stamp, self.seq, [(sig, values[f]) for sig, f in pairs]):
+                ready.append(runtime)
+        return ready
+
+
+def header_stamp(msg: Any) -> int | None:
+    """``header.stamp`` in nanoseconds when the message has a header, else None."""
+    try:
+        header = msg["header"] if isinstance(msg, dict) else msg.header
+        stamp = header["stamp"] if isinstance(header, dict) else header.stamp
+        if isinstance(stamp, dict):
+            return int(stamp["sec"]) * 1_000_000_000 + int(stamp["nanosec"])
+        return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    except (KeyError, AttributeError, TypeError, ValueError):
+        return None

@@ -1,0 +1,61 @@
+"""Small builders for tests: Monitor documents from Python values, runs from event lists."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import yaml
+
+from edgerv.core.checker import CheckRun, MonitorResult
+from edgerv.core.diagnostics import Location
+from edgerv.core.documents import MonitorSpec, load_monitors_text
+from edgerv.core.monitor import CompiledMonitor, compile_monitor
+from edgerv.core.traces import TraceEvent
+
+TYPES = {
+    "bool": "std_msgs/msg/Bool",
+    "float": "std_msgs/msg/Float64",
+    "int": "std_msgs/msg/Int32",
+    "string": "std_msgs/msg/String",
+}
+
+
+def monitor_doc(name: str, assertion: str, signals: dict[str, Any], **spec: Any) -> dict[str, Any]:
+    """A Monitor document; a signal given as a kind name ('bool', 'float', ...) reads /<name>."""
+    sigs = {}
+    for sname, sig in signals.items():
+        sigs[sname] = {"topic": f"/{sname}", "type": TYPES[sig]} if isinstance(sig, str) else sig
+    return {
+        "apiVersion": "edgerv.io/v1alpha1",
+        "kind": "Monitor",
+        "metadata": {"name": name},
+        "spec": {"assertion": assertion, "signals": sigs, **spec},
+    }
+
+
+def spec_of(assertion: str, signals: dict[str, Any], name: str = "m", **spec: Any) -> MonitorSpec:
+    text = yaml.safe_dump(monitor_doc(name, assertion, signals, **spec), sort_keys=False)
+    return load_monitors_text("test.yaml", text)[0]
+
+
+def compiled(assertion: str, signals: dict[str, Any], **spec: Any) -> CompiledMonitor:
+    return compile_monitor(spec_of(assertion, signals, **spec))
+
+
+def events(rows: Iterable[Sequence[Any]]) -> list[TraceEvent]:
+    """Events from (topic, stamp, value) rows; the value becomes msg.data."""
+    return [
+        TraceEvent(topic, stamp, {"data": value}, Location("test", i + 1))
+        for i, (topic, stamp, value) in enumerate(rows)
+    ]
+
+
+def run(monitors: Sequence[CompiledMonitor], evs: Iterable[TraceEvent]) -> list[MonitorResult]:
+    check = CheckRun(monitors)
+    check.feed(evs)
+    return check.finish()
+
+
+def verdicts(result: MonitorResult) -> list[tuple[str, int, int]]:
+    return [(v.verdict, v.step, v.stamp) for v in result.verdicts]

@@ -1,0 +1,267 @@
+"""``edgerv check`` as a user runs it: exit codes, the exact JSON, errors, bags."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from edgerv.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLE = ROOT / "examples" / "speed-limit.yaml"
+
+MONITORS = """\
+apiVersion: edgerv.io/v1alpha1
+kind: Monitor
+metadata: {name: speed-limit}
+spec:
+  assertion: "always (running -> (speed < limit until stop))"
+  signals:
+    running: {topic: /running, type: std_msgs/msg/Bool}
+    speed: {topic: /speed, type: std_msgs/msg/Float64}
+    stop: {topic: /stop, type: std_msgs/msg/Bool, initial: false}
+  parameters: {limit: 100}
+  sortThreshold: 2
+---
+apiVersion: edgerv.io/v1alpha1
+kind: Monitor
+metadata: {name: target-reached}
+spec:
+  assertion: "eventually! (px > 9.5)"
+  signals:
+    px: {topic: /target, type: geometry_msgs/msg/PointStamped, field: point.x}
+  onVerdict: halt
+"""
+
+# (topic, log time, message): /target carries a header whose stamp differs from the log time
+RUN: list[tuple[str, int, dict[str, Any]]] = [
+    ("/running", 100, {"data": True}),
+    ("/speed", 110, {"data": 50.0}),
+    (
+        "/target",
+        115,
+        {
+            "header": {"stamp": {"sec": 0, "nanosec": 90}, "frame_id": "map"},
+            "point": {"x": 3.0, "y": 0.0, "z": 0.0},
+        },
+    ),
+    ("/speed", 130, {"data": 120.0}),
+    ("/speed", 120, {"data": 80.0}),
+    ("/stop", 140, {"data": True}),
+    (
+        "/target",
+        150,
+        {
+            "header": {"stamp": {"sec": 0, "nanosec": 145}, "frame_id": "map"},
+            "point": {"x": 10.0, "y": 0.0, "z": 0.0},
+        },
+    ),
+    ("/speed", 160, {"data": 150.0}),
+    ("/ignored", 170, {"data": "not monitored"}),
+]
+
+
+def write_jsonl(path: Path, rows: list[tuple[str, int, dict[str, Any]]]) -> Path:
+    path.write_text(
+        "".join(json.dumps({"topic": t, "stamp": s, "msg": m}) + "\n" for t, s, m in rows)
+    )
+    return path
+
+
+def edgerv(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "edgerv", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+@pytest.fixture
+def monitors(tmp_path: Path) -> Path:
+    path = tmp_path / "monitors.yaml"
+    path.write_text(MONITORS)
+    return path
+
+
+def test_json_output_is_exact(monitors: Path, tmp_path: Path) -> None:
+    proc = edgerv("check", monitors, write_jsonl(tmp_path / "run.jsonl", RUN), "--json")
+    assert proc.returncode == 1, proc.stderr
+    assert proc.stderr == ""
+    assert json.loads(proc.stdout) == {
+        "monitors": [
+            # sorted in pairs: running@100 speed@110 (step 1) | speed@120, speed@130 (steps 2, 3)
+            {
+                "name": "speed-limit",
+                "verdicts": [{"verdict": "violated", "stamp": 130, "step": 3}],
+                "state": "pending",
+            },
+            {
+                "name": "target-reached",
+                "verdicts": [{"verdict": "satisfied", "stamp": 145, "step": 2}],
+                "state": "halted",
+            },
+        ]
+    }
+
+
+def test_exit_0_without_violation_and_the_readable_table(monitors: Path, tmp_path: Path) -> None:
+    rows = [r for r in RUN if r[2].get("data") != 120.0 and r[2].get("data") != 150.0]
+    proc = edgerv("check", monitors, write_jsonl(tmp_path / "ok.jsonl", rows))
+    assert proc.returncode == 0, proc.stderr
+    assert "speed-limit" in proc.stdout and "pending" in proc.stdout
+    assert "satisfied at step 2 @ 0.000000145" in proc.stdout
+
+
+def test_bad_assertion_exit_2_with_position(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(MONITORS.replace("speed < limit", "sped < limit"))
+    proc = edgerv("check", bad, write_jsonl(tmp_path / "run.jsonl", RUN))
+    assert proc.returncode == 2
+    assert proc.stderr.startswith(f"{bad}:5:35: error: unknown signal or parameter 'sped'")
+    assert "Traceback" not in proc.stderr
+    assert proc.stdout == ""
+
+
+@pytest.mark.parametrize(
+    ("line", "expected"),
+    [
+        ('{"topic": "/speed", "stamp": 5, "msg": {"data": 1.0}', ":3:53: error: invalid JSON"),
+        (
+            '{"topic": "/speed", "msg": {"data": 1.0}}',
+            ":3: error: missing 'stamp' (integer nanoseconds) and msg has no header.stamp",
+        ),
+        (
+            '{"topic": "/speed", "stamp": 5, "msg": {"data": "fast"}}',
+            ":3: error: message on /speed: field 'data' is 'fast', not a float value",
+        ),
+        (
+            '{"topic": "/speed", "stamp": 5, "msg": {"value": 1.0}}',
+            ":3: error: message on /speed: no field 'data' in the message",
+        ),
+    ],
+)
+def test_bad_trace_lines(monitors: Path, tmp_path: Path, line: str, expected: str) -> None:
+    trace = write_jsonl(tmp_path / "t.jsonl", RUN[:2])
+    trace.write_text(trace.read_text() + line + "\n")
+    proc = edgerv("check", monitors, trace, "--json")
+    assert proc.returncode == 2
+    assert proc.stderr.startswith(f"{trace}{expected}"), proc.stderr
+    assert "Traceback" not in proc.stderr
+    # the verdicts of the events before the bad line are not lost
+    assert [m["name"] for m in json.loads(proc.stdout)["monitors"]] == [
+        "speed-limit",
+        "target-reached",
+    ]
+
+
+def test_missing_files_and_bad_arguments(monitors: Path, tmp_path: Path) -> None:
+    proc = edgerv("check", monitors, tmp_path / "nope.jsonl")
+    assert (proc.returncode, proc.stderr.strip()) == (
+        2,
+        f"{tmp_path / 'nope.jsonl'}: error: no such file or directory",
+    )
+    proc = edgerv("check", tmp_path / "none.yaml", tmp_path / "nope.jsonl")
+    assert proc.returncode == 2 and "no such file or directory" in proc.stderr
+    proc = edgerv("check", monitors)
+    assert proc.returncode == 2 and "the following arguments are required: trace" in proc.stderr
+    assert edgerv("--version").stdout.strip() == "edgerv 0.1.0"
+
+
+def test_warnings_do_not_fail_the_check(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    doc = tmp_path / "w.yaml"
+    doc.write_text(
+        MONITORS.split("---")[0].replace(
+            "always (running -> (speed < limit until stop))", "always (running | !running)"
+        )
+    )
+    code = main(["check", str(doc), str(write_jsonl(tmp_path / "r.jsonl", RUN)), "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0
+    assert "warning: the assertion always holds" in err
+    assert json.loads(out)["monitors"][0]["verdicts"][0]["verdict"] == "satisfied"
+
+
+def write_mcap(path: Path, rows: list[tuple[str, int, dict[str, Any]]]) -> Path:
+    """A rosbag2 MCAP file written by mcap-ros2-support, not by the library edgerv reads with."""
+    from mcap_ros2.writer import Writer
+
+    header = "builtin_interfaces/Time stamp\nstring frame_id"
+    defs = {
+        "std_msgs/msg/Bool": "bool data",
+        "std_msgs/msg/Float64": "float64 data",
+        "std_msgs/msg/String": "string data",
+        "geometry_msgs/msg/PointStamped": (
+            "std_msgs/Header header\ngeometry_msgs/Point point\n"
+            + "=" * 80
+            + "\nMSG: std_msgs/Header\n"
+            + header
+            + "\n"
+            + "=" * 80
+            + "\nMSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
+            + "=" * 80
+            + "\nMSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z"
+        ),
+    }
+    types = {
+        "/running": "std_msgs/msg/Bool",
+        "/stop": "std_msgs/msg/Bool",
+        "/speed": "std_msgs/msg/Float64",
+        "/target": "geometry_msgs/msg/PointStamped",
+        "/ignored": "std_msgs/msg/String",
+    }
+    with path.open("wb") as f:
+        writer = Writer(f)
+        schemas = {name: writer.register_msgdef(name, text) for name, text in defs.items()}
+        for topic, stamp, msg in rows:
+            writer.write_message(
+                topic=topic,
+                schema=schemas[types[topic]],
+                message=msg,
+                log_time=stamp,
+                publish_time=stamp,
+            )
+        writer.finish()
+    return path
+
+
+def test_mcap_bag_gives_the_same_verdicts_as_jsonl(monitors: Path, tmp_path: Path) -> None:
+    jsonl = edgerv("check", monitors, write_jsonl(tmp_path / "run.jsonl", RUN), "--json")
+    bag = edgerv("check", monitors, write_mcap(tmp_path / "run.mcap", RUN), "--json")
+    assert bag.returncode == jsonl.returncode == 1, bag.stderr
+    assert json.loads(bag.stdout) == json.loads(jsonl.stdout)
+    assert json.loads(bag.stdout)["monitors"][1]["verdicts"][0]["stamp"] == 145  # header.stamp
+
+
+def test_bag_with_another_type_for_a_topic(monitors: Path, tmp_path: Path) -> None:
+    rows = [("/ignored" if t == "/speed" else t, s, m) for t, s, m in RUN]
+    bag = write_mcap(tmp_path / "run.mcap", rows)
+    doc = tmp_path / "m.yaml"
+    doc.write_text(MONITORS.replace("topic: /speed", "topic: /ignored"))
+    proc = edgerv("check", doc, bag)
+    assert proc.returncode == 2
+    assert (
+        "reads /ignored as std_msgs/msg/Float64, but the bag records it as std_msgs/msg/String"
+        in proc.stderr
+    )
+
+
+def test_damaged_bag(monitors: Path, tmp_path: Path) -> None:
+    bag = write_mcap(tmp_path / "run.mcap", RUN)
+    data = bag.read_bytes()
+    bag.write_bytes(data[: len(data) // 2])
+    proc = edgerv("check", monitors, bag)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr and str(bag) in proc.stderr
+
+
+def test_the_shipped_example(tmp_path: Path) -> None:
+    proc = edgerv("check", EXAMPLE, ROOT / "examples" / "speed-limit.jsonl", "--json")
+    assert proc.returncode == 1
+    result = json.loads(proc.stdout)["monitors"]
+    assert result[0]["verdicts"] == [{"verdict": "violated", "stamp": 10025, "step": 3}]

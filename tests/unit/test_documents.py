@@ -1,0 +1,134 @@
+"""Monitor documents: every kind of bad input names its place and its field path."""
+
+from __future__ import annotations
+
+import pytest
+
+from edgerv.core.diagnostics import InputError
+from edgerv.core.documents import load_monitors, load_monitors_text
+
+HEAD = "apiVersion: edgerv.io/v1alpha1\nkind: Monitor\nmetadata: {name: m}\n"
+GOOD = HEAD + (
+    "spec:\n"
+    "  assertion: always (running -> speed < 100)\n"
+    "  signals:\n"
+    "    running: {topic: /running, type: std_msgs/msg/Bool}\n"
+    "    speed: {topic: /odom, type: nav_msgs/msg/Odometry, field: twist.twist.linear.x}\n"
+)
+
+
+def first_error(text: str) -> str:
+    with pytest.raises(InputError) as info:
+        load_monitors_text("m.yaml", text)
+    return str(info.value).splitlines()[0]
+
+
+def test_a_good_document() -> None:
+    (spec,) = load_monitors_text("m.yaml", GOOD)
+    assert spec.name == "m"
+    assert spec.signals["speed"].kind == "float"
+    assert spec.signals["running"].field == "data"
+    assert (spec.sort_threshold, spec.on_verdict, spec.buffer_capacity) == (1, "reset", 4096)
+    assert spec.topics == ["/running", "/odom"]
+
+
+@pytest.mark.parametrize(
+    ("change", "expected"),
+    [
+        (
+            ("std_msgs/msg/Bool}", "std_msgs/msg/Boo}"),
+            "m.yaml:7:38: error: spec.signals.running.type: "
+            "unknown message type 'std_msgs/msg/Boo'",
+        ),
+        (
+            ("twist.twist.linear.x", "twist.twist.linear.w"),
+            "m.yaml:8:63: error: spec.signals.speed.field: "
+            "geometry_msgs/msg/Vector3 has no field 'w' (at 'twist.twist.linear')",
+        ),
+        (
+            ("twist.twist.linear.x", "twist.covariance"),
+            "m.yaml:8:63: error: spec.signals.speed.field: field 'twist.covariance' of "
+            "nav_msgs/msg/Odometry is an array",
+        ),
+        (
+            ("twist.twist.linear.x", "twist.twist"),
+            "m.yaml:8:63: error: spec.signals.speed.field: field 'twist.twist' of "
+            "nav_msgs/msg/Odometry is a geometry_msgs/msg/Twist message, not a value",
+        ),
+        (
+            ("topic: /odom", "topic: 'no good'"),
+            "m.yaml:8:20: error: spec.signals.speed.topic: 'no good' is not a ROS topic name",
+        ),
+        (
+            ("  signals:", "  sortThreshold: 0\n  signals:"),
+            "m.yaml:6:18: error: spec.sortThreshold: must be at least 1, not 0",
+        ),
+        (
+            ("  signals:", "  onVerdict: stop\n  signals:"),
+            "m.yaml:6:14: error: spec.onVerdict: must be reset or halt, not 'stop'",
+        ),
+        (
+            ("  signals:", "  asertion: x\n  signals:"),
+            "m.yaml:6:3: error: spec.asertion: unknown field",
+        ),
+        (
+            ("{topic: /running,", "{topic: /running, initial: 3,"),
+            "m.yaml:7:41: error: spec.signals.running.initial: 3 is not a bool value, but "
+            "std_msgs/msg/Bool field 'data' is bool",
+        ),
+        (
+            ("kind: Monitor", "kind: Deployment"),
+            "m.yaml:2:7: error: kind: must be Monitor, not 'Deployment'",
+        ),
+        (
+            ("{name: m}", "{name: Bad_Name}"),
+            "m.yaml:3:18: error: metadata.name: 'Bad_Name' is not a valid object name",
+        ),
+        (("    running:", "    G:"), "m.yaml:7:5: error: spec.signals.G: 'G' cannot name a signal"),
+    ],
+)
+def test_bad_documents(change: tuple[str, str], expected: str) -> None:
+    assert first_error(GOOD.replace(*change)) == expected
+
+
+def test_the_hint_lists_what_exists() -> None:
+    with pytest.raises(InputError) as info:
+        load_monitors_text("m.yaml", GOOD.replace("linear.x", "linear.w"))
+    assert "hint: its fields: x, y, z" in str(info.value)
+    with pytest.raises(InputError) as info:
+        load_monitors_text(
+            "m.yaml",
+            GOOD.replace("asertion", "x").replace("  signals:", "  asertion: 1\n  signals:"),
+        )
+    assert "did you mean 'assertion'?" in str(info.value)
+
+
+def test_missing_fields_and_all_errors_at_once() -> None:
+    text = HEAD + "spec:\n  signals: {a: {topic: /a}}\n"
+    with pytest.raises(InputError) as info:
+        load_monitors_text("m.yaml", text)
+    messages = [d.message for d in info.value.diagnostics]
+    assert messages == [
+        "spec: missing required field 'assertion'",
+        "spec.signals.a: missing required field 'type'",
+    ]
+
+
+def test_invalid_yaml_points_at_the_problem() -> None:
+    assert (
+        first_error(GOOD + "  onVerdict: [halt\n")
+        == "m.yaml:10:1: error: invalid YAML: expected ',' or ']', but got '<stream end>'"
+    )
+
+
+def test_duplicate_names_across_documents(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    (tmp_path / "a.yaml").write_text(GOOD)
+    (tmp_path / "b.yaml").write_text(GOOD)
+    with pytest.raises(InputError) as info:
+        load_monitors(tmp_path)
+    assert "monitor 'm' is defined twice (first at" in str(info.value)
+
+
+def test_multi_document_files() -> None:
+    specs = load_monitors_text("m.yaml", GOOD + "---\n" + GOOD.replace("{name: m}", "{name: n}"))
+    assert [s.name for s in specs] == ["m", "n"]
