@@ -50,14 +50,15 @@ class FieldStep:
 
 
 @cache
-def _typestore() -> Any:
+def typestore() -> Any:
+    """The message definitions of ROS 2 Jazzy's standard packages (rosbags' type store)."""
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS2_JAZZY)
 
 
 def known_types() -> list[str]:
-    return sorted(_typestore().fielddefs)
+    return sorted(typestore().fielddefs)
 
 
 def normalize_type(msg_type: str) -> str:
@@ -88,7 +89,7 @@ def parse_field_path(path: str) -> tuple[FieldStep, ...]:
 
 def field_kind(msg_type: str, path: str) -> ValueKind:
     """The kind of value at ``path`` in ``msg_type``; raises :class:`FieldError`."""
-    store = _typestore()
+    store = typestore()
     current = normalize_type(msg_type)
     if current not in store.fielddefs:
         import difflib

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
+from edgerv.core.msgtypes import typestore
 from edgerv.core.pipeline import header_stamp
 
 Progress = Callable[[int], None]  # advance by n units (bytes or messages)
@@ -78,7 +79,7 @@ class Trace:
 
         path = str(self.path)
         try:
-            reader = AnyReader([self._bag_target()])
+            reader = AnyReader([self._bag_target()], default_typestore=typestore())
             reader.open()
         except Exception as exc:  # rosbags raises several error types for unreadable bags
             raise InputError(
@@ -132,7 +133,7 @@ class Trace:
         from rosbags.highlevel import AnyReader
 
         try:
-            with AnyReader([self._bag_target()]) as reader:
+            with AnyReader([self._bag_target()], default_typestore=typestore()) as reader:
                 self.msgtypes = {c.topic: c.msgtype for c in reader.connections}
                 self.total = sum(c.msgcount for c in reader.connections if c.topic in topics)
         except Exception as exc:  # rosbags raises several error types for unreadable bags
