@@ -18,11 +18,12 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "unit"))
 
+from test_cli import MONITORS, write_mcap  # noqa: E402
+
 from edgerv.core.checker import CheckRun  # noqa: E402
 from edgerv.core.documents import load_monitors_text  # noqa: E402
 from edgerv.core.monitor import compile_monitor  # noqa: E402
 from edgerv.core.traces import Trace  # noqa: E402
-from test_cli import MONITORS, write_mcap  # noqa: E402
 
 EVENTS = 200_000
 
