@@ -104,6 +104,18 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_argument("--json", action="store_true", help="print the verdicts as JSON")
     check.add_argument("--no-progress", action="store_true", help="no progress bar")
     check.set_defaults(func=cmd_check)
+
+    from edgerv.handler.main import add_arguments, run
+
+    handler = sub.add_parser(
+        "handler",
+        help="run the monitors on live ROS 2 traffic (a monitor handler)",
+        description="A ROS 2 node that subscribes to the monitors' topics, without changing "
+        "the robot's software, and reports verdicts on /edgerv/verdicts, in a "
+        "verdict log and as Prometheus metrics.",
+    )
+    add_arguments(handler)
+    handler.set_defaults(func=run)
     return parser
 
 

@@ -58,6 +58,19 @@ RESERVED = frozenset(
 )
 
 
+Reliability = Literal["auto", "reliable", "best_effort"]
+Durability = Literal["auto", "volatile", "transient_local"]
+
+
+@dataclass(frozen=True)
+class QosSpec:
+    """How the handler subscribes to a signal's topic; ``auto`` follows the publishers."""
+
+    reliability: Reliability = "auto"
+    durability: Durability = "auto"
+    depth: int = 1000
+
+
 @dataclass(frozen=True)
 class SignalSpec:
     name: str
@@ -67,6 +80,7 @@ class SignalSpec:
     kind: ValueKind
     initial: Value | None
     location: Location
+    qos: QosSpec = QosSpec()
 
 
 @dataclass(frozen=True)
@@ -209,7 +223,9 @@ def _parse_signal(doc: _Doc, name: str, knode: yaml.Node, node: yaml.Node) -> Si
             "use a letter or _ then letters, digits or _, not an operator such as G or until",
         )
         return None
-    items = _check_keys(doc, node, where, {"topic", "type", "field", "initial"}, {"topic", "type"})
+    items = _check_keys(
+        doc, node, where, {"topic", "type", "field", "initial", "qos"}, {"topic", "type"}
+    )
     if not items or "topic" not in items or "type" not in items:
         return None
     topic = _parse_value(doc, items["topic"][1], f"{where}.topic", (str,))
@@ -241,7 +257,43 @@ def _parse_signal(doc: _Doc, name: str, knode: yaml.Node, node: yaml.Node) -> Si
                 f"{initial!r} is not a {kind} value, but {msg_type} field '{fld}' is {kind}",
             )
             return None
-    return SignalSpec(name, topic, msg_type, fld, kind, initial, doc.loc(knode, len(name)))
+    qos = _parse_qos(doc, items["qos"][1], f"{where}.qos") if "qos" in items else QosSpec()
+    return SignalSpec(name, topic, msg_type, fld, kind, initial, doc.loc(knode, len(name)), qos)
+
+
+def _parse_qos(doc: _Doc, node: yaml.Node, where: str) -> QosSpec:
+    items = _check_keys(doc, node, where, {"reliability", "durability", "depth"}, set())
+    reliability: Reliability = "auto"
+    durability: Durability = "auto"
+    depth = QosSpec.depth
+    if "reliability" in items:
+        value = _parse_value(doc, items["reliability"][1], f"{where}.reliability", (str,))
+        if value in ("auto", "reliable", "best_effort"):
+            reliability = cast(Reliability, value)
+        elif value is not None:
+            doc.error(
+                items["reliability"][1],
+                f"{where}.reliability",
+                f"must be auto, reliable or best_effort, not '{value}'",
+            )
+    if "durability" in items:
+        value = _parse_value(doc, items["durability"][1], f"{where}.durability", (str,))
+        if value in ("auto", "volatile", "transient_local"):
+            durability = cast(Durability, value)
+        elif value is not None:
+            doc.error(
+                items["durability"][1],
+                f"{where}.durability",
+                f"must be auto, volatile or transient_local, not '{value}'",
+            )
+    if "depth" in items:
+        value = _parse_value(doc, items["depth"][1], f"{where}.depth", (int,))
+        if isinstance(value, int) and not isinstance(value, bool):
+            if 1 <= value <= 1_000_000:
+                depth = value
+            else:
+                doc.error(items["depth"][1], f"{where}.depth", "must be from 1 to 1000000")
+    return QosSpec(reliability, durability, depth)
 
 
 def _parse_int(
@@ -399,31 +451,44 @@ def _documents(path: str, text: str) -> Iterator[_Doc]:
         raise InputError([Diagnostic(loc, f"invalid YAML: {exc.problem}")]) from None
 
 
-def load_monitors_text(path: str, text: str) -> list[MonitorSpec]:
-    """Parse and validate every Monitor document of one file; raise :class:`InputError`."""
+def parse_monitors_text(path: str, text: str) -> tuple[list[MonitorSpec], list[Diagnostic]]:
+    """Every valid Monitor document of a file, and the diagnostics of the others.
+
+    A bad document does not stop the good ones; only YAML that cannot be read
+    stops the documents after it.
+    """
     monitors: list[MonitorSpec] = []
     diagnostics: list[Diagnostic] = []
     seen: dict[str, Location] = {}
-    for doc in _documents(path, text):
-        spec = _parse_monitor(doc)
-        diagnostics += doc.diagnostics
-        if spec is None:
-            continue
-        if spec.name in seen:
-            diagnostics.append(
-                Diagnostic(
-                    spec.location,
-                    f"metadata.name: monitor '{spec.name}' "
-                    f"is defined twice (first at {seen[spec.name]})",
+    try:
+        for doc in _documents(path, text):
+            spec = _parse_monitor(doc)
+            diagnostics += doc.diagnostics
+            if spec is None:
+                continue
+            if spec.name in seen:
+                diagnostics.append(
+                    Diagnostic(
+                        spec.location,
+                        f"metadata.name: monitor '{spec.name}' "
+                        f"is defined twice (first at {seen[spec.name]})",
+                    )
                 )
-            )
-            continue
-        seen[spec.name] = spec.location
-        monitors.append(spec)
+                continue
+            seen[spec.name] = spec.location
+            monitors.append(spec)
+    except InputError as exc:
+        diagnostics += exc.diagnostics
+    if not monitors and not diagnostics:
+        diagnostics.append(Diagnostic(Location(path), "no Monitor document in this file"))
+    return monitors, diagnostics
+
+
+def load_monitors_text(path: str, text: str) -> list[MonitorSpec]:
+    """Parse and validate every Monitor document of one file; raise :class:`InputError`."""
+    monitors, diagnostics = parse_monitors_text(path, text)
     if diagnostics:
         raise InputError(diagnostics)
-    if not monitors:
-        raise InputError([Diagnostic(Location(path), "no Monitor document in this file")])
     return monitors
 
 
@@ -434,14 +499,17 @@ def monitor_files(path: Path) -> list[Path]:
     return [path]
 
 
-def load_monitors(path: str | Path) -> list[MonitorSpec]:
-    """Load all monitors from a file or a directory; monitor names must be unique across them."""
+def read_monitors(path: str | Path) -> tuple[list[MonitorSpec], list[Diagnostic]]:
+    """All valid monitors of a file or directory, and the diagnostics of the others.
+
+    Monitor names must be unique across the files: a second definition is an error.
+    """
     p = Path(path)
     if not p.exists():
-        raise InputError([Diagnostic(Location(str(p)), "no such file or directory")])
+        return [], [Diagnostic(Location(str(p)), "no such file or directory")]
     files = monitor_files(p)
     if not files:
-        raise InputError([Diagnostic(Location(str(p)), "no .yaml file in this directory")])
+        return [], [Diagnostic(Location(str(p)), "no .yaml file in this directory")]
     out: list[MonitorSpec] = []
     diagnostics: list[Diagnostic] = []
     seen: dict[str, Location] = {}
@@ -451,11 +519,8 @@ def load_monitors(path: str | Path) -> list[MonitorSpec]:
         except (OSError, UnicodeDecodeError) as exc:
             diagnostics.append(Diagnostic(Location(str(f)), f"cannot read: {exc}"))
             continue
-        try:
-            specs = load_monitors_text(str(f), text)
-        except InputError as exc:
-            diagnostics += exc.diagnostics
-            continue
+        specs, found = parse_monitors_text(str(f), text)
+        diagnostics += found
         for s in specs:
             if s.name in seen:
                 diagnostics.append(
@@ -468,6 +533,12 @@ def load_monitors(path: str | Path) -> list[MonitorSpec]:
             else:
                 seen[s.name] = s.location
                 out.append(s)
+    return out, diagnostics
+
+
+def load_monitors(path: str | Path) -> list[MonitorSpec]:
+    """Load all monitors from a file or a directory; raise :class:`InputError` on any error."""
+    monitors, diagnostics = read_monitors(path)
     if diagnostics:
         raise InputError(diagnostics)
-    return out
+    return monitors

@@ -151,6 +151,7 @@ def make_getter(path: str) -> Any:
             value = value[step.name] if isinstance(value, dict) else getattr(value, step.name)
             for i in step.indexes:
                 value = value[i]
-        return value
+        # elements of arrays deserialized by rosbags are numpy scalars: make them Python values
+        return value.item() if hasattr(value, "item") else value
 
     return get

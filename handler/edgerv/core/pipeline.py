@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from operator import itemgetter
 from typing import Any, Literal
 
+from edgerv.core.documents import QosSpec
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.msgtypes import ValueKind, make_getter
 
@@ -197,10 +198,14 @@ def _checker(kind: ValueKind) -> Callable[[Any], bool]:
 
 @dataclass
 class TopicRoute:
-    """Everything that reads one topic: its distinct fields and the monitors' bindings."""
+    """Everything that reads one topic: its distinct fields and the monitors' bindings.
+
+    ``qos`` is that of the first signal that named the topic (one subscription per topic).
+    """
 
     topic: str
     msg_type: str
+    qos: QosSpec = QosSpec()
     fields: list[str] = field(default_factory=list)
     kinds: list[ValueKind] = field(default_factory=list)
     getters: list[Callable[[Any], Any]] = field(default_factory=list)
@@ -245,7 +250,7 @@ class Router:
         bindings: dict[str, list[tuple[int, int]]] = {}
         for i, name in enumerate(runtime.monitor.signal_names):
             sig = spec.signals[name]
-            route = self.routes.setdefault(sig.topic, TopicRoute(sig.topic, sig.msg_type))
+            route = self.routes.setdefault(sig.topic, TopicRoute(sig.topic, sig.msg_type, sig.qos))
             bindings.setdefault(sig.topic, []).append((i, route.field_index(sig.field, sig.kind)))
         for topic, pairs in bindings.items():
             self.routes[topic].readers.append((runtime, pairs))
@@ -266,10 +271,22 @@ class Router:
         route = self.routes.get(topic)
         if route is None:
             return []
-        values = route.extract(msg)
+        return self.offer_values(route, stamp, route.extract(msg))
+
+    def offer_values(
+        self,
+        route: TopicRoute,
+        stamp: int,
+        values: Sequence[Any],
+        admit: Callable[[MonitorRuntime], bool] | None = None,
+    ) -> list[MonitorRuntime]:
+        """Offer a message's field values (in ``route.fields`` order) to the route's monitors
+        (those ``admit`` accepts); return the monitors with letters to evaluate."""
         self.seq += 1
         ready = []
         for runtime, pairs in route.readers:
+            if admit is not None and not admit(runtime):
+                continue
             if runtime.offer(stamp, self.seq, [(sig, values[f]) for sig, f in pairs]):
                 ready.append(runtime)
         return ready

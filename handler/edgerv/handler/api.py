@@ -1,0 +1,249 @@
+"""The handler's HTTP API (aiohttp), served from its own thread.
+
+Open: ``GET /healthz``, ``GET /metrics`` (Prometheus text). Everything under
+``/v1`` needs ``Authorization: Bearer <token>`` and answers 401 otherwise:
+
+* ``GET /v1/monitors``, ``GET /v1/monitors/{name}``: placement, state, buffers
+* ``POST /v1/monitors``: add the Monitor documents of the body (YAML or JSON); 409 if one exists
+* ``PUT /v1/monitors/{name}``: add or replace that monitor
+* ``DELETE /v1/monitors/{name}``: remove it
+* ``POST /v1/monitors/{name}/activate`` and ``/deactivate``: run it here, or stop running it
+
+A body with bad documents changes nothing and gets 400 with every error located
+in the body (``request:LINE:COL``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import logging
+import threading
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from aiohttp import web
+from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
+
+from edgerv.core.diagnostics import Diagnostic, InputError
+from edgerv.core.documents import MonitorSpec, parse_monitors_text
+from edgerv.core.monitor import CompiledMonitor
+from edgerv.handler.engine import Engine
+
+log = logging.getLogger("edgerv.handler.api")
+Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+MAX_BODY = 1 << 20
+
+
+def _errors(diagnostics: list[Diagnostic], status: int = 400) -> web.Response:
+    body = {
+        "errors": [
+            {
+                "location": str(d.location),
+                "message": d.message,
+                "hint": d.hint,
+                "severity": d.severity,
+            }
+            for d in diagnostics
+        ]
+    }
+    return web.json_response(body, status=status)
+
+
+def _message(status: int, text: str) -> web.Response:
+    return web.json_response({"errors": [{"message": text}]}, status=status)
+
+
+class ControlApi:
+    def __init__(
+        self,
+        engine: Engine,
+        registry: CollectorRegistry,
+        token: str | None,
+        on_change: Callable[[], None],
+    ) -> None:
+        self.engine = engine
+        self.registry = registry
+        self.token = token
+        self.on_change = on_change
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._runner: web.AppRunner | None = None
+        self._thread: threading.Thread | None = None
+        self.port: int | None = None
+
+    # -- authentication --------------------------------------------------------------------
+
+    @web.middleware
+    async def _auth(self, request: web.Request, handler: Handler) -> web.StreamResponse:
+        if request.path.startswith("/v1"):
+            given = request.headers.get("Authorization", "")
+            scheme, _, credential = given.partition(" ")
+            ok = self.token is None or (
+                scheme.lower() == "bearer"
+                and hmac.compare_digest(credential.strip().encode(), self.token.encode())
+            )
+            if not ok:
+                return web.json_response(
+                    {"errors": [{"message": "missing or wrong bearer token"}]},
+                    status=401,
+                    headers={"WWW-Authenticate": 'Bearer realm="edgerv"'},
+                )
+        return await handler(request)
+
+    # -- routes ----------------------------------------------------------------------------
+
+    async def healthz(self, request: web.Request) -> web.Response:
+        active = sum(1 for m in self.engine.snapshot() if m["active"])
+        return web.json_response(
+            {"status": "ok", "handler": self.engine.name, "activeMonitors": active}
+        )
+
+    async def metrics(self, request: web.Request) -> web.Response:
+        return web.Response(
+            body=generate_latest(self.registry), headers={"Content-Type": CONTENT_TYPE_LATEST}
+        )
+
+    async def list_monitors(self, request: web.Request) -> web.Response:
+        return web.json_response({"handler": self.engine.name, "monitors": self.engine.snapshot()})
+
+    async def get_monitor(self, request: web.Request) -> web.Response:
+        name = request.match_info["name"]
+        for m in self.engine.snapshot():
+            if m["name"] == name:
+                return web.json_response(m)
+        return _message(404, f"no monitor '{name}'")
+
+    async def _read_specs(
+        self, request: web.Request
+    ) -> tuple[list[CompiledMonitor], web.Response | None]:
+        if (request.content_length or 0) > MAX_BODY:
+            return [], _message(413, f"body larger than {MAX_BODY} bytes")
+        try:
+            text = await request.text()
+        except UnicodeDecodeError:
+            return [], _message(400, "the body is not UTF-8 text")
+        specs, diagnostics = parse_monitors_text("request", text)
+        if diagnostics:
+            return [], _errors(diagnostics)
+        loop = asyncio.get_running_loop()
+        compiled, errors = await loop.run_in_executor(None, self._compile_all, specs)
+        if errors:
+            return [], _errors(errors)
+        return compiled, None
+
+    def _compile_all(
+        self, specs: list[MonitorSpec]
+    ) -> tuple[list[CompiledMonitor], list[Diagnostic]]:
+        compiled, errors = [], []
+        for spec in specs:
+            try:
+                compiled.append(self.engine.compile(spec))
+            except InputError as exc:
+                errors += exc.errors
+        return compiled, errors
+
+    async def post_monitors(self, request: web.Request) -> web.Response:
+        compiled, problem = await self._read_specs(request)
+        if problem is not None:
+            return problem
+        existing = {m["name"] for m in self.engine.snapshot()}
+        clash = [c.name for c in compiled if c.name in existing]
+        if clash:
+            return _message(
+                409, f"monitor '{clash[0]}' exists; PUT /v1/monitors/{clash[0]} replaces it"
+            )
+        for c in compiled:
+            self.engine.put(c, active=True)
+        self.on_change()
+        log.info("added %s", ", ".join(c.name for c in compiled))
+        return web.json_response({"created": [c.name for c in compiled]}, status=201)
+
+    async def put_monitor(self, request: web.Request) -> web.Response:
+        name = request.match_info["name"]
+        compiled, problem = await self._read_specs(request)
+        if problem is not None:
+            return problem
+        if [c.name for c in compiled] != [name]:
+            return _message(400, f"the body must hold exactly one Monitor named '{name}'")
+        created = self.engine.put(compiled[0], active=True)
+        self.on_change()
+        log.info("%s %s", "added" if created else "replaced", name)
+        return web.json_response({"name": name, "created": created}, status=201 if created else 200)
+
+    async def delete_monitor(self, request: web.Request) -> web.Response:
+        name = request.match_info["name"]
+        if not self.engine.remove(name):
+            return _message(404, f"no monitor '{name}'")
+        self.on_change()
+        log.info("removed %s", name)
+        return web.json_response({"deleted": name})
+
+    async def _set_active(self, request: web.Request, active: bool) -> web.Response:
+        name = request.match_info["name"]
+        try:
+            self.engine.set_active(name, active)
+        except KeyError:
+            return _message(404, f"no monitor '{name}'")
+        self.on_change()
+        return web.json_response({"name": name, "active": active})
+
+    async def activate(self, request: web.Request) -> web.Response:
+        return await self._set_active(request, True)
+
+    async def deactivate(self, request: web.Request) -> web.Response:
+        return await self._set_active(request, False)
+
+    # -- serving ---------------------------------------------------------------------------
+
+    def app(self) -> web.Application:
+        app = web.Application(middlewares=[self._auth], client_max_size=MAX_BODY)
+        app.add_routes(
+            [
+                web.get("/healthz", self.healthz),
+                web.get("/metrics", self.metrics),
+                web.get("/v1/monitors", self.list_monitors),
+                web.post("/v1/monitors", self.post_monitors),
+                web.get("/v1/monitors/{name}", self.get_monitor),
+                web.put("/v1/monitors/{name}", self.put_monitor),
+                web.delete("/v1/monitors/{name}", self.delete_monitor),
+                web.post("/v1/monitors/{name}/activate", self.activate),
+                web.post("/v1/monitors/{name}/deactivate", self.deactivate),
+            ]
+        )
+        return app
+
+    def start(self, host: str, port: int) -> None:
+        """Serve in a thread; returns once listening (``self.port`` is the bound port)."""
+        started = threading.Event()
+        failure: list[BaseException] = []
+
+        def serve() -> None:
+            loop = asyncio.new_event_loop()
+            self._loop = loop
+            try:
+                self._runner = web.AppRunner(self.app(), access_log=None)
+                loop.run_until_complete(self._runner.setup())
+                site = web.TCPSite(self._runner, host, port)
+                loop.run_until_complete(site.start())
+                server: Any = site._server  # the bound port, when 0 was asked for
+                self.port = server.sockets[0].getsockname()[1] if server else port
+            except BaseException as exc:
+                failure.append(exc)
+                started.set()
+                return
+            started.set()
+            loop.run_forever()
+            loop.run_until_complete(self._runner.cleanup())
+            loop.close()
+
+        self._thread = threading.Thread(target=serve, name="edgerv-api", daemon=True)
+        self._thread.start()
+        started.wait()
+        if failure:
+            raise failure[0]
+
+    def stop(self) -> None:
+        if self._loop is not None:
+            self._loop.call_soon_threadsafe(self._loop.stop)
+        if self._thread is not None:
+            self._thread.join(timeout=10)

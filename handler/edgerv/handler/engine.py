@@ -1,0 +1,291 @@
+"""The monitor handler's logic, without ROS: monitors, placement, buffers, pressure, verdicts.
+
+Two threads drive an :class:`Engine`: the ingest thread (the ROS layer) calls
+:meth:`Engine.ingest` with messages already reduced to their field values, and
+the scheduler thread calls :meth:`Engine.run_scheduler`, which evaluates the
+letters of active monitors and hands verdicts to the sinks. A lock guards the
+monitors; sinks run outside it.
+
+A monitor is *defined* on every handler but *active* (subscribed, buffering,
+scheduled) only where it is placed (the paper's section III).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from edgerv.core.diagnostics import Diagnostic, InputError
+from edgerv.core.documents import MonitorSpec
+from edgerv.core.monitor import CompiledMonitor, compile_monitor
+from edgerv.core.pipeline import MonitorRuntime, Router, TopicRoute, Verdict
+
+log = logging.getLogger("edgerv.handler")
+
+# A monitor "wants to migrate" when its buffer stays at least this full for PRESSURE_SECONDS,
+# and stops wanting it once the buffer is below LOW_WATER (hysteresis).
+HIGH_WATER = 0.5
+LOW_WATER = 0.25
+PRESSURE_SECONDS = 1.0
+
+
+class VerdictSink(Protocol):
+    def write(self, handler: str, verdicts: Sequence[Verdict]) -> None: ...
+
+
+@dataclass
+class MonitorSlot:
+    """One monitor of this handler: its definition and, when active, its runtime."""
+
+    compiled: CompiledMonitor
+    runtime: MonitorRuntime | None = None
+    events: int = 0
+    dropped: int = 0
+    verdicts: dict[str, int] = field(default_factory=lambda: {"violated": 0, "satisfied": 0})
+    pending_since: float | None = None  # when the event buffer got its oldest event
+    full_since: float | None = None  # when the buffer rose above HIGH_WATER
+    migration_wanted: bool = False
+
+    @property
+    def name(self) -> str:
+        return self.compiled.name
+
+    @property
+    def capacity(self) -> int:
+        return self.compiled.spec.buffer_capacity
+
+    @property
+    def buffered(self) -> int:
+        return self.runtime.buffered if self.runtime else 0
+
+    def describe(self, handler: str) -> dict[str, Any]:
+        rt = self.runtime
+        spec = self.compiled.spec
+        return {
+            "name": self.name,
+            "handler": handler,
+            "active": rt is not None,
+            "state": rt.status if rt else "inactive",
+            "assertion": spec.assertion,
+            "topics": spec.topics,
+            "automatonState": rt.state if rt else None,
+            "step": rt.step if rt else 0,
+            "buffer": {
+                "events": len(rt.events) if rt else 0,
+                "letters": len(rt.letters) if rt else 0,
+                "capacity": self.capacity,
+                "fill": round(self.buffered / self.capacity, 4),
+            },
+            "events": self.events,
+            "droppedEvents": self.dropped,
+            "lateEvents": rt.late_events if rt else 0,
+            "verdicts": dict(self.verdicts),
+            "migrationWanted": self.migration_wanted,
+        }
+
+
+class Engine:
+    """All monitors of one handler. Thread-safe."""
+
+    def __init__(
+        self,
+        name: str,
+        sinks: Iterable[VerdictSink] = (),
+        flush_after: float = 0.5,
+        type_check: Callable[[str], str | None] | None = None,
+    ) -> None:
+        self.name = name
+        self.sinks = list(sinks)
+        self.flush_after = flush_after
+        self.type_check = type_check  # message type -> error text if it cannot be subscribed
+        self.lock = threading.RLock()
+        self.ready = threading.Condition(self.lock)
+        self.slots: dict[str, MonitorSlot] = {}
+        self.router = Router()
+        self.routes_version = 0  # bumped whenever topics or their fields change
+        self.messages: dict[str, int] = {}  # topic -> messages ingested
+        self.ingest_lag = 0.0  # seconds between publication and ingestion, last batch
+        self.stopping = False
+
+    # -- monitors --------------------------------------------------------------------------
+
+    def compile(self, spec: MonitorSpec) -> CompiledMonitor:
+        """Compile a monitor and check that its message types can be subscribed to."""
+        compiled = compile_monitor(spec)
+        if self.type_check is not None:
+            errors = []
+            for sig in spec.signals.values():
+                problem = self.type_check(sig.msg_type)
+                if problem:
+                    errors.append(
+                        Diagnostic(sig.location, f"spec.signals.{sig.name}.type: {problem}")
+                    )
+            if errors:
+                raise InputError(errors)
+        return compiled
+
+    def put(self, compiled: CompiledMonitor, active: bool) -> bool:
+        """Define (or redefine) a monitor; returns True when it is new.
+
+        Redefining a monitor restarts it: its buffers and automaton state start afresh.
+        """
+        with self.lock:
+            old = self.slots.get(compiled.name)
+            if old is not None and old.runtime is not None:
+                self.router.remove(old.name)
+            slot = MonitorSlot(compiled)
+            self.slots[compiled.name] = slot
+            if active:
+                self._activate(slot)
+            self.routes_version += 1
+            return old is None
+
+    def remove(self, name: str) -> bool:
+        with self.lock:
+            slot = self.slots.pop(name, None)
+            if slot is None:
+                return False
+            if slot.runtime is not None:
+                self.router.remove(name)
+            self.routes_version += 1
+            return True
+
+    def set_active(self, name: str, active: bool) -> None:
+        with self.lock:
+            slot = self.slots[name]
+            if active and slot.runtime is None:
+                self._activate(slot)
+            elif not active and slot.runtime is not None:
+                self.router.remove(name)
+                slot.runtime = None
+            self.routes_version += 1
+
+    def _activate(self, slot: MonitorSlot) -> None:
+        slot.runtime = MonitorRuntime(slot.compiled)
+        self.router.add(slot.runtime)
+
+    def routes(self) -> dict[str, TopicRoute]:
+        """A snapshot of the topics to subscribe to (with their fields and QoS)."""
+        with self.lock:
+            return dict(self.router.routes)
+
+    # -- the data path ---------------------------------------------------------------------
+
+    def ingest(
+        self, batch: Sequence[tuple[int, str, Sequence[Any]]], now: float | None = None
+    ) -> None:
+        """Offer messages, in this order, as ``(stamp ns, topic, field values)``."""
+        if not batch:
+            return
+        now = time.monotonic() if now is None else now
+        woke = False
+        with self.lock:
+            routes, slots = self.router.routes, self.slots
+
+            def admit(runtime: MonitorRuntime) -> bool:
+                slot = slots[runtime.name]
+                if runtime.buffered >= slot.capacity:
+                    slot.dropped += 1
+                    if slot.dropped in (1, 10, 100, 1000) or slot.dropped % 10000 == 0:
+                        log.warning(
+                            "monitor %s: buffer full (%d events), %d events dropped",
+                            slot.name,
+                            slot.capacity,
+                            slot.dropped,
+                        )
+                    return False
+                slot.events += 1
+                if slot.pending_since is None:
+                    slot.pending_since = now
+                return True
+
+            for stamp, topic, values in batch:
+                route = routes.get(topic)
+                if route is None:
+                    continue
+                self.messages[topic] = self.messages.get(topic, 0) + 1
+                for runtime in self.router.offer_values(route, stamp, values, admit):
+                    slots[runtime.name].pending_since = now if runtime.events else None
+                    woke = True
+            if woke:
+                self.ready.notify()
+
+    def _evaluate(self) -> list[Verdict]:
+        verdicts: list[Verdict] = []
+        for slot in self.slots.values():
+            rt = slot.runtime
+            if rt is not None and rt.letters:
+                for v in rt.evaluate():
+                    slot.verdicts[v.verdict] += 1
+                    verdicts.append(v)
+        return verdicts
+
+    def tick(self, now: float | None = None) -> list[Verdict]:
+        """Release event buffers that waited longer than ``flush_after``; update pressure."""
+        now = time.monotonic() if now is None else now
+        with self.lock:
+            for slot in self.slots.values():
+                rt = slot.runtime
+                if rt is None:
+                    continue
+                if slot.pending_since is not None and now - slot.pending_since >= self.flush_after:
+                    rt.flush()
+                    slot.pending_since = None
+                fill = rt.buffered / slot.capacity
+                if fill >= HIGH_WATER:
+                    slot.full_since = slot.full_since if slot.full_since is not None else now
+                    if now - slot.full_since >= PRESSURE_SECONDS and not slot.migration_wanted:
+                        slot.migration_wanted = True
+                        log.warning(
+                            "monitor %s: buffer %.0f%% full for %.1f s: migration wanted",
+                            slot.name,
+                            fill * 100,
+                            now - slot.full_since,
+                        )
+                else:
+                    slot.full_since = None
+                    if fill < LOW_WATER:
+                        slot.migration_wanted = False
+            return self._evaluate()
+
+    def emit(self, verdicts: Sequence[Verdict]) -> None:
+        if verdicts:
+            for sink in self.sinks:
+                try:
+                    sink.write(self.name, verdicts)
+                except Exception:  # a failing sink must not stop the others or the scheduler
+                    log.exception("verdict sink %s failed", type(sink).__name__)
+
+    def run_scheduler(self, stop: threading.Event, period: float = 0.05) -> None:
+        """The scheduler thread: evaluate whenever letters are ready, tick every ``period``."""
+        next_tick = time.monotonic()
+        while not stop.is_set():
+            with self.lock:
+                self.ready.wait(timeout=max(0.0, next_tick - time.monotonic()))
+                verdicts = self._evaluate()
+            if time.monotonic() >= next_tick:
+                verdicts += self.tick()
+                next_tick = time.monotonic() + period
+            self.emit(verdicts)
+
+    def drain(self) -> None:
+        """At shutdown: release every buffer and evaluate it, so no accepted event is lost."""
+        with self.lock:
+            for slot in self.slots.values():
+                if slot.runtime is not None:
+                    slot.runtime.flush()
+                    slot.pending_since = None
+            verdicts = self._evaluate()
+        self.emit(verdicts)
+
+    def snapshot(self) -> list[dict[str, Any]]:
+        with self.lock:
+            return [slot.describe(self.name) for slot in self.slots.values()]
+
+    def wake(self) -> None:
+        with self.lock:
+            self.ready.notify_all()

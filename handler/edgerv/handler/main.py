@@ -1,0 +1,210 @@
+"""``edgerv handler``: the monitor handler process.
+
+It loads the monitors of a file or directory (a bad monitor is reported and
+skipped; the others run), runs the active ones on live ROS 2 traffic, and
+reports verdicts on ``/edgerv/verdicts``, in ``--verdict-log`` and as metrics.
+SIGTERM or SIGINT stops it cleanly: no new messages are taken, every buffered
+event is evaluated, the verdict log is flushed, and it exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from edgerv.core.diagnostics import Diagnostic, InputError, Location
+from edgerv.core.documents import read_monitors
+from edgerv.handler.engine import Engine, VerdictSink
+from edgerv.handler.sinks import VerdictLog
+
+log = logging.getLogger("edgerv.handler")
+EXIT_INPUT = 2
+
+
+def parse_listen(value: str) -> tuple[str, int]:
+    host, sep, port = value.rpartition(":")
+    if not sep or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"'{value}' is not HOST:PORT, e.g. 127.0.0.1:8470")
+    return host.strip("[]") or "0.0.0.0", int(port)
+
+
+def read_token(args: argparse.Namespace) -> str | None:
+    """The shared control token: --token-file, else $EDGERV_TOKEN."""
+    if args.token_file:
+        try:
+            token = Path(args.token_file).read_text(encoding="utf-8").strip()
+        except OSError as exc:
+            raise InputError(
+                [Diagnostic(Location(args.token_file), f"cannot read the token: {exc.strerror}")]
+            ) from None
+        if not token:
+            raise InputError([Diagnostic(Location(args.token_file), "the token file is empty")])
+        return token
+    return os.environ.get("EDGERV_TOKEN") or None
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--name", required=True, help="this handler's name (e.g. the machine's)")
+    p.add_argument(
+        "--monitors",
+        required=True,
+        metavar="FILE_OR_DIR",
+        help="Monitor YAML documents: a file or a directory of .yaml files",
+    )
+    p.add_argument(
+        "--active",
+        default="all",
+        metavar="all|none|m1,m2",
+        help="which monitors run here; the others are defined but idle",
+    )
+    p.add_argument(
+        "--listen",
+        type=parse_listen,
+        metavar="HOST:PORT",
+        help="serve the HTTP API (/healthz, /metrics, /v1/monitors) here",
+    )
+    p.add_argument("--verdict-log", metavar="FILE", help="append verdicts here, one JSON per line")
+    p.add_argument(
+        "--token-file",
+        metavar="FILE",
+        help="the control API's bearer token (default: $EDGERV_TOKEN)",
+    )
+    p.add_argument(
+        "--insecure",
+        action="store_true",
+        help="serve the control API without a token (never on a shared network)",
+    )
+    p.add_argument(
+        "--flush-after",
+        type=float,
+        default=0.5,
+        metavar="SECONDS",
+        help="release a partly filled sort buffer after this long (default 0.5)",
+    )
+    p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
+
+
+def run(args: argparse.Namespace) -> int:
+    logging.basicConfig(
+        level=args.log_level.upper(),
+        stream=sys.stderr,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        token = read_token(args)
+    except InputError as exc:
+        print(exc, file=sys.stderr)
+        return EXIT_INPUT
+    if args.listen and token is None and not args.insecure:
+        print(
+            "edgerv handler: error: refusing to serve the control API without a token: set "
+            "EDGERV_TOKEN or --token-file (or pass --insecure on a trusted network)",
+            file=sys.stderr,
+        )
+        return EXIT_INPUT
+    specs, diagnostics = read_monitors(args.monitors)
+    if not Path(args.monitors).exists():
+        print("\n".join(d.render() for d in diagnostics), file=sys.stderr)
+        return EXIT_INPUT
+    names = {s.name for s in specs}
+    if args.active in ("all", "none"):
+        active = names if args.active == "all" else set()
+    else:
+        active = {n.strip() for n in args.active.split(",") if n.strip()}
+        unknown = sorted(active - names)
+        if unknown:
+            diagnostics.append(
+                Diagnostic(Location("--active"), f"no monitor named {', '.join(unknown)}")
+            )
+    from edgerv.handler import ros_node  # ROS only from here on: `edgerv check` needs none
+    from edgerv.handler.api import ControlApi
+    from edgerv.handler.metrics import build_registry
+
+    ros_node.init_ros()
+    sinks: list[VerdictSink] = []
+    verdict_log = VerdictLog(args.verdict_log) if args.verdict_log else None
+    if verdict_log:
+        sinks.append(verdict_log)
+    engine = Engine(
+        args.name, sinks, flush_after=args.flush_after, type_check=ros_node.type_problem
+    )
+    ros = ros_node.RosIngest(engine, args.name)
+    engine.sinks.append(ros)
+    for spec in specs:
+        try:
+            engine.put(engine.compile(spec), active=spec.name in active)
+        except InputError as exc:
+            diagnostics += exc.diagnostics
+    for d in diagnostics:
+        print(d.render(), file=sys.stderr)
+    if any(d.severity == "error" for d in diagnostics):
+        log.error(
+            "%d problem(s) above: those monitors are not loaded; the others run",
+            sum(d.severity == "error" for d in diagnostics),
+        )
+
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        log.info("%s: stopping", signal.Signals(signum).name)
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+
+    api = None
+    if args.listen:
+        api = ControlApi(
+            engine,
+            build_registry(engine, lambda: dict(ros.qos_problems)),
+            token,
+            on_change=ros.wake,
+        )
+        try:
+            api.start(*args.listen)
+        except OSError as exc:
+            print(
+                f"edgerv handler: error: cannot listen on {args.listen[0]}:{args.listen[1]}: "
+                f"{exc.strerror}",
+                file=sys.stderr,
+            )
+            ros.close()
+            return EXIT_INPUT
+    scheduler_stop = threading.Event()
+    scheduler = threading.Thread(
+        target=engine.run_scheduler, args=(scheduler_stop,), name="edgerv-scheduler", daemon=True
+    )
+    scheduler.start()
+    ros.start(on_failure=stop.set)
+    ros.ready.wait(timeout=10)
+    running = sum(1 for m in engine.snapshot() if m["active"])
+    log.info(
+        "handler %s ready: %d of %d monitors active%s",
+        args.name,
+        running,
+        len(engine.slots),
+        f", API on port {api.port}" if api else "",
+    )
+    while not stop.wait(0.5):
+        pass
+    # Ordered shutdown: take nothing more, evaluate everything taken, then close the outputs.
+    ros.stop()
+    scheduler_stop.set()
+    engine.wake()
+    scheduler.join(timeout=10)
+    engine.drain()
+    if api:
+        api.stop()
+    if verdict_log:
+        verdict_log.close()
+    ros.close()
+    import rclpy
+
+    rclpy.try_shutdown()
+    log.info("handler %s stopped", args.name)
+    return 1 if ros.failed else 0

@@ -1,0 +1,91 @@
+"""Prometheus metrics of a handler, read from the engine at scrape time (no hot-path cost)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+
+from prometheus_client import CollectorRegistry, ProcessCollector
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
+from prometheus_client.registry import Collector
+
+from edgerv.handler.engine import Engine
+
+
+class EngineCollector(Collector):
+    def __init__(self, engine: Engine, qos_problems: Callable[[], dict[str, int]]) -> None:
+        self.engine = engine
+        self.qos_problems = qos_problems  # topic -> publishers with incompatible QoS
+
+    def collect(self) -> Iterator[Metric]:
+        e = self.engine
+        events = CounterMetricFamily(
+            "edgerv_events", "Events offered to a monitor", labels=["monitor"]
+        )
+        dropped = CounterMetricFamily(
+            "edgerv_events_dropped",
+            "Events a monitor lost because its buffer was full",
+            labels=["monitor"],
+        )
+        late = CounterMetricFamily(
+            "edgerv_late_events",
+            "Events released after newer ones (beyond the sort window)",
+            labels=["monitor"],
+        )
+        verdicts = CounterMetricFamily(
+            "edgerv_verdicts", "Verdicts reported", labels=["monitor", "verdict"]
+        )
+        buf = GaugeMetricFamily(
+            "edgerv_buffer_events",
+            "Events buffered by a monitor (event buffer plus letters)",
+            labels=["monitor"],
+        )
+        cap = GaugeMetricFamily(
+            "edgerv_buffer_capacity", "A monitor's bufferCapacity", labels=["monitor"]
+        )
+        active = GaugeMetricFamily(
+            "edgerv_monitor_active", "1 when the monitor runs here", labels=["monitor"]
+        )
+        wanted = GaugeMetricFamily(
+            "edgerv_migration_wanted",
+            "1 when a monitor's buffer stays full: move it up a tier",
+            labels=["monitor"],
+        )
+        with e.lock:
+            for slot in e.slots.values():
+                name = [slot.name]
+                events.add_metric(name, slot.events)
+                dropped.add_metric(name, slot.dropped)
+                late.add_metric(name, slot.runtime.late_events if slot.runtime else 0)
+                for kind, n in slot.verdicts.items():
+                    verdicts.add_metric([slot.name, kind], n)
+                buf.add_metric(name, slot.buffered)
+                cap.add_metric(name, slot.capacity)
+                active.add_metric(name, 1 if slot.runtime is not None else 0)
+                wanted.add_metric(name, 1 if slot.migration_wanted else 0)
+            messages = dict(e.messages)
+            lag = e.ingest_lag
+        msgs = CounterMetricFamily(
+            "edgerv_messages", "Messages received per topic", labels=["topic"]
+        )
+        for topic, n in messages.items():
+            msgs.add_metric([topic], n)
+        qos = GaugeMetricFamily(
+            "edgerv_qos_incompatible_publishers",
+            "Publishers whose QoS cannot match the handler's subscription",
+            labels=["topic"],
+        )
+        for topic, n in self.qos_problems().items():
+            qos.add_metric([topic], n)
+        yield from (events, dropped, late, verdicts, buf, cap, active, wanted, msgs, qos)
+        yield GaugeMetricFamily(
+            "edgerv_ingest_lag_seconds",
+            "Publication to ingestion delay of the last messages taken",
+            value=lag,
+        )
+
+
+def build_registry(engine: Engine, qos_problems: Callable[[], dict[str, int]]) -> CollectorRegistry:
+    registry = CollectorRegistry()
+    registry.register(EngineCollector(engine, qos_problems))
+    ProcessCollector(namespace="edgerv", registry=registry)  # edgerv_process_cpu_seconds_total
+    return registry
