@@ -116,6 +116,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_arguments(handler)
     handler.set_defaults(func=run)
+
+    from edgerv.handler import replay
+
+    rep = sub.add_parser(
+        "replay",
+        help="publish a JSON Lines trace as real ROS 2 messages",
+        description=replay.__doc__,
+    )
+    replay.add_arguments(rep)
+    rep.set_defaults(func=replay.run)
     return parser
 
 

@@ -226,7 +226,10 @@ def _has_header(msg_type: str) -> bool:
 
 
 def compile_reader(msg_type: str, paths: Sequence[str]) -> Reader:
-    """A function: CDR bytes -> (the values at ``paths``, header stamp in ns or None)."""
+    """A function: CDR bytes -> (the values at ``paths``, header stamp in ns or None).
+
+    The stamp is None without a header and 0 for a header nobody stamped.
+    """
     msg_type = normalize_type(msg_type)
     header = _has_header(msg_type)
     try:

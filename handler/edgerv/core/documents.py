@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable, Iterator
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, cast
@@ -80,7 +81,7 @@ class SignalSpec:
     kind: ValueKind
     initial: Value | None
     location: Location
-    qos: QosSpec = QosSpec()
+    qos: QosSpec = dataclasses.field(default_factory=QosSpec)
 
 
 @dataclass(frozen=True)

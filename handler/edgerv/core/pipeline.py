@@ -205,7 +205,7 @@ class TopicRoute:
 
     topic: str
     msg_type: str
-    qos: QosSpec = QosSpec()
+    qos: QosSpec = field(default_factory=QosSpec)
     fields: list[str] = field(default_factory=list)
     kinds: list[ValueKind] = field(default_factory=list)
     getters: list[Callable[[Any], Any]] = field(default_factory=list)
@@ -293,12 +293,18 @@ class Router:
 
 
 def header_stamp(msg: Any) -> int | None:
-    """``header.stamp`` in nanoseconds when the message has a header, else None."""
+    """``header.stamp`` in nanoseconds when the message has a header that was stamped.
+
+    None without a header, and for a zero stamp: ROS publishers leave a header they do
+    not stamp at zero, and then the publication time is the better timestamp.
+    """
     try:
         header = msg["header"] if isinstance(msg, dict) else msg.header
         stamp = header["stamp"] if isinstance(header, dict) else header.stamp
         if isinstance(stamp, dict):
-            return int(stamp["sec"]) * 1_000_000_000 + int(stamp["nanosec"])
-        return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+            ns = int(stamp["sec"]) * 1_000_000_000 + int(stamp["nanosec"])
+        else:
+            ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+        return ns or None
     except (KeyError, AttributeError, TypeError, ValueError):
         return None

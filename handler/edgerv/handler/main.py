@@ -203,8 +203,8 @@ def run(args: argparse.Namespace) -> int:
     if verdict_log:
         verdict_log.close()
     ros.close()
-    import rclpy
+    from rclpy.utilities import try_shutdown
 
-    rclpy.try_shutdown()
+    try_shutdown()
     log.info("handler %s stopped", args.name)
     return 1 if ros.failed else 0

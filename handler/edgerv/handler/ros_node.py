@@ -27,6 +27,7 @@ import rclpy
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import ok
 
 from edgerv.core.cdr import Reader, compile_reader
 from edgerv.core.documents import QosSpec
@@ -63,7 +64,7 @@ def type_problem(msg_type: str) -> str | None:
 
 def init_ros() -> None:
     """Start rclpy without its signal handlers: the handler's main() owns SIGINT/SIGTERM."""
-    if not rclpy.ok():
+    if not ok():
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
 
 
@@ -242,7 +243,7 @@ class RosIngest:
                             "%s: %d messages could not be read as %s", topic, n, sub.route.msg_type
                         )
                     continue
-                batch.append((source if stamp is None else stamp, topic, values))
+                batch.append((stamp or source, topic, values))  # an unstamped header is 0
         if oldest_source is not None:
             self.engine.ingest_lag = max(0.0, (time.time_ns() - oldest_source) / 1e9)
         batch.sort(key=lambda item: item[0])  # one order across topics: by timestamp

@@ -1,0 +1,207 @@
+"""Processes for integration tests: an ``edgerv handler`` and small ROS 2 publishers.
+
+Every process gets a ROS domain of its test's own and discovery limited to
+localhost, so tests neither see each other nor send anything off this machine.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+TOKEN = "integration-secret"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def ros_env(domain: int) -> dict[str, str]:
+    env = dict(os.environ)
+    env.update(
+        ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1"
+    )
+    return env
+
+
+class Handler:
+    """An ``edgerv handler`` process with its API on a free loopback port."""
+
+    def __init__(
+        self,
+        tmp: Path,
+        monitors: Path,
+        domain: int,
+        *extra: str,
+        token: str | None = TOKEN,
+        name: str = "edge",
+    ) -> None:
+        self.port = free_port()
+        self.log = tmp / f"{name}-verdicts.jsonl"
+        self.stderr_path = tmp / f"{name}-stderr.log"
+        env = ros_env(domain)
+        env.pop("EDGERV_TOKEN", None)
+        if token is not None:
+            env["EDGERV_TOKEN"] = token
+        self.token = token
+        self._stderr = self.stderr_path.open("w")
+        self.proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "edgerv",
+                "handler",
+                "--name",
+                name,
+                "--monitors",
+                str(monitors),
+                "--listen",
+                f"127.0.0.1:{self.port}",
+                "--verdict-log",
+                str(self.log),
+                *extra,
+            ],
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=self._stderr,
+        )
+        self.wait_ready()
+
+    @property
+    def stderr(self) -> str:
+        return self.stderr_path.read_text()
+
+    def wait_ready(self, timeout: float = 30) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"handler exited {self.proc.returncode}:\n{self.stderr}")
+            if " ready: " in self.stderr:
+                return
+            time.sleep(0.1)
+        raise TimeoutError(f"handler not ready:\n{self.stderr}")
+
+    def request(
+        self, method: str, path: str, body: str | None = None, token: str | None = "default"
+    ) -> tuple[int, Any]:
+        headers = {"Content-Type": "application/yaml"}
+        token = self.token if token == "default" else token
+        if token is not None:
+            headers["Authorization"] = f"Bearer {token}"
+        req = urllib.request.Request(
+            f"http://127.0.0.1:{self.port}{path}",
+            method=method,
+            data=body.encode() if body is not None else None,
+            headers=headers,
+        )
+        try:
+            with urllib.request.urlopen(req, timeout=30) as resp:
+                raw = resp.read().decode()
+                status = resp.status
+        except urllib.error.HTTPError as err:
+            raw, status = err.read().decode(), err.code
+        try:
+            return status, json.loads(raw)
+        except json.JSONDecodeError:
+            return status, raw
+
+    def metric(self, name: str, **labels: str) -> float | None:
+        _, text = self.request("GET", "/metrics")
+        want = ",".join(f'{k}="{v}"' for k, v in labels.items())
+        for line in str(text).splitlines():
+            key, _, value = line.rpartition(" ")
+            if key == (f"{name}{{{want}}}" if labels else name):
+                return float(value)
+        return None
+
+    def verdicts(self) -> list[dict[str, Any]]:
+        if not self.log.exists():
+            return []
+        return [json.loads(line) for line in self.log.read_text().splitlines()]
+
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = 30) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+                raise
+        self._stderr.close()
+        return self.proc.returncode
+
+
+def wait_for(predicate: Any, timeout: float = 20, interval: float = 0.1) -> Any:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(interval)
+    return predicate()
+
+
+PUBLISHER = r"""
+import json, sys, time, rclpy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from edgerv.handler.ros_node import message_class
+from edgerv.handler.replay import fill
+topic, msg_type, reliability, values, interval = sys.argv[1], sys.argv[2], sys.argv[3], \
+    json.loads(sys.argv[4]), float(sys.argv[5])
+rclpy.init()
+node = rclpy.create_node("test_publisher")
+qos = QoSProfile(depth=1000, reliability=getattr(ReliabilityPolicy, reliability.upper()))
+pub = node.create_publisher(message_class(msg_type), topic, qos)
+deadline = time.monotonic() + 15
+while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+    time.sleep(0.05)
+time.sleep(0.3)
+print("matched" if pub.get_subscription_count() else "unmatched", flush=True)
+i = 0
+while values or interval < 0:
+    v = values.pop(0) if values else {"data": float(i)}
+    pub.publish(fill(message_class(msg_type)(), v))
+    i += 1
+    time.sleep(abs(interval))
+time.sleep(0.5)
+"""
+
+
+def publisher(
+    domain: int,
+    topic: str,
+    msg_type: str,
+    values: list[dict[str, Any]],
+    reliability: str = "reliable",
+    interval: float = 0.005,
+    forever: bool = False,
+) -> subprocess.Popen[str]:
+    """A publisher process; with ``forever`` it publishes {"data": i} until killed."""
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            PUBLISHER,
+            topic,
+            msg_type,
+            reliability,
+            json.dumps(values),
+            str(-interval if forever else interval),
+        ],
+        env=ros_env(domain),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )

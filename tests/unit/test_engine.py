@@ -1,0 +1,112 @@
+"""The handler engine without ROS: placement, buffers, flushing, pressure, shutdown."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from edgerv.core.pipeline import Verdict
+from edgerv.handler import engine as engine_module
+from edgerv.handler.engine import Engine
+from helpers import compiled
+
+
+class Collect:
+    def __init__(self) -> None:
+        self.got: list[tuple[str, str, int]] = []
+
+    def write(self, handler: str, verdicts: Sequence[Verdict]) -> None:
+        self.got += [(v.monitor, v.verdict, v.step) for v in verdicts]
+
+
+def speed_monitor(**spec):  # type: ignore[no-untyped-def]
+    return compiled("always (speed < 100)", {"speed": "float"}, **spec)
+
+
+def test_only_active_monitors_subscribe_and_evaluate() -> None:
+    sink = Collect()
+    e = Engine("edge", [sink])
+    e.put(speed_monitor(), active=False)
+    assert e.routes() == {}
+    e.ingest([(1, "/speed", [150.0])])
+    assert e.tick() == []
+    e.set_active("m", True)
+    assert list(e.routes()) == ["/speed"]
+    e.ingest([(2, "/speed", [150.0])])
+    e.emit(e.tick())
+    assert sink.got == [("m", "violated", 1)]
+    assert e.snapshot()[0]["verdicts"] == {"violated": 1, "satisfied": 0}
+
+
+def test_a_partial_sort_buffer_is_released_after_flush_after() -> None:
+    e = Engine("edge", flush_after=0.5)
+    e.put(speed_monitor(sortThreshold=10), active=True)
+    e.ingest([(1, "/speed", [150.0])], now=100.0)
+    assert e.tick(now=100.2) == []
+    assert [v.step for v in e.tick(now=100.6)] == [1]
+
+
+def test_a_full_buffer_drops_and_counts() -> None:
+    e = Engine("edge")
+    e.put(speed_monitor(sortThreshold=3, bufferCapacity=3), active=True)
+    e.set_active("m", True)
+    slot = e.slots["m"]
+    # events wait in the sort buffer; letters wait for the scheduler: 3 fit, then drops
+    e.ingest([(i, "/speed", [1.0]) for i in range(5)])
+    assert (slot.events, slot.dropped, slot.buffered) == (3, 2, 3)
+
+
+def test_migration_wanted_when_the_buffer_stays_full_with_hysteresis(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    e = Engine("edge")
+    e.put(speed_monitor(sortThreshold=100, bufferCapacity=100), active=True)
+    slot = e.slots["m"]
+    e.ingest([(i, "/speed", [1.0]) for i in range(60)], now=0.0)
+    monkeypatch.setattr(e, "flush_after", 1e9)  # keep the events buffered
+    e.tick(now=0.1)
+    e.tick(now=0.5)
+    assert not slot.migration_wanted
+    e.tick(now=0.1 + engine_module.PRESSURE_SECONDS)
+    assert slot.migration_wanted
+    assert e.snapshot()[0]["migrationWanted"] is True
+    # draining below the high water mark but above the low one keeps the flag (no flapping)
+    slot.runtime.events[:] = slot.runtime.events[:30]
+    e.tick(now=5.0)
+    assert slot.migration_wanted
+    slot.runtime.events[:] = slot.runtime.events[:10]
+    e.tick(now=6.0)
+    assert not slot.migration_wanted
+
+
+def test_drain_evaluates_everything_buffered() -> None:
+    sink = Collect()
+    e = Engine("edge", [sink], flush_after=1e9)
+    e.put(speed_monitor(sortThreshold=50), active=True)
+    e.ingest([(i, "/speed", [150.0 if i == 7 else 1.0]) for i in range(10)])
+    assert sink.got == []
+    e.drain()
+    assert sink.got == [("m", "violated", 8)]
+
+
+def test_replacing_a_monitor_restarts_it_and_removing_unsubscribes() -> None:
+    e = Engine("edge")
+    assert e.put(speed_monitor(), active=True) is True
+    e.ingest([(1, "/speed", [1.0])])
+    e.tick()
+    assert e.snapshot()[0]["step"] == 1
+    assert e.put(speed_monitor(), active=True) is False
+    assert e.snapshot()[0]["step"] == 0
+    version = e.routes_version
+    assert e.remove("m") and not e.remove("m")
+    assert e.routes() == {} and e.routes_version > version
+
+
+def test_a_failing_sink_does_not_stop_the_others() -> None:
+    class Broken:
+        def write(self, handler: str, verdicts: Sequence[Verdict]) -> None:
+            raise OSError("disk full")
+
+    sink = Collect()
+    e = Engine("edge", [Broken(), sink])
+    e.put(speed_monitor(), active=True)
+    e.ingest([(1, "/speed", [500.0])])
+    e.emit(e.tick())
+    assert sink.got == [("m", "violated", 1)]
