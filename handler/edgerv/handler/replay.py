@@ -69,7 +69,6 @@ def run(args: argparse.Namespace) -> int:
         return 2
     import rclpy
     from rclpy.qos import QoSProfile, ReliabilityPolicy
-
     from rclpy.utilities import try_shutdown
 
     from edgerv.handler.ros_node import message_class
