@@ -36,6 +36,7 @@ demo: install
 	bash examples/demo.sh
 
 bench: install
+	$(BIN)/python -m pip install --quiet -e '.[bench]'
 	$(BIN)/python bench/run_all.py
 
 clean:

@@ -37,6 +37,7 @@ import operator
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any, Literal, cast
 
 import spot
@@ -677,10 +678,21 @@ def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
     return ParsedAssertion(spec, formula, atoms, text, constraint, tuple(warnings))
 
 
+@lru_cache(maxsize=4096)
+def _vacuity(formula_text: str, constraint_text: str) -> str | None:
+    """'unsatisfiable', 'valid' or None for a formula over the letters that can occur."""
+    f, g = spot.formula(formula_text), spot.formula.G(spot.formula(constraint_text))
+    if spot.translate(spot.formula.And([g, f])).is_empty():
+        return "unsatisfiable"
+    if spot.translate(spot.formula.And([g, spot.formula.Not(f)])).is_empty():
+        return "valid"
+    return None
+
+
 def _vacuity_warnings(spec: MonitorSpec, formula: Any, constraint: Any) -> list[Diagnostic]:
-    g = spot.formula.G(constraint)
     loc = spec.locate_assertion(0, len(spec.assertion.rstrip()))
-    if spot.translate(spot.formula.And([g, formula])).is_empty():
+    kind = _vacuity(str(formula), str(constraint))
+    if kind == "unsatisfiable":
         return [
             Diagnostic(
                 loc,
@@ -689,7 +701,7 @@ def _vacuity_warnings(spec: MonitorSpec, formula: Any, constraint: Any) -> list[
                 "check the comparisons and the temporal operators",
             )
         ]
-    if spot.translate(spot.formula.And([g, spot.formula.Not(formula)])).is_empty():
+    if kind == "valid":
         return [
             Diagnostic(
                 loc,

@@ -14,6 +14,7 @@ once per message and hands every monitor that reads the topic its updates.
 from __future__ import annotations
 
 from array import array
+from bisect import bisect_left
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from operator import itemgetter
@@ -51,6 +52,8 @@ class MonitorRuntime:
     """One monitor's buffers and state. Not thread-safe: one thread drives it."""
 
     monitor: CompiledMonitor
+    name: str = field(init=False)
+    threshold: int = field(init=False)  # sortThreshold
     events: list[tuple[int, int, Sequence[Update]]] = field(default_factory=list)
     letters: array = field(init=False)  # type: ignore[type-arg]
     stamps: array = field(init=False)  # type: ignore[type-arg]
@@ -66,6 +69,8 @@ class MonitorRuntime:
 
     def __post_init__(self) -> None:
         spec = self.monitor.spec
+        self.name = spec.name
+        self.threshold = spec.sort_threshold
         self.letters = array(letter_typecode(self.monitor.table.bits))
         self.stamps = array("q")
         self.values = [
@@ -75,10 +80,6 @@ class MonitorRuntime:
         self.missing = sum(v is _UNSET for v in self.values)
         if not self.missing:
             self.valuation = self._full_valuation()
-
-    @property
-    def name(self) -> str:
-        return self.monitor.name
 
     @property
     def buffered(self) -> int:
@@ -102,8 +103,33 @@ class MonitorRuntime:
         """
         if self.halted:
             return False
+        if self.threshold == 1:  # nothing to sort: straight to the compressed buffer
+            if self.last_released is not None and stamp < self.last_released:
+                self.late_events += 1
+            self.last_released = stamp
+            if self.missing:
+                self._compress(((stamp, seq, updates),))
+                return len(self.letters) > 0
+            # the common case, inlined: one event, every signal already has a value
+            values, funcs, readers = (
+                self.values,
+                self.monitor.atom_funcs,
+                self.monitor.atoms_of_signal,
+            )
+            bits = self.valuation
+            for sig, value in updates:
+                values[sig] = value
+                for atom in readers[sig]:
+                    if funcs[atom](values):
+                        bits |= 1 << atom
+                    else:
+                        bits &= ~(1 << atom)
+            self.valuation = bits
+            self.letters.append(bits)
+            self.stamps.append(stamp)
+            return True
         self.events.append((stamp, seq, updates))
-        if len(self.events) >= self.monitor.spec.sort_threshold:
+        if len(self.events) >= self.threshold:
             return self.flush()
         return False
 
@@ -114,8 +140,9 @@ class MonitorRuntime:
         batch = self.events
         self.events = []
         batch.sort(key=_STAMP)  # stable: equal timestamps keep their arrival order
-        if self.last_released is not None:
-            self.late_events += sum(1 for e in batch if e[0] < self.last_released)
+        last = self.last_released
+        if last is not None and batch[0][0] < last:  # rare: count what came too late
+            self.late_events += bisect_left(batch, last, key=_STAMP)
         self.last_released = batch[-1][0]
         self._compress(batch)
         return len(self.letters) > 0

@@ -31,6 +31,11 @@ log = logging.getLogger("edgerv.handler")
 HIGH_WATER = 0.5
 LOW_WATER = 0.25
 PRESSURE_SECONDS = 1.0
+# The scheduler evaluates every SCHEDULE_SECONDS (verdicts wait at most that long), and is
+# woken earlier only when a monitor has WAKE_LETTERS letters waiting: waking it for every
+# message would cost more than evaluating.
+SCHEDULE_SECONDS = 0.002
+WAKE_LETTERS = 512
 
 
 class VerdictSink(Protocol):
@@ -49,14 +54,14 @@ class MonitorSlot:
     pending_since: float | None = None  # when the event buffer got its oldest event
     full_since: float | None = None  # when the buffer rose above HIGH_WATER
     migration_wanted: bool = False
+    capacity: int = field(init=False)
 
     @property
     def name(self) -> str:
         return self.compiled.name
 
-    @property
-    def capacity(self) -> int:
-        return self.compiled.spec.buffer_capacity
+    def __post_init__(self) -> None:
+        self.capacity = self.compiled.spec.buffer_capacity
 
     @property
     def buffered(self) -> int:
@@ -188,7 +193,7 @@ class Engine:
 
             def admit(runtime: MonitorRuntime) -> bool:
                 slot = slots[runtime.name]
-                if runtime.buffered >= slot.capacity:
+                if len(runtime.events) + len(runtime.letters) >= slot.capacity:
                     slot.dropped += 1
                     if slot.dropped in (1, 10, 100, 1000) or slot.dropped % 10000 == 0:
                         log.warning(
@@ -203,14 +208,15 @@ class Engine:
                     slot.pending_since = now
                 return True
 
+            messages = self.messages
             for stamp, topic, values in batch:
                 route = routes.get(topic)
                 if route is None:
                     continue
-                self.messages[topic] = self.messages.get(topic, 0) + 1
+                messages[topic] = messages.get(topic, 0) + 1
                 for runtime in self.router.offer_values(route, stamp, values, admit):
                     slots[runtime.name].pending_since = now if runtime.events else None
-                    woke = True
+                    woke = woke or len(runtime.letters) >= WAKE_LETTERS
             if woke:
                 self.ready.notify()
 
@@ -261,11 +267,11 @@ class Engine:
                     log.exception("verdict sink %s failed", type(sink).__name__)
 
     def run_scheduler(self, stop: threading.Event, period: float = 0.05) -> None:
-        """The scheduler thread: evaluate whenever letters are ready, tick every ``period``."""
+        """The scheduler thread: evaluate every SCHEDULE_SECONDS, tick every ``period``."""
         next_tick = time.monotonic()
         while not stop.is_set():
             with self.lock:
-                self.ready.wait(timeout=max(0.0, next_tick - time.monotonic()))
+                self.ready.wait(timeout=SCHEDULE_SECONDS)
                 verdicts = self._evaluate()
             if time.monotonic() >= next_tick:
                 verdicts += self.tick()
