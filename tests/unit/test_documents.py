@@ -115,10 +115,10 @@ def test_missing_fields_and_all_errors_at_once() -> None:
 
 
 def test_invalid_yaml_points_at_the_problem() -> None:
-    assert (
-        first_error(GOOD + "  onVerdict: [halt\n")
-        == "m.yaml:10:1: error: invalid YAML: expected ',' or ']', but got '<stream end>'"
-    )
+    error = first_error(GOOD + "  onVerdict: [halt\n")
+    # libyaml and the pure-Python parser word it differently, at the same place
+    assert error.startswith("m.yaml:10:1: error: invalid YAML: ")
+    assert "expected ',' or ']'" in error
 
 
 def test_duplicate_names_across_documents(tmp_path) -> None:  # type: ignore[no-untyped-def]

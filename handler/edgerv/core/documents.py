@@ -106,9 +106,9 @@ class MonitorSpec:
 class _Doc:
     """One YAML document: its composed node tree, for positions, and the file text."""
 
-    def __init__(self, path: str, text: str, root: yaml.Node) -> None:
+    def __init__(self, path: str, text: str, lines: list[str], root: yaml.Node) -> None:
         self.path = path
-        self.lines = text.splitlines()
+        self.lines = lines  # the file's lines, shared by its documents
         self.text = text
         self.root = root
         self.diagnostics: list[Diagnostic] = []
@@ -430,11 +430,15 @@ def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
     )
 
 
+_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml when PyYAML has it
+
+
 def _documents(path: str, text: str) -> Iterator[_Doc]:
+    lines = text.splitlines()
     try:
-        for root in yaml.compose_all(text, Loader=yaml.SafeLoader):
+        for root in yaml.compose_all(text, Loader=_LOADER):
             if root is not None:
-                yield _Doc(path, text, root)
+                yield _Doc(path, text, lines, root)
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark
         lines = text.splitlines()

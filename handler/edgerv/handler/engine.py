@@ -114,7 +114,7 @@ class Engine:
         self.routes_version = 0  # bumped whenever topics or their fields change
         self.messages: dict[str, int] = {}  # topic -> messages ingested
         self.ingest_lag = 0.0  # seconds between publication and ingestion, last batch
-        self.stopping = False
+        self.waiting: dict[str, MonitorRuntime] = {}  # monitors with letters to evaluate
 
     # -- monitors --------------------------------------------------------------------------
 
@@ -216,18 +216,22 @@ class Engine:
                 messages[topic] = messages.get(topic, 0) + 1
                 for runtime in self.router.offer_values(route, stamp, values, admit):
                     slots[runtime.name].pending_since = now if runtime.events else None
+                    self.waiting[runtime.name] = runtime
                     woke = woke or len(runtime.letters) >= WAKE_LETTERS
             if woke:
                 self.ready.notify()
 
     def _evaluate(self) -> list[Verdict]:
+        """Evaluate the letters of the monitors that have some (not all monitors: cheap)."""
         verdicts: list[Verdict] = []
-        for slot in self.slots.values():
-            rt = slot.runtime
-            if rt is not None and rt.letters:
-                for v in rt.evaluate():
-                    slot.verdicts[v.verdict] += 1
-                    verdicts.append(v)
+        waiting, self.waiting = self.waiting, {}
+        for name, rt in waiting.items():
+            slot = self.slots.get(name)
+            if slot is None or slot.runtime is not rt:
+                continue  # removed or redefined since
+            for v in rt.evaluate():
+                slot.verdicts[v.verdict] += 1
+                verdicts.append(v)
         return verdicts
 
     def tick(self, now: float | None = None) -> list[Verdict]:
@@ -239,8 +243,12 @@ class Engine:
                 if rt is None:
                     continue
                 if slot.pending_since is not None and now - slot.pending_since >= self.flush_after:
-                    rt.flush()
+                    if rt.flush():
+                        self.waiting[rt.name] = rt
                     slot.pending_since = None
+                if not rt.events and not rt.letters and slot.full_since is None \
+                        and not slot.migration_wanted:
+                    continue  # an idle monitor: nothing to update
                 fill = rt.buffered / slot.capacity
                 if fill >= HIGH_WATER:
                     slot.full_since = slot.full_since if slot.full_since is not None else now
@@ -284,6 +292,7 @@ class Engine:
             for slot in self.slots.values():
                 if slot.runtime is not None:
                     slot.runtime.flush()
+                    self.waiting[slot.name] = slot.runtime
                     slot.pending_since = None
             verdicts = self._evaluate()
         self.emit(verdicts)

@@ -223,12 +223,13 @@ class RosIngest:
 
     # -- the take loop ---------------------------------------------------------------------
 
-    def _take_all(self) -> list[tuple[int, str, list[Any]]]:
+    def _take_all(self, subs: list[_Sub]) -> list[tuple[int, str, list[Any]]]:
         batch: list[tuple[int, str, list[Any]]] = []
         append = batch.append
         oldest_source: int | None = None
         delivered = 0  # subscriptions that had messages
-        for topic, sub in self.subs.items():
+        for sub in subs:
+            topic = sub.route.topic
             handle, reader, cls = sub.subscription.handle, sub.reader, sub.subscription.msg_type
             take = handle.take_message
             got = take(cls, True)
@@ -286,11 +287,15 @@ class RosIngest:
                     wait_set.add_subscription(h)
                 wait_set.add_guard_condition(self.wakeup.handle)
                 wait_set.wait(100_000_000)  # 100 ms: reconfiguration and QoS checks go on
+                ready = set(wait_set.get_ready_entities("subscription"))
+                if not ready:
+                    continue
                 time.sleep(COALESCE_SECONDS)  # let a burst gather: fewer, larger batches
-                batch = self._take_all()
+                subs = [s for s in self.subs.values() if s.subscription.handle.pointer in ready]
+                batch = self._take_all(subs)
                 while batch:  # keep taking while messages keep coming, then wait again
                     self.engine.ingest(batch)
-                    batch = self._take_all()
+                    batch = self._take_all(subs)
         finally:
             stack.close()
 
