@@ -6,7 +6,7 @@ RTAMT and Reelay, which report the value of a past-time formula at every step,
 monitor `historically(running -> speed < 100)`. Each tool gets the same
 sequence of (running, speed) steps, in one process, one after the other.
 
-Two edgerv rows: evaluation of the compressed bit buffers (the paper's design:
+Three interleaved rounds; each tool's best round counts. Two edgerv rows: evaluation of the compressed bit buffers (the paper's design:
 what a scheduler does per step), and the whole pipeline from raw values
 (buffer, sort, placeholder evaluation and bit-packing, then evaluation).
 """
@@ -85,12 +85,19 @@ def reelay_rate(steps: list[tuple[bool, float]]) -> float:
     return rate(len(steps), time.perf_counter() - start)
 
 
+ROUNDS = 3
+
+
 def main() -> list[dict[str, Any]]:
     steps = trace(STEPS)
-    evaluate = edgerv_evaluate(steps)
-    pipeline, _ = edgerv_pipeline(steps)
-    rt = rtamt_rate(steps[:TOOL_STEPS])
-    re = reelay_rate(steps[:TOOL_STEPS])
+    # Rounds interleave the tools, so a burst of load elsewhere hits all of them alike; each
+    # tool's best round is its rate.
+    evaluate = pipeline = rt = re = 0.0
+    for _ in range(ROUNDS):
+        evaluate = max(evaluate, edgerv_evaluate(steps))
+        pipeline = max(pipeline, edgerv_pipeline(steps)[0])
+        rt = max(rt, rtamt_rate(steps[:TOOL_STEPS]))
+        re = max(re, reelay_rate(steps[:TOOL_STEPS]))
     prop = "G(running -> speed < 100)"
     return [
         {

@@ -209,7 +209,8 @@ def main() -> list[dict[str, Any]]:
             "detail": f"{full['sent']:,} messages, each offered to {MONITORS // TOPICS} monitors; "
             f"verdicts received {full['verdicts']:,} (baseline {base['verdicts']:,})",
             "baseline": f"{TOPICS} monitors: p50 {base['p50']:.1f} ms, p99 {base['p99']:.1f} ms",
-            "measured": f"{MONITORS:,} monitors: p50 {full['p50']:.1f} ms, p99 {full['p99']:.1f} ms",
+            "measured": f"{MONITORS:,} monitors: p50 {full['p50']:.1f} ms, "
+            f"p99 {full['p99']:.1f} ms",
             "ratio": f"p99 {full['p99'] / base['p99']:.1f}x the baseline's",
         },
     ]

@@ -58,19 +58,12 @@ _CMP_FUNCS: dict[str, Callable[[Any, Any], bool]] = {
 }
 _FLIP: dict[str, CmpOp] = {"<": ">", "<=": ">=", ">": "<", ">=": "<=", "==": "==", "!=": "!="}
 
+# Implication and equivalence in all of Spot's spellings, and the SERE implications.
+_IMPLIES = ["<==>", "<-->", "<=>", "<->", "==>", "-->", "|->", "|=>", "->", "=>"]
 # Longest first: the lexer takes the longest operator that matches.
 _OPERATORS = sorted(
     [
-        "<==>",
-        "<-->",
-        "<=>",
-        "<->",
-        "==>",
-        "-->",
-        "|->",
-        "|=>",
-        "->",
-        "=>",
+        *_IMPLIES,
         "<>",
         "<=",
         ">=",
@@ -100,27 +93,7 @@ _OPERATORS = sorted(
     reverse=True,
 )
 _CMP_TOKENS = {"<", "<=", ">", ">=", "==", "=", "!="}
-_BOOL_BINOPS = {
-    "<==>",
-    "<-->",
-    "<=>",
-    "<->",
-    "==>",
-    "-->",
-    "|->",
-    "|=>",
-    "->",
-    "=>",
-    "&&",
-    "||",
-    "&",
-    "|",
-    "^",
-    "xor",
-    ";",
-    ":",
-    ",",
-}
+_BOOL_BINOPS = {*_IMPLIES, "&&", "||", "&", "|", "^", "xor", ";", ":", ","}
 _TEMPORAL_BINOPS = {"U", "W", "R", "M"}
 _SPOT_WORDS = {"G", "F", "X", "U", "W", "R", "M", "xor", "true", "false"}
 _PSL_WORDS = {"always", "never", "eventually", "next", "next_e", "next_a", "until", "before"}

@@ -262,31 +262,41 @@ def _parse_signal(doc: _Doc, name: str, knode: yaml.Node, node: yaml.Node) -> Si
     return SignalSpec(name, topic, msg_type, fld, kind, initial, doc.loc(knode, len(name)), qos)
 
 
+def _parse_choice(
+    doc: _Doc,
+    items: dict[str, tuple[yaml.Node, yaml.Node]],
+    key: str,
+    where: str,
+    choices: tuple[str, ...],
+) -> str | None:
+    """The value of ``key`` when it is one of ``choices``; None (and an error) otherwise."""
+    if key not in items:
+        return None
+    value = _parse_value(doc, items[key][1], f"{where}.{key}", (str,))
+    if isinstance(value, str) and value in choices:
+        return value
+    if value is not None:
+        doc.error(
+            items[key][1],
+            f"{where}.{key}",
+            f"must be {', '.join(choices[:-1])} or {choices[-1]}, not '{value}'",
+        )
+    return None
+
+
 def _parse_qos(doc: _Doc, node: yaml.Node, where: str) -> QosSpec:
     items = _check_keys(doc, node, where, {"reliability", "durability", "depth"}, set())
-    reliability: Reliability = "auto"
-    durability: Durability = "auto"
+    reliability = cast(
+        Reliability,
+        _parse_choice(doc, items, "reliability", where, ("auto", "reliable", "best_effort"))
+        or "auto",
+    )
+    durability = cast(
+        Durability,
+        _parse_choice(doc, items, "durability", where, ("auto", "volatile", "transient_local"))
+        or "auto",
+    )
     depth = QosSpec.depth
-    if "reliability" in items:
-        value = _parse_value(doc, items["reliability"][1], f"{where}.reliability", (str,))
-        if value in ("auto", "reliable", "best_effort"):
-            reliability = cast(Reliability, value)
-        elif value is not None:
-            doc.error(
-                items["reliability"][1],
-                f"{where}.reliability",
-                f"must be auto, reliable or best_effort, not '{value}'",
-            )
-    if "durability" in items:
-        value = _parse_value(doc, items["durability"][1], f"{where}.durability", (str,))
-        if value in ("auto", "volatile", "transient_local"):
-            durability = cast(Durability, value)
-        elif value is not None:
-            doc.error(
-                items["durability"][1],
-                f"{where}.durability",
-                f"must be auto, volatile or transient_local, not '{value}'",
-            )
     if "depth" in items:
         value = _parse_value(doc, items["depth"][1], f"{where}.depth", (int,))
         if isinstance(value, int) and not isinstance(value, bool):
@@ -399,13 +409,9 @@ def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
                     pvalue = _parse_value(doc, vn, where)
                     if pvalue is not None:
                         parameters[pname] = pvalue
-    on_verdict: OnVerdict = "reset"
-    if "onVerdict" in spec:
-        ov = _parse_value(doc, spec["onVerdict"][1], "spec.onVerdict", (str,))
-        if ov in ("reset", "halt"):
-            on_verdict = "reset" if ov == "reset" else "halt"
-        elif ov is not None:
-            doc.error(spec["onVerdict"][1], "spec.onVerdict", f"must be reset or halt, not '{ov}'")
+    on_verdict = cast(
+        OnVerdict, _parse_choice(doc, spec, "onVerdict", "spec", ("reset", "halt")) or "reset"
+    )
     sort_threshold = _parse_int(doc, spec, "sortThreshold", DEFAULT_SORT_THRESHOLD, 1)
     buffer_capacity = _parse_int(doc, spec, "bufferCapacity", DEFAULT_BUFFER_CAPACITY, 1)
     if sort_threshold > buffer_capacity:
@@ -456,6 +462,21 @@ def _documents(path: str, text: str) -> Iterator[_Doc]:
         raise InputError([Diagnostic(loc, f"invalid YAML: {exc.problem}")]) from None
 
 
+def _unique(spec: MonitorSpec, seen: dict[str, Location], diagnostics: list[Diagnostic]) -> bool:
+    """Record a monitor's name; a second definition is an error naming the first."""
+    if spec.name in seen:
+        diagnostics.append(
+            Diagnostic(
+                spec.location,
+                f"metadata.name: monitor '{spec.name}' "
+                f"is defined twice (first at {seen[spec.name]})",
+            )
+        )
+        return False
+    seen[spec.name] = spec.location
+    return True
+
+
 def parse_monitors_text(path: str, text: str) -> tuple[list[MonitorSpec], list[Diagnostic]]:
     """Every valid Monitor document of a file, and the diagnostics of the others.
 
@@ -469,19 +490,8 @@ def parse_monitors_text(path: str, text: str) -> tuple[list[MonitorSpec], list[D
         for doc in _documents(path, text):
             spec = _parse_monitor(doc)
             diagnostics += doc.diagnostics
-            if spec is None:
-                continue
-            if spec.name in seen:
-                diagnostics.append(
-                    Diagnostic(
-                        spec.location,
-                        f"metadata.name: monitor '{spec.name}' "
-                        f"is defined twice (first at {seen[spec.name]})",
-                    )
-                )
-                continue
-            seen[spec.name] = spec.location
-            monitors.append(spec)
+            if spec is not None and _unique(spec, seen, diagnostics):
+                monitors.append(spec)
     except InputError as exc:
         diagnostics += exc.diagnostics
     if not monitors and not diagnostics:
@@ -526,18 +536,7 @@ def read_monitors(path: str | Path) -> tuple[list[MonitorSpec], list[Diagnostic]
             continue
         specs, found = parse_monitors_text(str(f), text)
         diagnostics += found
-        for s in specs:
-            if s.name in seen:
-                diagnostics.append(
-                    Diagnostic(
-                        s.location,
-                        f"metadata.name: monitor '{s.name}' is defined twice "
-                        f"(first at {seen[s.name]})",
-                    )
-                )
-            else:
-                seen[s.name] = s.location
-                out.append(s)
+        out += [s for s in specs if _unique(s, seen, diagnostics)]
     return out, diagnostics
 
 

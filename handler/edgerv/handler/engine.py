@@ -246,8 +246,12 @@ class Engine:
                     if rt.flush():
                         self.waiting[rt.name] = rt
                     slot.pending_since = None
-                if not rt.events and not rt.letters and slot.full_since is None \
-                        and not slot.migration_wanted:
+                if (
+                    not rt.events
+                    and not rt.letters
+                    and slot.full_since is None
+                    and not slot.migration_wanted
+                ):
                     continue  # an idle monitor: nothing to update
                 fill = rt.buffered / slot.capacity
                 if fill >= HIGH_WATER:
