@@ -6,8 +6,9 @@ RTAMT and Reelay, which report the value of a past-time formula at every step,
 monitor `historically(running -> speed < 100)`. Each tool gets the same
 sequence of (running, speed) steps, in one process, one after the other.
 
-Three interleaved rounds; each tool's best round counts. Two edgerv rows: evaluation of the compressed bit buffers (the paper's design:
-what a scheduler does per step), and the whole pipeline from raw values
+Three interleaved rounds; each tool's best round counts. Two edgerv rows:
+evaluation of the compressed bit buffers (the paper's design: what a
+scheduler does per step), and the whole pipeline from raw values
 (buffer, sort, placeholder evaluation and bit-packing, then evaluation).
 """
 

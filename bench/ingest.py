@@ -178,29 +178,45 @@ def ladder(run: Any, rates: list[float]) -> tuple[float, float, list[str]]:
     best, cpu_per_msg, notes = 0.0, float("nan"), []
     for rate in rates:
         sent, received, cpu = run(rate)
-        notes.append(f"{rate / 1000:g}k: {received / sent:.1%}")
+        notes.append(f"{rate / 1000:g}k {received / sent:.1%}")
         if received < sent:
             break
         best, cpu_per_msg = rate, cpu / received
     return best, cpu_per_msg, notes
 
 
+ROUNDS = 2
+
+
 def main() -> list[dict[str, Any]]:
-    stock_best, stock_cpu, stock_notes = ladder(stock_run, STOCK_RATES)
+    # Rounds interleave the two receivers, so load elsewhere hits both alike; each
+    # receiver's best round counts.
+    stock_best = best = 0.0
+    stock_cpu = cpu = float("nan")
+    stock_notes: list[str] = []
+    notes: list[str] = []
     with tempfile.TemporaryDirectory() as tmp:
-        handler = HandlerProcess(tmp)
-        try:
-            best, cpu, notes = ladder(handler.run, HANDLER_RATES)
-        finally:
-            handler.stop()
+        for _ in range(ROUNDS):
+            r_best, r_cpu, r_notes = ladder(stock_run, STOCK_RATES)
+            stock_notes.append(" ".join(r_notes))
+            if r_best > stock_best:
+                stock_best, stock_cpu = r_best, r_cpu
+            handler = HandlerProcess(tmp)
+            try:
+                r_best, r_cpu, r_notes = ladder(handler.run, HANDLER_RATES)
+            finally:
+                handler.stop()
+            notes.append(" ".join(r_notes))
+            if r_best > best:
+                best, cpu = r_best, r_cpu
     return [
         {
             "name": "ingestion without loss (target >= 8x the stock executor)",
             "detail": f"paced std_msgs/Float64 publisher, {SECONDS:g} s per rate, reliable, "
-            "keep last 1000; runs: stock "
-            + ", ".join(stock_notes)
+            f"keep last 1000, best of {ROUNDS} interleaved rounds; received: stock "
+            + " / ".join(stock_notes)
             + "; handler "
-            + ", ".join(notes),
+            + " / ".join(notes),
             "baseline": f"stock executor {stock_best:,.0f} msg/s",
             "measured": f"handler {best:,.0f} msg/s",
             "ratio": f"{best / stock_best:.1f}x" if stock_best else "n/a",

@@ -149,14 +149,17 @@ class _Doc:
             index_of.append(k)
             j = k + 1
         index_of.append(j)
+        # The closure keeps the file's text and lines (shared by its documents), not the
+        # document's YAML node tree: a monitor lives as long as its handler runs.
+        text, lines, path, size = self.text, self.lines, self.path, len(value)
 
         def locate(offset: int, length: int) -> Location:
-            offset = min(max(offset, 0), len(value))
+            offset = min(max(offset, 0), size)
             absolute = raw_start + index_of[offset]
-            line = self.text.count("\n", 0, absolute)
-            col = absolute - (self.text.rfind("\n", 0, absolute) + 1)
-            src = self.lines[line] if line < len(self.lines) else None
-            return Location(self.path, line + 1, col + 1, max(1, length), src)
+            line = text.count("\n", 0, absolute)
+            col = absolute - (text.rfind("\n", 0, absolute) + 1)
+            src = lines[line] if line < len(lines) else None
+            return Location(path, line + 1, col + 1, max(1, length), src)
 
         return locate
 
