@@ -104,9 +104,11 @@ class RosIngest:
         self.bad_messages: dict[str, int] = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._qos_thread: threading.Thread | None = None
         self._version = -1
         self.ready = threading.Event()
         self.failed = False
+        self._resubscribe: set[str] = set()  # topics the QoS thread wants re-created
 
     # -- verdicts out ----------------------------------------------------------------------
 
@@ -186,6 +188,26 @@ class RosIngest:
                 current.fields = tuple(route.fields)
                 current.reader = compile_reader(route.msg_type, route.fields)
 
+    def _watch_qos(self) -> None:
+        """The QoS thread: graph queries take time, so they stay off the ingest thread."""
+        while not self._stop.wait(QOS_CHECK_SECONDS):
+            try:
+                self._check_qos()
+            except Exception:  # a failed check is retried; it must not stop the handler
+                log.exception("QoS check failed")
+
+    def _apply_resubscriptions(self) -> bool:
+        """In the ingest thread: re-create the subscriptions the QoS thread asked for."""
+        changed = False
+        for topic in list(self._resubscribe):
+            self._resubscribe.discard(topic)
+            sub = self.subs.get(topic)
+            if sub is not None:
+                self.node.destroy_subscription(sub.subscription)
+                self.subs[topic] = self._subscribe(sub.route)
+                changed = True
+        return changed
+
     def _check_qos(self) -> None:
         """Count publishers whose QoS cannot match ours; an ``auto`` subscription adapts."""
         for topic, sub in list(self.subs.items()):
@@ -201,13 +223,14 @@ class RosIngest:
                 ):
                     bad += 1
             if bad and sub.auto_reliability and sub.qos.reliability == ReliabilityPolicy.RELIABLE:
-                log.warning(
-                    "%s: a publisher offers only best-effort delivery: subscribing "
-                    "best effort (qos.reliability is auto)",
-                    topic,
-                )
-                self.node.destroy_subscription(sub.subscription)
-                self.subs[topic] = self._subscribe(sub.route)
+                if topic not in self._resubscribe:
+                    log.warning(
+                        "%s: a publisher offers only best-effort delivery: subscribing "
+                        "best effort (qos.reliability is auto)",
+                        topic,
+                    )
+                    self._resubscribe.add(topic)
+                    self.wake()  # the ingest thread re-creates the subscription
                 continue
             if bad != self.qos_problems.get(topic, 0):
                 if bad:
@@ -261,17 +284,14 @@ class RosIngest:
             log.warning("%s: %d messages could not be read as %s", topic, n, msg_type)
 
     def _loop(self) -> None:
-        next_qos_check = 0.0
         stack = contextlib.ExitStack()
         wait_set: Any = None
         handles: list[Any] = []
         version = None
         try:
             while not self._stop.is_set():
-                if time.monotonic() >= next_qos_check:
-                    self._check_qos()
-                    next_qos_check = time.monotonic() + QOS_CHECK_SECONDS
-                    version = None  # the QoS check may have re-created a subscription
+                if self._resubscribe and self._apply_resubscriptions():
+                    version = None  # a subscription was re-created: rebuild the wait set
                 if version != self.engine.routes_version:
                     stack.close()  # the wait set is rebuilt for the new subscriptions
                     self._reconfigure()
@@ -305,6 +325,8 @@ class RosIngest:
             target=self._run, args=(on_failure,), name="edgerv-ingest", daemon=True
         )
         self._thread.start()
+        self._qos_thread = threading.Thread(target=self._watch_qos, name="edgerv-qos", daemon=True)
+        self._qos_thread.start()
 
     def _run(self, on_failure: Callable[[], None]) -> None:
         try:
@@ -321,8 +343,9 @@ class RosIngest:
     def stop(self) -> None:
         self._stop.set()
         self.wake()
-        if self._thread is not None:
-            self._thread.join(timeout=10)
+        for thread in (self._thread, self._qos_thread):
+            if thread is not None:
+                thread.join(timeout=10)
 
     def close(self) -> None:
         self.node.destroy_node()
