@@ -65,7 +65,6 @@ class MonitorRuntime:
     halted: bool = False
     late_events: int = 0  # events released after a newer one (beyond the sort window)
     last_released: int | None = None
-    counts: dict[str, int] = field(default_factory=lambda: {"violated": 0, "satisfied": 0})
 
     def __post_init__(self) -> None:
         spec = self.monitor.spec
@@ -195,7 +194,6 @@ class MonitorRuntime:
             if state >= live:
                 kind: VerdictKind = "violated" if state == live else "satisfied"
                 verdicts.append(Verdict(self.name, kind, self.stamps[i], self.step + i + 1))
-                self.counts[kind] += 1
                 if halt:
                     self.halted = True
                     consumed = i + 1

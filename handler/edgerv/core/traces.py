@@ -33,12 +33,11 @@ class TraceEvent:
 
 
 class Trace:
-    """A recorded run opened for streaming; ``total`` is its size in progress units."""
+    """A recorded run opened for streaming."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
         self.is_bag = path.is_dir() or path.suffix in (".mcap", ".db3", ".bag")
-        self.total = 0
         self.msgtypes: dict[str, str] = {}  # topic -> message type, for bags
 
     def events(
@@ -128,14 +127,13 @@ class Trace:
         if not self.path.exists():
             raise InputError([Diagnostic(Location(str(self.path)), "no such file or directory")])
         if not self.is_bag:
-            self.total = self.path.stat().st_size
-            return self.total
+            return self.path.stat().st_size
         from rosbags.highlevel import AnyReader
 
         try:
             with AnyReader([self._bag_target()], default_typestore=typestore()) as reader:
                 self.msgtypes = {c.topic: c.msgtype for c in reader.connections}
-                self.total = sum(c.msgcount for c in reader.connections if c.topic in topics)
+                total: int = sum(c.msgcount for c in reader.connections if c.topic in topics)
         except Exception as exc:  # rosbags raises several error types for unreadable bags
             raise InputError(
                 [
@@ -146,7 +144,7 @@ class Trace:
                     )
                 ]
             ) from None
-        return self.total
+        return total
 
     def _bag_target(self) -> Path:
         if self.path.suffix == ".db3" and (self.path.parent / "metadata.yaml").exists():
