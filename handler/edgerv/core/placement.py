@@ -1,0 +1,208 @@
+"""The orchestration policy: where monitors should run, from the handlers' load reports.
+
+A pure function of its inputs (and of :class:`PolicyMemory`, which it updates),
+shared by the local orchestrator and the Kubernetes operator. It decides; the
+migration protocol moves.
+
+* **Up** (the paper's section V): a handler is *under pressure* when one of its
+  monitors wants to migrate (its buffer stays full), or its CPU or ingest lag is
+  above the high mark. Its movable monitors go one tier up: those that want to
+  migrate first, then the busiest (most events freed) with the least added
+  latency, until the load it sheds brings it to the target.
+* **Down** (beyond the paper): a monitor above its home tier comes back one tier
+  once the handler below has been calm (CPU and lag below the low marks, nobody
+  wanting to migrate) for ``calm_seconds``, and not within ``cooldown_seconds``
+  of its last move. The gap between high and low marks plus the two waits is the
+  hysteresis that keeps a monitor from flapping; a monitor pushed back up within
+  a cooldown of coming down (a bounce) waits twice as long before the next descent.
+  Moving *up* is never delayed: the robot's deadlines come first.
+* ``placement.migrate: pinned`` never moves; ``placement.maxLatencyMs`` forbids
+  tiers whose latency from the robot is larger.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+
+@dataclass(frozen=True)
+class MonitorLoad:
+    active: bool
+    events_per_second: float = 0.0
+    migration_wanted: bool = False
+
+
+@dataclass(frozen=True)
+class HandlerReport:
+    name: str
+    tier: str
+    cpu: float  # share of the handler's CPU budget in use, 0..1
+    ingest_lag: float = 0.0  # seconds
+    monitors: Mapping[str, MonitorLoad] = field(default_factory=dict)
+
+    def active(self) -> list[str]:
+        return [m for m, load in self.monitors.items() if load.active]
+
+
+@dataclass(frozen=True)
+class Placement:
+    tier: str | None = None  # home tier: where it starts and comes back to (default: lowest)
+    migrate: Literal["auto", "pinned"] = "auto"
+    max_latency_ms: float | None = None
+
+
+@dataclass(frozen=True)
+class PolicyConfig:
+    tiers: tuple[str, ...]  # lowest (closest to the robot) first, e.g. ("edge", "fog", "cloud")
+    tier_latency_ms: Mapping[str, float] = field(default_factory=dict)  # from the robot
+    cpu_high: float = 0.85
+    cpu_target: float = 0.7
+    cpu_low: float = 0.5
+    lag_high: float = 0.5
+    lag_low: float = 0.1
+    calm_seconds: float = 30.0
+    cooldown_seconds: float = 60.0
+    max_moves_down: int = 1  # per decision: come back gently
+
+    def __post_init__(self) -> None:
+        if not self.tiers or len(set(self.tiers)) != len(self.tiers):
+            raise ValueError("tiers must be distinct names, lowest first")
+        if not self.cpu_low < self.cpu_target < self.cpu_high:
+            raise ValueError("need cpu_low < cpu_target < cpu_high")
+
+
+@dataclass(frozen=True)
+class Move:
+    monitor: str
+    source: str  # handler names
+    destination: str
+    reason: str
+
+
+@dataclass
+class PolicyMemory:
+    """What the policy remembers between decisions."""
+
+    calm_since: dict[str, float] = field(default_factory=dict)  # handler -> calm from
+    last_move: dict[str, float] = field(default_factory=dict)  # monitor -> when it moved
+    last_down: dict[str, float] = field(default_factory=dict)  # monitor -> when it came down
+    bounces: dict[str, int] = field(default_factory=dict)  # monitor -> up soon after down
+
+
+def _pressured(h: HandlerReport, c: PolicyConfig) -> bool:
+    return (
+        h.cpu >= c.cpu_high
+        or h.ingest_lag >= c.lag_high
+        or any(m.active and m.migration_wanted for m in h.monitors.values())
+    )
+
+
+def _calm(h: HandlerReport, c: PolicyConfig) -> bool:
+    return (
+        h.cpu <= c.cpu_low
+        and h.ingest_lag <= c.lag_low
+        and not any(m.active and m.migration_wanted for m in h.monitors.values())
+    )
+
+
+def _allowed(tier: str, placement: Placement, c: PolicyConfig) -> bool:
+    budget = placement.max_latency_ms
+    return budget is None or c.tier_latency_ms.get(tier, 0.0) <= budget
+
+
+def _least_loaded(
+    handlers: Sequence[HandlerReport], tier: str, c: PolicyConfig
+) -> HandlerReport | None:
+    fit = [h for h in handlers if h.tier == tier and not _pressured(h, c)]
+    return min(fit, key=lambda h: (h.cpu, h.name)) if fit else None
+
+
+def plan(
+    handlers: Sequence[HandlerReport],
+    placements: Mapping[str, Placement],
+    config: PolicyConfig,
+    memory: PolicyMemory,
+    now: float,
+) -> list[Move]:
+    """The moves to make now. Updates ``memory`` as if they are all made."""
+    c = config
+    rank = {t: i for i, t in enumerate(c.tiers)}
+    for h in handlers:
+        if h.tier not in rank:
+            raise ValueError(f"handler {h.name} reports tier '{h.tier}', not one of {c.tiers}")
+        if _calm(h, c):
+            memory.calm_since.setdefault(h.name, now)
+        else:
+            memory.calm_since.pop(h.name, None)
+    moves: list[Move] = []
+    moved: set[str] = set()
+
+    def movable(name: str, tier: str) -> bool:
+        p = placements.get(name, Placement())
+        return p.migrate == "auto" and _allowed(tier, p, c) and name not in moved
+
+    # Up: relieve each handler under pressure.
+    for h in sorted(handlers, key=lambda h: (rank[h.tier], h.name)):
+        if not _pressured(h, c) or rank[h.tier] + 1 >= len(c.tiers):
+            continue
+        up = c.tiers[rank[h.tier] + 1]
+        destination = _least_loaded(handlers, up, c)
+        if destination is None:
+            continue
+        candidates = [m for m in h.active() if movable(m, up)]
+        # those that want to migrate first; then what frees most per millisecond added
+        added = c.tier_latency_ms.get(up, 0.0) - c.tier_latency_ms.get(h.tier, 0.0)
+        candidates.sort(
+            key=lambda m: (
+                not h.monitors[m].migration_wanted,
+                -h.monitors[m].events_per_second / (1.0 + max(0, added)),
+                m,
+            )
+        )
+        total = sum(load.events_per_second for load in h.monitors.values() if load.active)
+        excess = max(0.0, (h.cpu - c.cpu_target) / h.cpu) if h.cpu > 0 else 0.0
+        shed = 0.0
+        for m in candidates:
+            load = h.monitors[m]
+            if not load.migration_wanted and total and shed / total >= excess:
+                break
+            moves.append(Move(m, h.name, destination.name, "pressure"))
+            moved.add(m)
+            shed += load.events_per_second
+            memory.last_move[m] = now
+            if now - memory.last_down.get(m, float("-inf")) < c.cooldown_seconds:
+                memory.bounces[m] = memory.bounces.get(m, 0) + 1  # it came down too soon
+
+    # Down: bring monitors above their home tier back one tier, below a calm handler.
+    budget = c.max_moves_down
+    for h in sorted(handlers, key=lambda h: (-rank[h.tier], h.name)):
+        if rank[h.tier] == 0 or budget <= 0:
+            continue
+        down = c.tiers[rank[h.tier] - 1]
+        below = [
+            b
+            for b in handlers
+            if b.tier == down
+            and b.name in memory.calm_since
+            and now - memory.calm_since[b.name] >= c.calm_seconds
+        ]
+        if not below:
+            continue
+        destination = min(below, key=lambda b: (b.cpu, b.name))
+        for m in sorted(h.active()):
+            p = placements.get(m, Placement())
+            home = p.tier if p.tier in rank else c.tiers[0]
+            if rank[h.tier] <= rank[home] or not movable(m, down):
+                continue
+            wait = c.cooldown_seconds * 2 ** memory.bounces.get(m, 0)
+            if now - memory.last_move.get(m, float("-inf")) < wait:
+                continue
+            moves.append(Move(m, h.name, destination.name, "calm below"))
+            moved.add(m)
+            memory.last_move[m] = memory.last_down[m] = now
+            budget -= 1
+            if budget <= 0:
+                break
+    return moves
