@@ -63,6 +63,7 @@ class MonitorRuntime:
     state: int = 0  # the automaton state: the one integer a migration moves
     step: int = 0  # letters evaluated so far
     halted: bool = False
+    holding: bool = False  # during a handoff: buffer raw events, neither sort nor compress
     late_events: int = 0  # events released after a newer one (beyond the sort window)
     last_released: int | None = None
 
@@ -101,6 +102,9 @@ class MonitorRuntime:
         Returns True when letters were produced and :meth:`evaluate` has work.
         """
         if self.halted:
+            return False
+        if self.holding:
+            self.events.append((stamp, seq, updates))
             return False
         if self.threshold == 1:  # nothing to sort: straight to the compressed buffer
             if self.last_released is not None and stamp < self.last_released:
