@@ -3,15 +3,24 @@
 Field types come from the message definitions that ``rosbags`` ships for ROS 2
 Jazzy (std_msgs, geometry_msgs, nav_msgs, sensor_msgs, diagnostic_msgs, ...),
 so the core can check a signal's ``type`` and ``field`` before any ROS node
-exists. A field path is dotted (``twist.twist.linear.x``) with ``[i]`` for an
-element of an array or sequence (``ranges[0]``).
+exists. Any other type -- a robot's own package -- is read from its ``.msg``
+file, looked up as ``<pkg>/msg/<Type>.msg`` under each directory of
+``$EDGERV_MSG_PATH`` and under ``share/`` of each ROS install prefix
+(``$AMENT_PREFIX_PATH`` and this Python environment's own prefix).
+
+A field path is dotted (``twist.twist.linear.x``) with ``[i]`` for an element
+of an array or sequence (``ranges[0]``).
 """
 
 from __future__ import annotations
 
+import os
 import re
+import sys
+import threading
 from dataclasses import dataclass
 from functools import cache
+from pathlib import Path
 from typing import Any, Literal
 
 ValueKind = Literal["bool", "int", "float", "string"]
@@ -57,6 +66,59 @@ def typestore() -> Any:
     return get_typestore(Stores.ROS2_JAZZY)
 
 
+_REGISTER = threading.Lock()
+
+
+def _definition_dirs() -> list[Path]:
+    dirs = [Path(d) for d in os.environ.get("EDGERV_MSG_PATH", "").split(os.pathsep) if d]
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    dirs += [Path(p) / "share" for p in [*prefixes, sys.prefix]]
+    return dirs
+
+
+def _find_definition(msg_type: str) -> Path | None:
+    pkg, _, name = msg_type.split("/")
+    for d in _definition_dirs():
+        for candidate in (d / pkg / "msg" / f"{name}.msg", d / "msg" / f"{name}.msg"):
+            if candidate.is_file() and (candidate.parent.parent.name == pkg or d.name == pkg):
+                return candidate
+    return None
+
+
+def ensure_type(msg_type: str) -> bool:
+    """Make ``msg_type`` (normalized) known, reading its .msg file if need be.
+
+    Returns False when no definition is found. Types it refers to are resolved too.
+    """
+    store = typestore()
+    if msg_type in store.fielddefs:
+        return True
+    from rosbags.typesys import get_types_from_msg
+
+    with _REGISTER:
+        pending, found = [msg_type], {}
+        while pending:
+            name = pending.pop()
+            if name in store.fielddefs or name in found:
+                continue
+            path = _find_definition(name)
+            if path is None:
+                return False
+            try:
+                types = get_types_from_msg(path.read_text(encoding="utf-8"), name)
+            except Exception as exc:  # rosbags reports bad .msg syntax with several types
+                raise FieldError(f"cannot read {path}: {exc}", about="type") from None
+            found.update(types)
+            fields: list[tuple[str, Any]] = list(types[name][1])
+            for _, node in fields:
+                while int(node[0]) in (3, 4):  # arrays and sequences: their element type
+                    node = node[1][0]
+                if int(node[0]) == 2:
+                    pending.append(normalize_type(str(node[1])))
+        store.register(found)
+    return True
+
+
 def known_types() -> list[str]:
     return sorted(typestore().fielddefs)
 
@@ -91,14 +153,15 @@ def field_kind(msg_type: str, path: str) -> ValueKind:
     """The kind of value at ``path`` in ``msg_type``; raises :class:`FieldError`."""
     store = typestore()
     current = normalize_type(msg_type)
-    if current not in store.fielddefs:
+    if not ensure_type(current):
         import difflib
 
         close = difflib.get_close_matches(current, store.fielddefs, n=2, cutoff=0.7)
+        own = "a package of your own: put its msg/ directory under a directory of $EDGERV_MSG_PATH"
         hint = (
-            "did you mean " + " or ".join(close) + "?"
+            ("did you mean " + " or ".join(close) + "? Or, for " + own)
             if close
-            else "edgerv knows the standard ROS 2 Jazzy message packages"
+            else ("edgerv knows the standard ROS 2 Jazzy message packages; for " + own)
         )
         raise FieldError(f"unknown message type '{msg_type}'", hint, about="type")
     node: tuple[Any, Any] = (2, current)  # (Nodetype.NAME, name)
