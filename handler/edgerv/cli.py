@@ -126,6 +126,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     replay.add_arguments(rep)
     rep.set_defaults(func=replay.run)
+
+    from edgerv.handler import migrate
+
+    mig = sub.add_parser(
+        "migrate", help="move a monitor from one handler to another", description=migrate.__doc__
+    )
+    migrate.add_arguments(mig)
+    mig.set_defaults(func=migrate.run)
     return parser
 
 

@@ -64,6 +64,7 @@ class MonitorRuntime:
     step: int = 0  # letters evaluated so far
     halted: bool = False
     holding: bool = False  # during a handoff: buffer raw events, neither sort nor compress
+    newest_held: int | None = None  # the newest stamp held (H1 waits for one past the cut)
     late_events: int = 0  # events released after a newer one (beyond the sort window)
     last_released: int | None = None
 
@@ -105,6 +106,8 @@ class MonitorRuntime:
             return False
         if self.holding:
             self.events.append((stamp, seq, updates))
+            if self.newest_held is None or stamp > self.newest_held:
+                self.newest_held = stamp
             return False
         if self.threshold == 1:  # nothing to sort: straight to the compressed buffer
             if self.last_released is not None and stamp < self.last_released:

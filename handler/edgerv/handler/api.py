@@ -8,6 +8,9 @@ Open: ``GET /healthz``, ``GET /metrics`` (Prometheus text). Everything under
 * ``PUT /v1/monitors/{name}``: add or replace that monitor
 * ``DELETE /v1/monitors/{name}``: remove it
 * ``POST /v1/monitors/{name}/activate`` and ``/deactivate``: run it here, or stop running it
+* ``POST /v1/monitors/{name}/handoff/{step}`` with ``{"epoch": E, ...}``: one step of moving
+  a monitor between handlers (docs/protocol.md): ``hold`` and ``release`` on the sender,
+  ``receive``, ``cut`` and ``adopt`` on the receiver, ``abort`` on either
 
 A body with bad documents changes nothing and gets 400 with every error located
 in the body (``request:LINE:COL``).
@@ -27,6 +30,7 @@ from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_l
 
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import MonitorSpec, parse_monitors_text
+from edgerv.core.handoff import HandoffError
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.handler.engine import Engine
 
@@ -187,6 +191,42 @@ class ControlApi:
         self.on_change()
         return web.json_response({"name": name, "active": active})
 
+    async def handoff(self, request: web.Request) -> web.StreamResponse:
+        name, step = request.match_info["name"], request.match_info["step"]
+        e = self.engine
+        try:
+            if step == "adopt":
+                epoch = int(request.query["epoch"])
+                e.adopt(name, epoch, await request.read())
+                self.on_change()
+                return web.json_response({"name": name, "active": True})
+            body = await request.json()
+            epoch = int(body["epoch"])
+            if step == "hold":
+                e.hold(name, epoch)
+                return web.json_response({"name": name, "held": True})
+            if step == "receive":
+                e.receive(name, epoch)
+                self.on_change()
+                return web.json_response({"name": name, "receiving": True})
+            if step == "cut":
+                return web.json_response({"cut": e.cut(name, epoch)})
+            if step == "release":
+                data = e.release(name, epoch, int(body["cut"]), float(body.get("grace", 1.0)))
+                if data is None:
+                    return web.json_response({"ready": False}, status=202)
+                self.on_change()
+                return web.Response(body=data, content_type="application/octet-stream")
+            if step == "abort":
+                outcome = e.abort(name, epoch)
+                self.on_change()
+                return web.json_response({"name": name, "outcome": outcome})
+        except HandoffError as exc:
+            return _message(409, str(exc))
+        except (KeyError, ValueError, TypeError) as exc:
+            return _message(400, f"bad handoff request: {exc}")
+        return _message(404, f"no handoff step '{step}'")
+
     async def activate(self, request: web.Request) -> web.Response:
         return await self._set_active(request, True)
 
@@ -208,6 +248,7 @@ class ControlApi:
                 web.delete("/v1/monitors/{name}", self.delete_monitor),
                 web.post("/v1/monitors/{name}/activate", self.activate),
                 web.post("/v1/monitors/{name}/deactivate", self.deactivate),
+                web.post("/v1/monitors/{name}/handoff/{step}", self.handoff),
             ]
         )
         return app

@@ -21,6 +21,7 @@ from typing import Any, Protocol
 
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import MonitorSpec
+from edgerv.core.handoff import HandoffError, cut_point, decode, encode, export_snapshot, restore
 from edgerv.core.monitor import CompiledMonitor, compile_monitor
 from edgerv.core.pipeline import MonitorRuntime, Router, TopicRoute, Verdict
 
@@ -55,6 +56,10 @@ class MonitorSlot:
     full_since: float | None = None  # when the buffer rose above HIGH_WATER
     migration_wanted: bool = False
     capacity: int = field(init=False)
+    epoch: int = 0  # the newest handoff this handler took part in, for this monitor
+    handoff: str | None = None  # "sending" (H1 holds it) or "receiving" (H2 holds it)
+    handoff_since: float = 0.0
+    first_stamps: dict[str, int] = field(default_factory=dict)  # H2: first stamp per topic
 
     @property
     def name(self) -> str:
@@ -90,6 +95,8 @@ class MonitorSlot:
             "lateEvents": rt.late_events if rt else 0,
             "verdicts": dict(self.verdicts),
             "migrationWanted": self.migration_wanted,
+            "handoff": self.handoff,
+            "epoch": self.epoch,
         }
 
 
@@ -209,11 +216,15 @@ class Engine:
                 return True
 
             messages = self.messages
+            receiving = [s for s in slots.values() if s.handoff == "receiving"]
             for stamp, topic, values in batch:
                 route = routes.get(topic)
                 if route is None:
                     continue
                 messages[topic] = messages.get(topic, 0) + 1
+                for slot in receiving:  # H2 notes its first stamp on each topic (the cut)
+                    if topic not in slot.first_stamps and topic in slot.compiled.spec.topics:
+                        slot.first_stamps[topic] = stamp
                 for runtime in self.router.offer_values(route, stamp, values, admit):
                     slots[runtime.name].pending_since = now if runtime.events else None
                     self.waiting[runtime.name] = runtime
@@ -242,7 +253,11 @@ class Engine:
                 rt = slot.runtime
                 if rt is None:
                     continue
-                if slot.pending_since is not None and now - slot.pending_since >= self.flush_after:
+                if (
+                    slot.pending_since is not None
+                    and not rt.holding
+                    and now - slot.pending_since >= self.flush_after
+                ):
                     if rt.flush():
                         self.waiting[rt.name] = rt
                     slot.pending_since = None
@@ -300,6 +315,110 @@ class Engine:
                     slot.pending_since = None
             verdicts = self._evaluate()
         self.emit(verdicts)
+
+    # -- handoff (docs/protocol.md): each step is a call; epochs fence stale ones -----------
+
+    def _slot(self, name: str) -> MonitorSlot:
+        slot = self.slots.get(name)
+        if slot is None:
+            raise HandoffError(f"no monitor '{name}' here")
+        return slot
+
+    def hold(self, name: str, epoch: int, now: float | None = None) -> None:
+        """H1, step 2a: stop scheduling the monitor, keep buffering its events."""
+        with self.lock:
+            slot = self._slot(name)
+            if epoch <= slot.epoch:
+                raise HandoffError(f"epoch {epoch} is not newer than {slot.epoch}")
+            if slot.runtime is None or slot.handoff is not None:
+                raise HandoffError(f"monitor '{name}' is not running here")
+            slot.epoch, slot.handoff = epoch, "sending"
+            slot.handoff_since = time.monotonic() if now is None else now
+            slot.runtime.holding = True
+            slot.runtime.newest_held = None
+            self.waiting.pop(name, None)
+
+    def receive(self, name: str, epoch: int, now: float | None = None) -> None:
+        """H2, step 3: subscribe and hold the monitor's events, without scheduling it."""
+        with self.lock:
+            slot = self._slot(name)
+            if epoch <= slot.epoch:
+                raise HandoffError(f"epoch {epoch} is not newer than {slot.epoch}")
+            if slot.runtime is not None:
+                raise HandoffError(f"monitor '{name}' already runs here")
+            slot.epoch, slot.handoff, slot.first_stamps = epoch, "receiving", {}
+            slot.handoff_since = time.monotonic() if now is None else now
+            self._activate(slot)
+            assert slot.runtime is not None
+            slot.runtime.holding = True
+            self.routes_version += 1
+
+    def cut(self, name: str, epoch: int) -> int | None:
+        """H2, step 4: the cut once every topic delivered an event, else None."""
+        with self.lock:
+            slot = self._handoff_slot(name, epoch, "receiving")
+            return cut_point(slot.first_stamps, slot.compiled.spec.topics)
+
+    def release(
+        self, name: str, epoch: int, cut: int, grace: float, now: float | None = None
+    ) -> bytes | None:
+        """H1, step 5: the snapshot once an event past the cut arrived (or ``grace`` ran
+        out since the hold), else None. The monitor stops running here."""
+        now = time.monotonic() if now is None else now
+        with self.lock:
+            slot = self._handoff_slot(name, epoch, "sending")
+            rt = slot.runtime
+            assert rt is not None
+            past = rt.newest_held is not None and rt.newest_held > cut
+            if not past and now - slot.handoff_since < grace:
+                return None
+            data = encode(export_snapshot(rt, cut, epoch))
+            self.router.remove(name)
+            slot.runtime, slot.handoff = None, None
+            self.routes_version += 1
+            return data
+
+    def adopt(self, name: str, epoch: int, data: bytes) -> None:
+        """H2, step 6: take the snapshot, merge the held events after the cut, schedule."""
+        with self.lock:
+            slot = self._handoff_slot(name, epoch, "receiving")
+            snap = decode(data)
+            if snap.epoch != epoch or snap.monitor != name:
+                raise HandoffError("the snapshot belongs to another handoff")
+            held = slot.runtime
+            assert held is not None
+            rt = restore(slot.compiled, snap, held.events)
+            self.router.remove(name)
+            slot.runtime, slot.handoff = rt, None
+            self.router.add(rt)
+            self.waiting[name] = rt
+            self.routes_version += 1
+            self.ready.notify()
+
+    def abort(self, name: str, epoch: int) -> str:
+        """Undo a handoff on this side: H1 resumes the monitor, H2 drops what it held."""
+        with self.lock:
+            slot = self._slot(name)
+            if slot.epoch != epoch or slot.handoff is None:
+                return "nothing to undo"
+            rt = slot.runtime
+            assert rt is not None
+            if slot.handoff == "sending":
+                rt.holding = False
+                if len(rt.events) >= rt.threshold and rt.flush():
+                    self.waiting[name] = rt
+                slot.handoff = None
+                return "resumed"
+            self.router.remove(name)
+            slot.runtime, slot.handoff = None, None
+            self.routes_version += 1
+            return "dropped"
+
+    def _handoff_slot(self, name: str, epoch: int, role: str) -> MonitorSlot:
+        slot = self._slot(name)
+        if slot.handoff != role or slot.epoch != epoch:
+            raise HandoffError(f"no {role} handoff of '{name}' with epoch {epoch} here")
+        return slot
 
     def snapshot(self) -> list[dict[str, Any]]:
         with self.lock:

@@ -1,0 +1,146 @@
+"""Moving a monitor between two live handlers mid-stream (loopback, one ROS domain).
+
+Both handlers hold the same monitors; the sender runs them, the receiver only
+defines them. While a trace is replayed as real ROS messages, `edgerv migrate`
+moves a monitor there and back. Together, the two verdict logs must hold the
+very verdicts `edgerv check` gives on the trace: nothing lost, nothing twice.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+import zlib
+from pathlib import Path
+
+import pytest
+from rosprocs import TOKEN, Handler, ros_env, wait_for
+from test_handler import MONITORS, random_trace, write
+
+pytestmark = pytest.mark.integration
+
+
+@pytest.fixture
+def domain(request: pytest.FixtureRequest) -> int:
+    return 20 + zlib.crc32(request.node.name.encode()) % 80
+
+
+def migrate(
+    src: Handler, dst: Handler, monitor: str, domain: int
+) -> subprocess.CompletedProcess[str]:
+    env = ros_env(domain) | {"EDGERV_TOKEN": TOKEN}
+    return subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "edgerv",
+            "migrate",
+            "--from",
+            f"127.0.0.1:{src.port}",
+            "--to",
+            f"127.0.0.1:{dst.port}",
+            "--monitor",
+            monitor,
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+def test_migrating_mid_stream_loses_and_repeats_nothing(tmp_path: Path, domain: int) -> None:
+    monitors = write(tmp_path, "monitors.yaml", MONITORS)
+    trace = random_trace(tmp_path / "run.jsonl", 500, seed=5)
+    edge = Handler(tmp_path, monitors, domain, name="edge")
+    cloud = Handler(tmp_path, monitors, domain, "--active", "none", name="cloud")
+    try:
+        replay = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "edgerv",
+                "replay",
+                "--monitors",
+                str(monitors),
+                str(trace),
+                "--interval",
+                "0.008",
+            ],
+            env=ros_env(domain),
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        assert wait_for(
+            lambda: (edge.metric("edgerv_events_total", monitor="speed-limit") or 0) > 60,
+            timeout=30,
+        )
+        there = migrate(edge, cloud, "speed-limit", domain)
+        assert there.returncode == 0, there.stderr
+        assert "speed-limit runs on" in there.stderr
+        time.sleep(1.0)
+        back = migrate(cloud, edge, "speed-limit", domain)
+        assert back.returncode == 0, back.stderr
+        assert replay.wait(timeout=120) == 0, replay.stderr
+        time.sleep(1.0)
+        _, listing = edge.request("GET", "/v1/monitors")
+        assert [m["active"] for m in listing["monitors"]] == [True, True]
+        _, listing = cloud.request("GET", "/v1/monitors")
+        assert [m["active"] for m in listing["monitors"]] == [False, False]
+    finally:
+        assert edge.stop() == 0, edge.stderr
+        assert cloud.stop() == 0, cloud.stderr
+    check = subprocess.run(
+        [sys.executable, "-m", "edgerv", "check", str(monitors), str(trace), "--json"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    offline = sorted(
+        (m["name"], v["verdict"], v["step"])
+        for m in json.loads(check.stdout)["monitors"]
+        for v in m["verdicts"]
+    )
+    live = sorted(
+        (v["monitor"], v["verdict"], v["step"]) for v in edge.verdicts() + cloud.verdicts()
+    )
+    assert live == offline
+    assert any(v["monitor"] == "speed-limit" for v in cloud.verdicts()), "cloud ran it"
+
+
+def test_a_failed_migration_leaves_the_monitor_where_it_was(tmp_path: Path, domain: int) -> None:
+    monitors = write(tmp_path, "monitors.yaml", MONITORS)
+    edge = Handler(tmp_path, monitors, domain, name="edge")
+    try:
+        env = ros_env(domain) | {"EDGERV_TOKEN": TOKEN}
+        gone = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "edgerv",
+                "migrate",
+                "--from",
+                f"127.0.0.1:{edge.port}",
+                "--to",
+                "127.0.0.1:9",
+                "--monitor",
+                "speed-limit",
+                "--timeout",
+                "5",
+            ],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert gone.returncode == 1
+        assert "speed-limit stays on" in gone.stderr and "unreachable" in gone.stderr
+        _, listing = edge.request("GET", "/v1/monitors")
+        assert [(m["name"], m["active"], m["handoff"]) for m in listing["monitors"]] == [
+            ("speed-limit", True, None),
+            ("no-stop-while-fast", True, None),
+        ]
+    finally:
+        assert edge.stop() == 0

@@ -1,0 +1,111 @@
+"""The handoff between two engines (no network): same verdicts as one engine alone."""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Sequence
+
+import pytest
+
+from edgerv.core.handoff import HandoffError
+from edgerv.core.pipeline import Verdict
+from edgerv.handler.engine import Engine
+from helpers import compiled
+
+
+class Collect:
+    def __init__(self) -> None:
+        self.got: list[tuple[str, int, int]] = []
+
+    def write(self, handler: str, verdicts: Sequence[Verdict]) -> None:
+        self.got += [(v.verdict, v.step, v.stamp) for v in verdicts]
+
+
+def monitor():  # type: ignore[no-untyped-def]
+    return compiled("always (a -> x < 5)", {"a": "bool", "x": "float"}, sortThreshold=2)
+
+
+def batches(seed: int) -> list[list[tuple[int, str, list[object]]]]:
+    rng, stamp, out = random.Random(seed), 0, []
+    for _ in range(120):
+        batch = []
+        for _ in range(rng.randint(1, 3)):
+            stamp += rng.choice([0, 1, 2])
+            topic = rng.choice(["/a", "/x"])
+            batch.append(
+                (stamp, topic, [rng.random() < 0.7 if topic == "/a" else rng.uniform(0, 9)])
+            )
+        out.append(batch)
+    return out
+
+
+def alone(seed: int) -> list[tuple[str, int, int]]:
+    sink = Collect()
+    e = Engine("one", [sink], flush_after=1e9)
+    e.put(monitor(), active=True)
+    for b in batches(seed):
+        e.ingest(b)
+        e.emit(e.tick())
+    e.drain()
+    return sink.got
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_handoff_between_engines(seed: int) -> None:
+    rng = random.Random(seed)
+    sinks = [Collect(), Collect()]
+    engines = [Engine(f"h{i}", [sinks[i]], flush_after=1e9) for i in (0, 1)]
+    engines[0].put(monitor(), active=True)
+    engines[1].put(monitor(), active=False)
+    owner, epoch, phase, cut = 0, 0, None, None
+    for i, b in enumerate(batches(seed)):
+        src, dst = engines[owner], engines[1 - owner]
+        if phase is None and i > 10 and rng.random() < 0.08:
+            epoch += 1
+            src.hold("m", epoch)
+            phase = "subscribing"
+            subscribe_at = i + rng.randint(0, 3)
+        if phase == "subscribing" and i >= subscribe_at:
+            dst.receive("m", epoch)
+            phase = "cutting"
+        src.ingest(b)
+        if phase in ("cutting", "releasing"):
+            dst.ingest(b)
+        if phase == "cutting":
+            cut = dst.cut("m", epoch)
+            phase = "releasing" if cut is not None else phase
+        if phase == "releasing":
+            assert cut is not None
+            data = src.release("m", epoch, cut, grace=1e9)
+            if data is not None:
+                dst.adopt("m", epoch, data)
+                owner, phase = 1 - owner, None
+        for e in engines:
+            e.emit(e.tick())
+    if phase is not None:  # unfinished at the end: the sender resumes
+        engines[owner].abort("m", epoch)
+        engines[1 - owner].abort("m", epoch)
+    for e in engines:
+        e.drain()
+    got = sorted(sinks[0].got + sinks[1].got, key=lambda v: v[1])
+    assert got == alone(seed)
+    assert sum(1 for e in engines if e.slots["m"].runtime is not None) == 1
+
+
+def test_epochs_fence_stale_and_duplicate_calls() -> None:
+    e = Engine("h")
+    e.put(monitor(), active=True)
+    e.hold("m", 5)
+    with pytest.raises(HandoffError, match="not newer"):
+        e.hold("m", 5)
+    with pytest.raises(HandoffError, match="no sending handoff of 'm' with epoch 4"):
+        e.release("m", 4, cut=0, grace=0)
+    assert e.abort("m", 4) == "nothing to undo"
+    assert e.abort("m", 5) == "resumed"
+    other = Engine("h2")
+    other.put(monitor(), active=False)
+    other.receive("m", 7)
+    with pytest.raises(HandoffError, match="too short for a snapshot"):
+        other.adopt("m", 7, b"garbage")
+    assert other.abort("m", 7) == "dropped"
+    assert other.slots["m"].runtime is None
