@@ -143,6 +143,41 @@ class Handler:
         return self.proc.returncode
 
 
+def replay_command(monitors: Path, trace: Path, interval: float) -> list[str]:
+    """`edgerv replay` of a trace, ``interval`` seconds between messages."""
+    return [
+        sys.executable,
+        "-m",
+        "edgerv",
+        "replay",
+        "--monitors",
+        str(monitors),
+        str(trace),
+        "--interval",
+        str(interval),
+    ]
+
+
+def offline_verdicts(monitors: Path, trace: Path) -> list[tuple[str, str, int]]:
+    """(monitor, verdict, step) that `edgerv check` gives on the trace, sorted."""
+    check = subprocess.run(
+        [sys.executable, "-m", "edgerv", "check", str(monitors), str(trace), "--json"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    return sorted(
+        (m["name"], v["verdict"], v["step"])
+        for m in json.loads(check.stdout)["monitors"]
+        for v in m["verdicts"]
+    )
+
+
+def live_verdicts(*handlers: Handler) -> list[tuple[str, str, int]]:
+    """(monitor, verdict, step) from the handlers' verdict logs, sorted."""
+    return sorted((v["monitor"], v["verdict"], v["step"]) for h in handlers for v in h.verdicts())
+
+
 def wait_for(predicate: Any, timeout: float = 20, interval: float = 0.1) -> Any:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

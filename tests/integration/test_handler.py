@@ -7,11 +7,19 @@ import random
 import signal
 import subprocess
 import sys
-import zlib
 from pathlib import Path
 
 import pytest
-from rosprocs import TOKEN, Handler, publisher, ros_env, wait_for
+from rosprocs import (
+    TOKEN,
+    Handler,
+    live_verdicts,
+    offline_verdicts,
+    publisher,
+    replay_command,
+    ros_env,
+    wait_for,
+)
 
 pytestmark = pytest.mark.integration
 
@@ -51,12 +59,6 @@ spec:
 """
 
 
-@pytest.fixture
-def domain(request: pytest.FixtureRequest) -> int:
-    """A ROS domain of the test's own (0..101 are valid for Fast DDS on one host)."""
-    return 20 + zlib.crc32(request.node.name.encode()) % 80
-
-
 def write(tmp: Path, name: str, text: str) -> Path:
     path = tmp / name
     path.write_text(text)
@@ -86,17 +88,7 @@ def test_live_verdicts_equal_edgerv_check_on_the_replayed_trace(
     handler = Handler(tmp_path, monitors, domain)
     try:
         replay = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "edgerv",
-                "replay",
-                "--monitors",
-                str(monitors),
-                str(trace),
-                "--interval",
-                "0.003",
-            ],
+            replay_command(monitors, trace, 0.003),
             env=ros_env(domain),
             capture_output=True,
             text=True,
@@ -106,20 +98,9 @@ def test_live_verdicts_equal_edgerv_check_on_the_replayed_trace(
         wait_for(lambda: handler.metric("edgerv_messages_total", topic="/odom") is not None)
     finally:
         assert handler.stop() == 0, handler.stderr
-    check = subprocess.run(
-        [sys.executable, "-m", "edgerv", "check", str(monitors), str(trace), "--json"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    offline = [
-        (m["name"], v["verdict"], v["step"])
-        for m in json.loads(check.stdout)["monitors"]
-        for v in m["verdicts"]
-    ]
-    live = [(v["monitor"], v["verdict"], v["step"]) for v in handler.verdicts()]
+    offline, live = offline_verdicts(monitors, trace), live_verdicts(handler)
     assert len(offline) > 20
-    assert sorted(live, key=lambda x: (x[0], x[2])) == sorted(offline, key=lambda x: (x[0], x[2]))
+    assert live == offline
     assert {v["handler"] for v in handler.verdicts()} == {"edge"}
 
 

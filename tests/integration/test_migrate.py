@@ -8,23 +8,24 @@ very verdicts `edgerv check` gives on the trace: nothing lost, nothing twice.
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 import time
-import zlib
 from pathlib import Path
 
 import pytest
-from rosprocs import TOKEN, Handler, ros_env, wait_for
+from rosprocs import (
+    TOKEN,
+    Handler,
+    live_verdicts,
+    offline_verdicts,
+    replay_command,
+    ros_env,
+    wait_for,
+)
 from test_handler import MONITORS, random_trace, write
 
 pytestmark = pytest.mark.integration
-
-
-@pytest.fixture
-def domain(request: pytest.FixtureRequest) -> int:
-    return 20 + zlib.crc32(request.node.name.encode()) % 80
 
 
 def migrate(
@@ -53,22 +54,12 @@ def migrate(
 
 def test_migrating_mid_stream_loses_and_repeats_nothing(tmp_path: Path, domain: int) -> None:
     monitors = write(tmp_path, "monitors.yaml", MONITORS)
-    trace = random_trace(tmp_path / "run.jsonl", 500, seed=5)
+    trace = random_trace(tmp_path / "run.jsonl", 1200, seed=5)
     edge = Handler(tmp_path, monitors, domain, name="edge")
     cloud = Handler(tmp_path, monitors, domain, "--active", "none", name="cloud")
     try:
         replay = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "edgerv",
-                "replay",
-                "--monitors",
-                str(monitors),
-                str(trace),
-                "--interval",
-                "0.008",
-            ],
+            replay_command(monitors, trace, 0.006),
             env=ros_env(domain),
             stderr=subprocess.PIPE,
             text=True,
@@ -92,20 +83,7 @@ def test_migrating_mid_stream_loses_and_repeats_nothing(tmp_path: Path, domain: 
     finally:
         assert edge.stop() == 0, edge.stderr
         assert cloud.stop() == 0, cloud.stderr
-    check = subprocess.run(
-        [sys.executable, "-m", "edgerv", "check", str(monitors), str(trace), "--json"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    offline = sorted(
-        (m["name"], v["verdict"], v["step"])
-        for m in json.loads(check.stdout)["monitors"]
-        for v in m["verdicts"]
-    )
-    live = sorted(
-        (v["monitor"], v["verdict"], v["step"]) for v in edge.verdicts() + cloud.verdicts()
-    )
+    live, offline = live_verdicts(edge, cloud), offline_verdicts(monitors, trace)
     assert live == offline
     assert any(v["monitor"] == "speed-limit" for v in cloud.verdicts()), "cloud ran it"
 

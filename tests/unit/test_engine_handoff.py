@@ -109,3 +109,38 @@ def test_epochs_fence_stale_and_duplicate_calls() -> None:
         other.adopt("m", 7, b"garbage")
     assert other.abort("m", 7) == "dropped"
     assert other.slots["m"].runtime is None
+
+
+def test_the_sender_waits_for_every_topic_past_the_cut_or_the_grace() -> None:
+    e = Engine("h", flush_after=1e9)
+    e.put(monitor(), active=True)
+    e.hold("m", 1)
+    e.ingest([(10, "/a", [True]), (11, "/x", [1.0]), (20, "/x", [2.0])])
+    assert e.release("m", 1, cut=15, grace=5.0, now=100.0) is None  # /a not past 15 yet
+    e.ingest([(14, "/a", [False])])  # a late event before the cut: it must be covered
+    assert e.release("m", 1, cut=15, grace=5.0, now=101.0) is None
+    e.ingest([(16, "/a", [True])])
+    snap = e.release("m", 1, cut=15, grace=5.0, now=102.0)
+    assert snap is not None and e.slots["m"].runtime is None
+    from edgerv.core.handoff import decode
+
+    assert [s for s in decode(snap).stamps] == [11, 14]  # 10 made no letter: x had no value
+    quiet = Engine("q", flush_after=1e9)
+    quiet.put(monitor(), active=True)
+    quiet.hold("m", 1)
+    quiet.ingest([(20, "/x", [2.0])])  # /a stays quiet
+    assert quiet.release("m", 1, cut=15, grace=5.0, now=100.0) is None
+    assert quiet.release("m", 1, cut=15, grace=5.0, now=105.0) is not None  # grace since cut
+
+
+def test_the_cut_is_never_below_what_the_sender_already_evaluated() -> None:
+    from edgerv.core.handoff import decode
+
+    e = Engine("h", flush_after=1e9)
+    e.put(monitor(), active=True)
+    # sortThreshold 2: 10 and 11 are released into the pipeline, 12 waits in the sort buffer
+    e.ingest([(10, "/a", [True]), (11, "/x", [1.0]), (12, "/x", [2.0])])
+    e.hold("m", 1)
+    e.ingest([(30, "/a", [True]), (31, "/x", [3.0])])
+    snap = decode(e.release("m", 1, cut=5, grace=0.0, now=0.0) or b"")
+    assert snap.cut == 11  # with H2's cut of 5, H2 would evaluate 10 and 11 a second time

@@ -158,3 +158,15 @@ def test_restore_refuses_a_snapshot_of_another_definition() -> None:
     snap = export_snapshot(MonitorRuntime(a), cut=0, epoch=1)
     with pytest.raises(HandoffError, match="does not fit this definition"):
         restore(b, snap, [])
+
+
+def test_events_up_to_the_cut_that_reach_h2_after_the_adoption_are_ignored() -> None:
+    m = compiled("always (a -> x < 5)", {"a": "bool", "x": "float"})
+    h1 = MonitorRuntime(m)
+    h1.holding = True
+    for i, (topic, stamp, value) in enumerate([("/x", 1, 1.0), ("/a", 2, True), ("/x", 3, 9.0)]):
+        h1.offer(stamp, i, update(m, topic, value))
+    h2 = restore(m, decode(encode(export_snapshot(h1, cut=3, epoch=1))), [])
+    assert [v.step for v in h2.evaluate()] == [2]  # x=9 while a: violated at step 2
+    assert h2.offer(3, 9, update(m, "/x", 9.0)) is False  # stamped at the cut: H1's, not again
+    assert h2.offer(4, 10, update(m, "/x", 1.0)) is True

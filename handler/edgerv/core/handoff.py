@@ -11,9 +11,10 @@ migration work) hands a monitor from H1 to H2. This module is its data side:
   ``<= T`` and covers the rest. With per-topic in-order delivery, every event
   is covered exactly once: an event stamped ``<= T`` was received by H1, which
   was subscribed throughout; one stamped ``> T`` came on its topic after H2's
-  first event there, which H2 received. H1 stops holding only once it has received
-  an event stamped after ``T`` (or a grace period ran out): an event stamped
-  exactly ``T`` on another topic may still be on its way to it. (The paper's cut,
+  first event there, which H2 received. H1 stops holding only once every topic
+  brought it an event stamped after ``T`` (or a grace period ran out since it
+  learned ``T``): each topic is its own channel, and an event stamped ``<= T`` on
+  one may reach H1 after a later one on another. (The paper's cut,
   the oldest event H2 holds, loses the events of a topic on which H2 has not yet
   received anything.)
 * **The snapshot** (:func:`export_snapshot`): H1 compresses its held events
@@ -21,7 +22,8 @@ migration work) hands a monitor from H1 to H2. This module is its data side:
   signal values as of the cut (the next letter needs the last value of every
   signal), and the letters not yet evaluated, bit-packed.
 * :func:`restore` builds H2's runtime: the snapshot's letters first, then H2's
-  own events ``> T``.
+  own events ``> T``. It ignores every later event stamped ``<= T`` too: H2 may
+  not have taken all of its own events ``<= T`` yet when it adopts.
 
 :func:`encode` and :func:`decode` give the snapshot's wire form: a JSON header,
 the letters packed at ``bits`` bits each and the stamps delta-encoded, both
@@ -125,6 +127,8 @@ def restore(
     rt.last_released, rt.late_events = snap.last_released, snap.late_events
     rt.letters.extend(snap.letters)
     rt.stamps.extend(snap.stamps)
+    # Events up to the cut are H1's, also those H2 has not taken yet (still in its queues)
+    rt.floor = snap.cut
     rt.events = [e for e in held if e[0] > snap.cut]
     if len(rt.events) >= rt.threshold:
         rt.flush()

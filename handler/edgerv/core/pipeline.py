@@ -64,7 +64,7 @@ class MonitorRuntime:
     step: int = 0  # letters evaluated so far
     halted: bool = False
     holding: bool = False  # during a handoff: buffer raw events, neither sort nor compress
-    newest_held: int | None = None  # the newest stamp held (H1 waits for one past the cut)
+    floor: int = -(2**63)  # events stamped at or below it were evaluated elsewhere: ignore
     late_events: int = 0  # events released after a newer one (beyond the sort window)
     last_released: int | None = None
 
@@ -102,12 +102,10 @@ class MonitorRuntime:
 
         Returns True when letters were produced and :meth:`evaluate` has work.
         """
-        if self.halted:
+        if self.halted or stamp <= self.floor:
             return False
         if self.holding:
             self.events.append((stamp, seq, updates))
-            if self.newest_held is None or stamp > self.newest_held:
-                self.newest_held = stamp
             return False
         if self.threshold == 1:  # nothing to sort: straight to the compressed buffer
             if self.last_released is not None and stamp < self.last_released:

@@ -58,8 +58,9 @@ class MonitorSlot:
     capacity: int = field(init=False)
     epoch: int = 0  # the newest handoff this handler took part in, for this monitor
     handoff: str | None = None  # "sending" (H1 holds it) or "receiving" (H2 holds it)
-    handoff_since: float = 0.0
     first_stamps: dict[str, int] = field(default_factory=dict)  # H2: first stamp per topic
+    newest_stamps: dict[str, int] = field(default_factory=dict)  # H1: newest per topic
+    cut_known: tuple[int, float] | None = None  # H1: the cut, and when it first heard of it
 
     @property
     def name(self) -> str:
@@ -217,6 +218,7 @@ class Engine:
 
             messages = self.messages
             receiving = [s for s in slots.values() if s.handoff == "receiving"]
+            sending = [s for s in slots.values() if s.handoff == "sending"]
             for stamp, topic, values in batch:
                 route = routes.get(topic)
                 if route is None:
@@ -225,6 +227,9 @@ class Engine:
                 for slot in receiving:  # H2 notes its first stamp on each topic (the cut)
                     if topic not in slot.first_stamps and topic in slot.compiled.spec.topics:
                         slot.first_stamps[topic] = stamp
+                for slot in sending:  # H1 notes how far each topic got (when to release)
+                    if stamp > slot.newest_stamps.get(topic, stamp - 1):
+                        slot.newest_stamps[topic] = stamp
                 for runtime in self.router.offer_values(route, stamp, values, admit):
                     slots[runtime.name].pending_since = now if runtime.events else None
                     self.waiting[runtime.name] = runtime
@@ -324,7 +329,7 @@ class Engine:
             raise HandoffError(f"no monitor '{name}' here")
         return slot
 
-    def hold(self, name: str, epoch: int, now: float | None = None) -> None:
+    def hold(self, name: str, epoch: int) -> None:
         """H1, step 2a: stop scheduling the monitor, keep buffering its events."""
         with self.lock:
             slot = self._slot(name)
@@ -333,12 +338,11 @@ class Engine:
             if slot.runtime is None or slot.handoff is not None:
                 raise HandoffError(f"monitor '{name}' is not running here")
             slot.epoch, slot.handoff = epoch, "sending"
-            slot.handoff_since = time.monotonic() if now is None else now
+            slot.newest_stamps, slot.cut_known = {}, None
             slot.runtime.holding = True
-            slot.runtime.newest_held = None
             self.waiting.pop(name, None)
 
-    def receive(self, name: str, epoch: int, now: float | None = None) -> None:
+    def receive(self, name: str, epoch: int) -> None:
         """H2, step 3: subscribe and hold the monitor's events, without scheduling it."""
         with self.lock:
             slot = self._slot(name)
@@ -347,7 +351,6 @@ class Engine:
             if slot.runtime is not None:
                 raise HandoffError(f"monitor '{name}' already runs here")
             slot.epoch, slot.handoff, slot.first_stamps = epoch, "receiving", {}
-            slot.handoff_since = time.monotonic() if now is None else now
             self._activate(slot)
             assert slot.runtime is not None
             slot.runtime.holding = True
@@ -362,15 +365,26 @@ class Engine:
     def release(
         self, name: str, epoch: int, cut: int, grace: float, now: float | None = None
     ) -> bytes | None:
-        """H1, step 5: the snapshot once an event past the cut arrived (or ``grace`` ran
-        out since the hold), else None. The monitor stops running here."""
+        """H1, step 5: the snapshot, else None while events up to the cut may still come.
+
+        Each topic is its own channel: an event stamped at or before the cut can reach
+        H1 after a later one on another topic. So H1 waits until every topic of the
+        monitor brought an event past the cut, or ``grace`` seconds since it first
+        heard of the cut (for quiet topics). Then the monitor stops running here.
+        """
         now = time.monotonic() if now is None else now
         with self.lock:
             slot = self._handoff_slot(name, epoch, "sending")
             rt = slot.runtime
             assert rt is not None
-            past = rt.newest_held is not None and rt.newest_held > cut
-            if not past and now - slot.handoff_since < grace:
+            # Never below what H1 already released into the pipeline before it held: the
+            # snapshot carries the raised cut, so H2 filters with the very same one.
+            if rt.last_released is not None:
+                cut = max(cut, rt.last_released)
+            if slot.cut_known is None or slot.cut_known[0] != cut:
+                slot.cut_known = (cut, now)
+            past = all(slot.newest_stamps.get(t, cut) > cut for t in slot.compiled.spec.topics)
+            if not past and now - slot.cut_known[1] < grace:
                 return None
             data = encode(export_snapshot(rt, cut, epoch))
             self.router.remove(name)

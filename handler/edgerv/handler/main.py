@@ -100,6 +100,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="SECONDS",
         help="release a partly filled sort buffer after this long (default 0.5)",
     )
+    p.add_argument(
+        "--reorder-window",
+        type=float,
+        default=0.02,
+        metavar="SECONDS",
+        help="order messages of different topics by timestamp within this window before "
+        "evaluating them (default 0.02; 0 turns it off)",
+    )
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
 
 
@@ -147,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
     engine = Engine(
         args.name, sinks, flush_after=args.flush_after, type_check=ros_node.type_problem
     )
-    ros = ros_node.RosIngest(engine, args.name)
+    ros = ros_node.RosIngest(engine, args.name, reorder_window=max(0.0, args.reorder_window))
     engine.sinks.append(ros)
     for spec in specs:
         try:

@@ -68,8 +68,8 @@ def migrate(
     started = time.monotonic()
     deadline = started + timeout
     try:
+        source.step(monitor, "hold", {"epoch": epoch})  # 2a first, as in the paper
         destination.step(monitor, "receive", {"epoch": epoch})
-        source.step(monitor, "hold", {"epoch": epoch})
         cut = None
         while cut is None:
             cut = json.loads(destination.step(monitor, "cut", {"epoch": epoch})[1])["cut"]

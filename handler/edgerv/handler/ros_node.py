@@ -34,6 +34,7 @@ from edgerv.core.cdr import Reader, compile_reader
 from edgerv.core.documents import QosSpec
 from edgerv.core.pipeline import TopicRoute, Verdict
 from edgerv.handler.engine import Engine
+from edgerv.handler.reorder import ReorderWindow
 from edgerv.handler.sinks import verdict_record
 
 log = logging.getLogger("edgerv.handler.ros")
@@ -89,7 +90,7 @@ def _node_name(name: str) -> str:
 class RosIngest:
     """The handler's ROS node: subscriptions, the take loop, the verdict publisher."""
 
-    def __init__(self, engine: Engine, name: str) -> None:
+    def __init__(self, engine: Engine, name: str, reorder_window: float = 0.02) -> None:
         from std_msgs.msg import String
 
         self.engine = engine
@@ -109,6 +110,7 @@ class RosIngest:
         self.ready = threading.Event()
         self.failed = False
         self._resubscribe: set[str] = set()  # topics the QoS thread wants re-created
+        self.reorder_window = reorder_window
 
     # -- verdicts out ----------------------------------------------------------------------
 
@@ -276,7 +278,7 @@ class RosIngest:
             self.engine.ingest_lag = max(0.0, (time.time_ns() - oldest_source) / 1e9)
         if delivered > 1:
             batch.sort(key=_FIRST)  # one order across topics: by timestamp
-        return batch
+        return batch  # sorted by stamp: ReorderWindow.add relies on it
 
     def _bad_message(self, topic: str, msg_type: str) -> None:
         n = self.bad_messages[topic] = self.bad_messages.get(topic, 0) + 1
@@ -288,6 +290,10 @@ class RosIngest:
         wait_set: Any = None
         handles: list[Any] = []
         version = None
+        # The window outlives reconfigurations: draining it early would reorder.
+        reorder = ReorderWindow(self.reorder_window) if self.reorder_window > 0 else None
+        several = False  # one topic is delivered in order: only several need the window
+        ingest = self.engine.ingest
         try:
             while not self._stop.is_set():
                 if self._resubscribe and self._apply_resubscriptions():
@@ -301,12 +307,17 @@ class RosIngest:
                     for h in (*handles, self.wakeup.handle, self.node.context.handle):
                         stack.enter_context(h)  # keeps each alive while the wait set holds it
                     wait_set = _rclpy.WaitSet(len(handles), 1, 0, 0, 0, 0, self.node.context.handle)
+                    several = len(handles) > 1
                     self.ready.set()
                 wait_set.clear_entities()
                 for h in handles:
                     wait_set.add_subscription(h)
                 wait_set.add_guard_condition(self.wakeup.handle)
-                wait_set.wait(100_000_000)  # 100 ms: reconfiguration and QoS checks go on
+                holding = reorder is not None and reorder.pending
+                timeout = self.reorder_window if holding else 0.1
+                wait_set.wait(int(timeout * 1e9))  # 100 ms at most: reconfiguration goes on
+                if reorder is not None:
+                    ingest(reorder.due(time.monotonic()))
                 ready = set(wait_set.get_ready_entities("subscription"))
                 if not ready:
                     continue
@@ -314,9 +325,14 @@ class RosIngest:
                 subs = [s for s in self.subs.values() if s.subscription.handle.pointer in ready]
                 batch = self._take_all(subs)
                 while batch:  # keep taking while messages keep coming, then wait again
-                    self.engine.ingest(batch)
+                    if reorder is not None and (several or reorder.pending):
+                        ingest(reorder.add(batch, time.monotonic()))
+                    else:
+                        ingest(batch)
                     batch = self._take_all(subs)
         finally:
+            if reorder is not None:
+                ingest(reorder.drain())  # nothing taken is lost at shutdown
             stack.close()
 
     def start(self, on_failure: Callable[[], None]) -> None:
