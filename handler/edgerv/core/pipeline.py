@@ -111,27 +111,8 @@ class MonitorRuntime:
             if self.last_released is not None and stamp < self.last_released:
                 self.late_events += 1
             self.last_released = stamp
-            if self.missing:
-                self._compress(((stamp, seq, updates),))
-                return len(self.letters) > 0
-            # the common case, inlined: one event, every signal already has a value
-            values, funcs, readers = (
-                self.values,
-                self.monitor.atom_funcs,
-                self.monitor.atoms_of_signal,
-            )
-            bits = self.valuation
-            for sig, value in updates:
-                values[sig] = value
-                for atom in readers[sig]:
-                    if funcs[atom](values):
-                        bits |= 1 << atom
-                    else:
-                        bits &= ~(1 << atom)
-            self.valuation = bits
-            self.letters.append(bits)
-            self.stamps.append(stamp)
-            return True
+            self._compress_one(stamp, updates)
+            return not self.missing
         self.events.append((stamp, seq, updates))
         if len(self.events) >= self.threshold:
             return self.flush()
@@ -159,29 +140,33 @@ class MonitorRuntime:
         return bits
 
     def _compress(self, batch: Iterable[tuple[int, int, Sequence[Update]]]) -> None:
-        values, funcs, readers = self.values, self.monitor.atom_funcs, self.monitor.atoms_of_signal
-        letters, stamps = self.letters, self.stamps
-        bits = self.valuation
         for stamp, _seq, updates in batch:
+            self._compress_one(stamp, updates)
+
+    def _compress_one(self, stamp: int, updates: Sequence[Update]) -> None:
+        """Apply one event to the signal values; append its letter once all have a value."""
+        values = self.values
+        if self.missing:
             for sig, value in updates:
                 if values[sig] is _UNSET:
                     self.missing -= 1
-                    values[sig] = value
-                    if not self.missing:
-                        bits = self._full_valuation()
-                    continue
                 values[sig] = value
-                if self.missing:
-                    continue
+            if self.missing:
+                return  # no letter until every signal has a value
+            bits = self._full_valuation()
+        else:  # only the placeholders that read the updated signals change
+            funcs, readers = self.monitor.atom_funcs, self.monitor.atoms_of_signal
+            bits = self.valuation
+            for sig, value in updates:
+                values[sig] = value
                 for atom in readers[sig]:
                     if funcs[atom](values):
                         bits |= 1 << atom
                     else:
                         bits &= ~(1 << atom)
-            if not self.missing:
-                letters.append(bits)
-                stamps.append(stamp)
         self.valuation = bits
+        self.letters.append(bits)
+        self.stamps.append(stamp)
 
     def evaluate(self) -> list[Verdict]:
         """Consume every compressed letter; return the verdicts they decided."""

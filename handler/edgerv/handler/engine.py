@@ -123,6 +123,7 @@ class Engine:
         self.messages: dict[str, int] = {}  # topic -> messages ingested
         self.ingest_lag = 0.0  # seconds between publication and ingestion, last batch
         self.waiting: dict[str, MonitorRuntime] = {}  # monitors with letters to evaluate
+        self.in_handoff: dict[str, MonitorSlot] = {}  # so ingest need not scan every slot
 
     # -- monitors --------------------------------------------------------------------------
 
@@ -152,6 +153,7 @@ class Engine:
                 self.router.remove(old.name)
             slot = MonitorSlot(compiled)
             self.slots[compiled.name] = slot
+            self.in_handoff.pop(compiled.name, None)
             if active:
                 self._activate(slot)
             self.routes_version += 1
@@ -162,6 +164,7 @@ class Engine:
             slot = self.slots.pop(name, None)
             if slot is None:
                 return False
+            self.in_handoff.pop(name, None)
             if slot.runtime is not None:
                 self.router.remove(name)
             self.routes_version += 1
@@ -217,8 +220,9 @@ class Engine:
                 return True
 
             messages = self.messages
-            receiving = [s for s in slots.values() if s.handoff == "receiving"]
-            sending = [s for s in slots.values() if s.handoff == "sending"]
+            handing = self.in_handoff.values()
+            receiving = [s for s in handing if s.handoff == "receiving"]
+            sending = [s for s in handing if s.handoff == "sending"]
             for stamp, topic, values in batch:
                 route = routes.get(topic)
                 if route is None:
@@ -337,7 +341,8 @@ class Engine:
                 raise HandoffError(f"epoch {epoch} is not newer than {slot.epoch}")
             if slot.runtime is None or slot.handoff is not None:
                 raise HandoffError(f"monitor '{name}' is not running here")
-            slot.epoch, slot.handoff = epoch, "sending"
+            slot.epoch = epoch
+            self._set_handoff(slot, "sending")
             slot.newest_stamps, slot.cut_known = {}, None
             slot.runtime.holding = True
             self.waiting.pop(name, None)
@@ -350,7 +355,8 @@ class Engine:
                 raise HandoffError(f"epoch {epoch} is not newer than {slot.epoch}")
             if slot.runtime is not None:
                 raise HandoffError(f"monitor '{name}' already runs here")
-            slot.epoch, slot.handoff, slot.first_stamps = epoch, "receiving", {}
+            slot.epoch, slot.first_stamps = epoch, {}
+            self._set_handoff(slot, "receiving")
             self._activate(slot)
             assert slot.runtime is not None
             slot.runtime.holding = True
@@ -388,7 +394,8 @@ class Engine:
                 return None
             data = encode(export_snapshot(rt, cut, epoch))
             self.router.remove(name)
-            slot.runtime, slot.handoff = None, None
+            slot.runtime = None
+            self._set_handoff(slot, None)
             self.routes_version += 1
             return data
 
@@ -403,7 +410,8 @@ class Engine:
             assert held is not None
             rt = restore(slot.compiled, snap, held.events)
             self.router.remove(name)
-            slot.runtime, slot.handoff = rt, None
+            slot.runtime = rt
+            self._set_handoff(slot, None)
             self.router.add(rt)
             self.waiting[name] = rt
             self.routes_version += 1
@@ -421,12 +429,20 @@ class Engine:
                 rt.holding = False
                 if len(rt.events) >= rt.threshold and rt.flush():
                     self.waiting[name] = rt
-                slot.handoff = None
+                self._set_handoff(slot, None)
                 return "resumed"
             self.router.remove(name)
-            slot.runtime, slot.handoff = None, None
+            slot.runtime = None
+            self._set_handoff(slot, None)
             self.routes_version += 1
             return "dropped"
+
+    def _set_handoff(self, slot: MonitorSlot, role: str | None) -> None:
+        slot.handoff = role
+        if role is None:
+            self.in_handoff.pop(slot.name, None)
+        else:
+            self.in_handoff[slot.name] = slot
 
     def _handoff_slot(self, name: str, epoch: int, role: str) -> MonitorSlot:
         slot = self._slot(name)

@@ -28,14 +28,14 @@ class ReorderWindow:
         self.since: float | None = None  # when the oldest pending item was taken
 
     def add(self, batch: list[Item], now: float) -> list[Item]:
-        """Take a batch (sorted by stamp); return what leaves the window, in order."""
+        """Take a batch; return what leaves the window, in timestamp order."""
         if not batch:
             return []
-        newest = batch[-1][0]
+        # stable: equal stamps keep their arrival order; sorted runs merge in linear time
+        self.pending = sorted(self.pending + batch, key=_STAMP)
+        newest = self.pending[-1][0]
         if self.newest is None or newest > self.newest:
             self.newest = newest
-        # both runs are sorted: the stable sort merges them in linear time
-        self.pending = sorted(self.pending + batch, key=_STAMP) if self.pending else batch
         if self.since is None:
             self.since = now
         cut = bisect_right(self.pending, self.newest - self.window_ns, key=_STAMP)

@@ -278,7 +278,7 @@ class RosIngest:
             self.engine.ingest_lag = max(0.0, (time.time_ns() - oldest_source) / 1e9)
         if delivered > 1:
             batch.sort(key=_FIRST)  # one order across topics: by timestamp
-        return batch  # sorted by stamp: ReorderWindow.add relies on it
+        return batch
 
     def _bad_message(self, topic: str, msg_type: str) -> None:
         n = self.bad_messages[topic] = self.bad_messages.get(topic, 0) + 1
