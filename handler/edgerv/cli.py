@@ -134,6 +134,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     migrate.add_arguments(mig)
     mig.set_defaults(func=migrate.run)
+
+    from edgerv.handler import orchestrate
+
+    orch = sub.add_parser(
+        "orchestrate",
+        help="poll handlers and move monitors by the placement policy",
+        description=orchestrate.__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    orchestrate.add_arguments(orch)
+    orch.set_defaults(func=orchestrate.run)
     return parser
 
 

@@ -35,8 +35,29 @@ def ros_env(domain: int) -> dict[str, str]:
     return env
 
 
+REQUEST = r"""
+import sys, urllib.request, urllib.error
+method, url, body, token = sys.argv[1:5]
+headers = {"Content-Type": "application/yaml"}
+if token:
+    headers["Authorization"] = "Bearer " + token
+req = urllib.request.Request(url, method=method, data=body.encode() or None, headers=headers)
+try:
+    with urllib.request.urlopen(req, timeout=30) as resp:
+        status, raw = resp.status, resp.read()
+except urllib.error.HTTPError as err:
+    status, raw = err.code, err.read()
+sys.stdout.write(str(status) + "\n" + raw.decode())
+"""
+
+
 class Handler:
-    """An ``edgerv handler`` process with its API on a free loopback port."""
+    """An ``edgerv handler`` process with its API on a free loopback port.
+
+    With ``lab`` (a :class:`netlab.Lab`), it runs on the lab's host ``name``
+    (``edge`` or ``cloud``) and listens on that host's address; its API is then
+    called from inside that host.
+    """
 
     def __init__(
         self,
@@ -46,32 +67,38 @@ class Handler:
         *extra: str,
         token: str | None = TOKEN,
         name: str = "edge",
+        lab: Any = None,
     ) -> None:
         self.port = free_port()
+        self.lab, self.name = lab, name
+        self.host = lab.addr[name] if lab is not None else "127.0.0.1"
         self.log = tmp / f"{name}-verdicts.jsonl"
         self.stderr_path = tmp / f"{name}-stderr.log"
-        env = ros_env(domain)
+        env = ros_env(domain) if lab is None else lab.env()
         env.pop("EDGERV_TOKEN", None)
         if token is not None:
             env["EDGERV_TOKEN"] = token
         self.token = token
         self._stderr = self.stderr_path.open("w")
+        wrap = (lambda argv: argv) if lab is None else (lambda argv: lab.command(name, argv))
         self.proc = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "edgerv",
-                "handler",
-                "--name",
-                name,
-                "--monitors",
-                str(monitors),
-                "--listen",
-                f"127.0.0.1:{self.port}",
-                "--verdict-log",
-                str(self.log),
-                *extra,
-            ],
+            wrap(
+                [
+                    sys.executable,
+                    "-m",
+                    "edgerv",
+                    "handler",
+                    "--name",
+                    name,
+                    "--monitors",
+                    str(monitors),
+                    "--listen",
+                    f"{self.host}:{self.port}",
+                    "--verdict-log",
+                    str(self.log),
+                    *extra,
+                ]
+            ),
             env=env,
             stdout=subprocess.DEVNULL,
             stderr=self._stderr,
@@ -95,8 +122,18 @@ class Handler:
     def request(
         self, method: str, path: str, body: str | None = None, token: str | None = "default"
     ) -> tuple[int, Any]:
-        headers = {"Content-Type": "application/yaml"}
         token = self.token if token == "default" else token
+        if self.lab is not None:
+            url = f"http://{self.host}:{self.port}{path}"
+            done = self.lab.run(
+                self.name, [sys.executable, "-c", REQUEST, method, url, body or "", token or ""]
+            )
+            status_line, _, raw = done.stdout.partition("\n")
+            try:
+                return int(status_line), json.loads(raw)
+            except ValueError:
+                return int(status_line or 0), raw
+        headers = {"Content-Type": "application/yaml"}
         if token is not None:
             headers["Authorization"] = f"Bearer {token}"
         req = urllib.request.Request(

@@ -55,8 +55,11 @@ def migrate(
 def test_migrating_mid_stream_loses_and_repeats_nothing(tmp_path: Path, domain: int) -> None:
     monitors = write(tmp_path, "monitors.yaml", MONITORS)
     trace = random_trace(tmp_path / "run.jsonl", 1200, seed=5)
-    edge = Handler(tmp_path, monitors, domain, name="edge")
-    cloud = Handler(tmp_path, monitors, domain, "--active", "none", name="cloud")
+    # a window well above the default 20 ms: under the tests' load on 2 cores, topics can
+    # reach a handler further apart, and merged out of order they give other letters
+    window = ("--reorder-window", "0.25")
+    edge = Handler(tmp_path, monitors, domain, *window, name="edge")
+    cloud = Handler(tmp_path, monitors, domain, "--active", "none", *window, name="cloud")
     try:
         replay = subprocess.Popen(
             replay_command(monitors, trace, 0.006),

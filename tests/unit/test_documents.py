@@ -6,6 +6,7 @@ import pytest
 
 from edgerv.core.diagnostics import InputError
 from edgerv.core.documents import load_monitors, load_monitors_text
+from edgerv.core.placement import Placement
 
 HEAD = "apiVersion: edgerv.io/v1alpha1\nkind: Monitor\nmetadata: {name: m}\n"
 GOOD = HEAD + (
@@ -30,6 +31,15 @@ def test_a_good_document() -> None:
     assert spec.signals["running"].field == "data"
     assert (spec.sort_threshold, spec.on_verdict, spec.buffer_capacity) == (1, "reset", 4096)
     assert spec.topics == ["/running", "/odom"]
+    assert spec.placement == Placement()  # no tier: the lowest; moves freely
+
+
+def test_placement() -> None:
+    text = GOOD.replace(
+        "  signals:", "  placement: {tier: cloud, migrate: pinned, maxLatencyMs: 50}\n  signals:"
+    )
+    (spec,) = load_monitors_text("m.yaml", text)
+    assert spec.placement == Placement("cloud", "pinned", 50.0)
 
 
 @pytest.mark.parametrize(
@@ -85,6 +95,22 @@ def test_a_good_document() -> None:
             "m.yaml:3:18: error: metadata.name: 'Bad_Name' is not a valid object name",
         ),
         (("    running:", "    G:"), "m.yaml:7:5: error: spec.signals.G: 'G' cannot name a signal"),
+        (
+            ("  signals:", "  placement: {tier: Edge_1}\n  signals:"),
+            "m.yaml:6:21: error: spec.placement.tier: 'Edge_1' is not a tier name",
+        ),
+        (
+            ("  signals:", "  placement: {migrate: never}\n  signals:"),
+            "m.yaml:6:24: error: spec.placement.migrate: must be auto or pinned, not 'never'",
+        ),
+        (
+            ("  signals:", "  placement: {maxLatencyMs: -5}\n  signals:"),
+            "m.yaml:6:29: error: spec.placement.maxLatencyMs: must be above 0",
+        ),
+        (
+            ("  signals:", "  placement: {teir: edge}\n  signals:"),
+            "m.yaml:6:15: error: spec.placement.teir: unknown field",
+        ),
     ],
 )
 def test_bad_documents(change: tuple[str, str], expected: str) -> None:

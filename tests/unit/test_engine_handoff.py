@@ -50,8 +50,10 @@ def alone(seed: int) -> list[tuple[str, int, int]]:
     return sink.got
 
 
-@pytest.mark.parametrize("seed", range(12))
+@pytest.mark.parametrize("seed", range(16))
 def test_handoff_between_engines(seed: int) -> None:
+    """Random handoffs back and forth; some fail after the release (H2 never adopts,
+    the sender resumes from what it kept), some repeat a call whose answer was lost."""
     rng = random.Random(seed)
     sinks = [Collect(), Collect()]
     engines = [Engine(f"h{i}", [sinks[i]], flush_after=1e9) for i in (0, 1)]
@@ -78,8 +80,23 @@ def test_handoff_between_engines(seed: int) -> None:
             assert cut is not None
             data = src.release("m", epoch, cut, grace=1e9)
             if data is not None:
-                dst.adopt("m", epoch, data)
-                owner, phase = 1 - owner, None
+                assert not src.slots["m"].active and not dst.slots["m"].active
+                fate = rng.random()
+                if fate < 0.25:  # H2 fails before adopting: undo on both sides
+                    assert dst.abort("m", epoch) == "dropped"
+                    assert src.abort("m", epoch) == "resumed"
+                    with pytest.raises(HandoffError):
+                        dst.adopt("m", epoch, data)  # a late adopt is fenced
+                else:
+                    if fate < 0.5:  # the answers were lost: both calls come again
+                        assert src.release("m", epoch, cut, grace=1e9) == data
+                        dst.adopt("m", epoch, data)
+                    dst.adopt("m", epoch, data)
+                    assert dst.abort("m", epoch) == "active"  # too late to undo there
+                    assert src.commit("m", epoch) == "committed"
+                    assert src.commit("m", epoch) == "committed"
+                    owner = 1 - owner
+                phase = None
         for e in engines:
             e.emit(e.tick())
     if phase is not None:  # unfinished at the end: the sender resumes
@@ -89,7 +106,7 @@ def test_handoff_between_engines(seed: int) -> None:
         e.drain()
     got = sorted(sinks[0].got + sinks[1].got, key=lambda v: v[1])
     assert got == alone(seed)
-    assert sum(1 for e in engines if e.slots["m"].runtime is not None) == 1
+    assert sum(1 for e in engines if e.slots["m"].active) == 1
 
 
 def test_epochs_fence_stale_and_duplicate_calls() -> None:
@@ -121,16 +138,27 @@ def test_the_sender_waits_for_every_topic_past_the_cut_or_the_grace() -> None:
     assert e.release("m", 1, cut=15, grace=5.0, now=101.0) is None
     e.ingest([(16, "/a", [True])])
     snap = e.release("m", 1, cut=15, grace=5.0, now=102.0)
-    assert snap is not None and e.slots["m"].runtime is None
+    assert snap is not None and not e.slots["m"].active
     from edgerv.core.handoff import decode
 
-    assert [s for s in decode(snap).stamps] == [11, 14]  # 10 made no letter: x had no value
+    assert len(decode(snap).letters) == 2  # 11 and 14 (10 made none: x had no value yet)
+    assert decode(snap).step == 0 and decode(snap).cut == 15
     quiet = Engine("q", flush_after=1e9)
     quiet.put(monitor(), active=True)
-    quiet.hold("m", 1)
-    quiet.ingest([(20, "/x", [2.0])])  # /a stays quiet
+    quiet.hold("m", 1, now=90.0)
+    quiet.ingest([(20, "/x", [2.0])], now=95.0)  # /a stays quiet
     assert quiet.release("m", 1, cut=15, grace=5.0, now=100.0) is None
-    assert quiet.release("m", 1, cut=15, grace=5.0, now=105.0) is not None  # grace since cut
+    quiet.ingest([(21, "/x", [2.0])], now=103.0)  # events come: a lagging sender waits
+    assert quiet.release("m", 1, cut=15, grace=5.0, now=105.0) is None
+    assert quiet.release("m", 1, cut=15, grace=5.0, now=108.0) is not None  # nothing for 5 s
+    # a quiet topic is let go once another one ran grace seconds of stamps past the cut
+    stream = Engine("s", flush_after=1e9)
+    stream.put(monitor(), active=True)
+    stream.hold("m", 1, now=0.0)
+    stream.ingest([(20, "/x", [2.0]), (10**9 + 14, "/x", [2.0])], now=0.0)
+    assert stream.release("m", 1, cut=15, grace=1.0, now=0.0) is None
+    stream.ingest([(10**9 + 15, "/x", [2.0])], now=0.0)
+    assert stream.release("m", 1, cut=15, grace=1.0, now=0.0) is not None
 
 
 def test_the_cut_is_never_below_what_the_sender_already_evaluated() -> None:
@@ -144,3 +172,32 @@ def test_the_cut_is_never_below_what_the_sender_already_evaluated() -> None:
     e.ingest([(30, "/a", [True]), (31, "/x", [3.0])])
     snap = decode(e.release("m", 1, cut=5, grace=0.0, now=0.0) or b"")
     assert snap.cut == 11  # with H2's cut of 5, H2 would evaluate 10 and 11 a second time
+
+
+def test_after_the_release_the_sender_keeps_what_it_needs_to_resume() -> None:
+    """H2 crashes between H1's release and its adoption: H1 resumes, nothing lost."""
+    sink = Collect()
+    e = Engine("h", [sink], flush_after=1e9)
+    e.put(monitor(), active=True)
+    e.ingest([(1, "/a", [True]), (2, "/x", [1.0])])
+    e.hold("m", 1)
+    e.ingest([(3, "/x", [7.0]), (4, "/a", [True]), (5, "/x", [8.0])])
+    assert e.release("m", 1, cut=3, grace=0.0, now=0.0) is not None
+    assert not e.slots["m"].active and e.snapshot()[0]["state"] == "inactive"
+    e.ingest([(6, "/x", [1.0]), (7, "/x", [9.0])])  # still held for a possible resume
+    with pytest.raises(HandoffError, match="abort it first"):
+        e.set_active("m", False)
+    e.drain()  # a shutdown now must not evaluate what H2 may own
+    assert sink.got == []
+    assert e.abort("m", 1) == "resumed"
+    e.drain()
+    # x=7 at 3 (step 2), x=8 at 5 (step 4), x=9 at 7 (step 6) violate while a holds
+    assert [(v, step, stamp) for v, step, stamp in sink.got] == [
+        ("violated", 2, 3),
+        ("violated", 3, 4),
+        ("violated", 4, 5),
+        ("violated", 6, 7),
+    ]
+    assert e.abort("m", 1) == "active"
+    with pytest.raises(HandoffError, match="is over"):
+        e.commit("m", 1)

@@ -114,3 +114,29 @@ def test_bad_configuration_is_refused() -> None:
         PolicyConfig(tiers=("edge",), cpu_low=0.9)
     with pytest.raises(ValueError, match="reports tier 'moon'"):
         plan([HandlerReport("x", "moon", 0.1)], {}, CONFIG, PolicyMemory(), now=0)
+
+
+def test_a_monitor_running_nowhere_starts_on_its_home_tier() -> None:
+    off = MonitorLoad(active=False)
+    handlers = [
+        edge(0.3, a=off, b=off, c=off, d=off),
+        idle("fog", "fog-1", a=off, b=off, c=off, d=off),
+        idle("cloud", "cloud-1", a=off, b=off, c=off, d=MonitorLoad(active=False, in_handoff=True)),
+    ]
+    placements = {
+        "b": Placement(tier="cloud"),
+        "c": Placement(tier="edge", max_latency_ms=1.0),
+    }
+    moves = plan(handlers, placements, CONFIG, PolicyMemory(), now=0)
+    assert [(m.monitor, m.source, m.destination, m.reason) for m in moves] == [
+        ("a", "", "edge-1", "start"),  # no tier given: the lowest
+        ("b", "", "cloud-1", "start"),
+        ("c", "", "edge-1", "start"),
+        # d is being handed off: placed already
+    ]
+    running = [edge(0.3, a=busy(1)), idle("cloud", "cloud-1", a=off)]
+    assert plan(running, {}, CONFIG, PolicyMemory(), now=0) == []
+    # no handler on the home tier: the nearest one above that allows it
+    only_cloud = [idle("cloud", "cloud-1", a=off, c=off)]
+    moves = plan(only_cloud, placements, CONFIG, PolicyMemory(), now=0)
+    assert [(m.monitor, m.destination) for m in moves] == [("a", "cloud-1")]  # c: 40 ms > 1

@@ -19,6 +19,7 @@ import yaml
 
 from edgerv.core.diagnostics import Diagnostic, InputError, Location, did_you_mean
 from edgerv.core.msgtypes import FieldError, ValueKind, field_kind, normalize_type
+from edgerv.core.placement import Placement
 
 API_VERSION = "edgerv.io/v1alpha1"
 KIND = "Monitor"
@@ -30,6 +31,7 @@ OnVerdict = Literal["reset", "halt"]
 
 _NAME = re.compile(r"^[a-z0-9]([-a-z0-9.]{0,251}[a-z0-9])?$")  # Kubernetes object name
 _IDENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_TIER = re.compile(r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$")  # a label value, e.g. edge, cloud
 
 # Words of the assertion language that cannot name a signal or a parameter.
 RESERVED = frozenset(
@@ -96,6 +98,7 @@ class MonitorSpec:
     location: Location
     # Maps (offset, length) in the assertion text to its place in the file.
     locate_assertion: Callable[[int, int], Location] = field(repr=False, compare=False)
+    placement: Placement = field(default_factory=Placement)
 
     @property
     def topics(self) -> list[str]:
@@ -310,6 +313,34 @@ def _parse_qos(doc: _Doc, node: yaml.Node, where: str) -> QosSpec:
     return QosSpec(reliability, durability, depth)
 
 
+def _parse_placement(doc: _Doc, node: yaml.Node) -> Placement:
+    where = "spec.placement"
+    items = _check_keys(doc, node, where, {"tier", "migrate", "maxLatencyMs"}, set())
+    tier = None
+    if "tier" in items:
+        value = _parse_value(doc, items["tier"][1], f"{where}.tier", (str,))
+        if isinstance(value, str):
+            if _TIER.match(value):
+                tier = value
+            else:
+                doc.error(
+                    items["tier"][1],
+                    f"{where}.tier",
+                    f"'{value}' is not a tier name",
+                    "use the name the handlers' tier label has, e.g. edge or cloud",
+                )
+    migrate = _parse_choice(doc, items, "migrate", where, ("auto", "pinned")) or "auto"
+    budget = None
+    if "maxLatencyMs" in items:
+        value = _parse_value(doc, items["maxLatencyMs"][1], f"{where}.maxLatencyMs", (int, float))
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            if value > 0 and math.isfinite(value):
+                budget = float(value)
+            else:
+                doc.error(items["maxLatencyMs"][1], f"{where}.maxLatencyMs", "must be above 0")
+    return Placement(tier, cast(Literal["auto", "pinned"], migrate), budget)
+
+
 def _parse_int(
     doc: _Doc, items: dict[str, tuple[yaml.Node, yaml.Node]], key: str, default: int, minimum: int
 ) -> int:
@@ -375,7 +406,15 @@ def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
         doc,
         top["spec"][1],
         "spec",
-        {"assertion", "signals", "parameters", "sortThreshold", "onVerdict", "bufferCapacity"},
+        {
+            "assertion",
+            "signals",
+            "parameters",
+            "sortThreshold",
+            "onVerdict",
+            "bufferCapacity",
+            "placement",
+        },
         {"assertion", "signals"},
     )
     if not spec:
@@ -423,6 +462,7 @@ def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
             "spec.sortThreshold",
             f"{sort_threshold} is more than bufferCapacity ({buffer_capacity})",
         )
+    placement = _parse_placement(doc, spec["placement"][1]) if "placement" in spec else Placement()
     if doc.diagnostics or not isinstance(name, str) or not isinstance(assertion, str):
         return None
     assert isinstance(assertion_node, yaml.ScalarNode)
@@ -435,6 +475,7 @@ def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
         on_verdict=on_verdict,
         buffer_capacity=buffer_capacity,
         location=doc.loc(meta["name"][1]),
+        placement=placement,
         locate_assertion=doc.scalar_locator(assertion_node),
     )
 

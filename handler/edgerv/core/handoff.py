@@ -1,7 +1,7 @@
 """What a monitor's handoff moves between handlers, where the cut falls, and its wire form.
 
-The protocol (the paper's section V, Fig. 3; the network side belongs to the
-migration work) hands a monitor from H1 to H2. This module is its data side:
+The protocol (the paper's section V, Fig. 3; docs/protocol.md) hands a monitor
+from H1 to H2. This module is its data side:
 
 * While the handoff runs, both handlers *hold* the monitor: they buffer its raw
   events without compressing or evaluating them (``MonitorRuntime.holding``).
@@ -20,14 +20,22 @@ migration work) hands a monitor from H1 to H2. This module is its data side:
 * **The snapshot** (:func:`export_snapshot`): H1 compresses its held events
   ``<= T`` and sends the automaton state (one integer), the step counter, the
   signal values as of the cut (the next letter needs the last value of every
-  signal), and the letters not yet evaluated, bit-packed.
+  signal), and the letters not yet evaluated. The paper's compression drops the
+  timestamps; edgerv keeps one only where a verdict can be reported (a verdict
+  names the stamp of its deciding event): H1 walks the letters through the
+  table from the current state, reporting nothing, and keeps the stamps of the
+  steps that reach a verdict state.
 * :func:`restore` builds H2's runtime: the snapshot's letters first, then H2's
   own events ``> T``. It ignores every later event stamped ``<= T`` too: H2 may
-  not have taken all of its own events ``<= T`` yet when it adopts.
+  not have taken all of its own events ``<= T`` yet when it adopts. H1 uses it
+  as well, on its own snapshot, to resume when the handoff is undone after it
+  released (docs/protocol.md).
 
-:func:`encode` and :func:`decode` give the snapshot's wire form: a JSON header,
-the letters packed at ``bits`` bits each and the stamps delta-encoded, both
-deflated. :func:`decode` checks everything and raises :class:`HandoffError`.
+:func:`encode` and :func:`decode` give the snapshot's wire form (``ERV2``): a
+frame, a JSON header, then the letters run-length encoded as varint pairs and
+the kept stamps as varint (index gap, stamp delta) pairs, each section deflated.
+A trace whose letters change every few dozen events costs well under a bit an
+event. :func:`decode` checks everything and raises :class:`HandoffError`.
 """
 
 from __future__ import annotations
@@ -42,9 +50,9 @@ from typing import Any
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import _UNSET, MonitorRuntime, Update
 
-WIRE_VERSION = 1
+WIRE_VERSION = 2
 _FRAME = struct.Struct("!4sII")  # magic, header length, body length
-_MAGIC = b"ERV1"
+_MAGIC = b"ERV2"
 
 
 class HandoffError(Exception):
@@ -65,7 +73,7 @@ class Snapshot:
     late_events: int
     bits: int
     letters: tuple[int, ...]
-    stamps: tuple[int, ...]
+    stamps: Mapping[int, int]  # letter index -> stamp, only where a verdict can be reported
 
 
 def cut_point(first_stamps: Mapping[str, int], topics: Iterable[str]) -> int | None:
@@ -88,6 +96,7 @@ def export_snapshot(rt: MonitorRuntime, cut: int, epoch: int) -> Snapshot:
     rt.holding = False
     if covered:
         rt.flush()
+    stamps = rt.stamps
     return Snapshot(
         monitor=rt.name,
         epoch=epoch,
@@ -101,8 +110,20 @@ def export_snapshot(rt: MonitorRuntime, cut: int, epoch: int) -> Snapshot:
         late_events=rt.late_events,
         bits=rt.monitor.table.bits,
         letters=tuple(rt.letters),
-        stamps=tuple(rt.stamps),
+        stamps={i: stamps[i] for i in deciding_steps(rt.monitor, rt.state, rt.letters)},
     )
+
+
+def deciding_steps(monitor: CompiledMonitor, state: int, letters: Iterable[int]) -> list[int]:
+    """The indices of the letters that take the automaton to a verdict, from ``state``."""
+    table = monitor.table
+    rows, bits, live = table.table, table.bits, table.live
+    found = []
+    for i, letter in enumerate(letters):
+        state = rows[(state << bits) | letter]
+        if state >= live:
+            found.append(i)
+    return found
 
 
 def restore(
@@ -126,7 +147,10 @@ def restore(
     rt.valuation = snap.valuation
     rt.last_released, rt.late_events = snap.last_released, snap.late_events
     rt.letters.extend(snap.letters)
-    rt.stamps.extend(snap.stamps)
+    stamps = [0] * len(snap.letters)  # unreported steps need none (see the module's doc)
+    for i, stamp in snap.stamps.items():
+        stamps[i] = stamp
+    rt.stamps.extend(stamps)
     # Events up to the cut are H1's, also those H2 has not taken yet (still in its queues)
     rt.floor = snap.cut
     rt.events = [e for e in held if e[0] > snap.cut]
@@ -138,57 +162,63 @@ def restore(
 # -- wire form -------------------------------------------------------------------------------
 
 
-def _pack_letters(letters: Sequence[int], bits: int) -> bytes:
-    acc = 0
-    for i, letter in enumerate(letters):
-        acc |= letter << (i * bits)
-    return acc.to_bytes((len(letters) * bits + 7) // 8, "little")
-
-
-def _unpack_letters(data: bytes, n: int, bits: int) -> list[int]:
-    acc = int.from_bytes(data, "little")
-    mask = (1 << bits) - 1
-    return [(acc >> (i * bits)) & mask for i in range(n)]
-
-
-def _varints(deltas: Iterable[int]) -> bytes:
+def _varints(numbers: Iterable[int]) -> bytearray:
     out = bytearray()
-    for d in deltas:
-        z = (d << 1) ^ (d >> 63)  # zigzag: small negative deltas stay small
+    for d in numbers:
+        z = (d << 1) ^ (d >> 63)  # zigzag: small negative numbers stay small
         while True:
             byte = z & 0x7F
             z >>= 7
             out.append(byte | (0x80 if z else 0))
             if not z:
                 break
-    return bytes(out)
+    return out
 
 
-def _from_varints(data: bytes, n: int) -> list[int]:
-    out, i, prev = [], 0, 0
+def _from_varints(data: bytes, n: int, what: str) -> list[int]:
+    out, i = [], 0
     for _ in range(n):
         z = shift = 0
         while True:
-            if i >= len(data):
-                raise HandoffError("stamps are truncated")
+            if i >= len(data) or shift > 63:
+                raise HandoffError(f"{what} are truncated")
             byte = data[i]
             i += 1
             z |= (byte & 0x7F) << shift
             shift += 7
             if not byte & 0x80:
                 break
-        prev += (z >> 1) ^ -(z & 1)
-        out.append(prev)
+        out.append((z >> 1) ^ -(z & 1))
     if i != len(data):
-        raise HandoffError("stamps have trailing bytes")
+        raise HandoffError(f"{what} have trailing bytes")
+    return out
+
+
+def _runs(letters: Sequence[int]) -> list[int]:
+    """Run-length form: letter, run length, letter, run length..."""
+    out: list[int] = []
+    prev, run = -1, 0
+    for letter in letters:
+        if letter == prev:
+            run += 1
+            continue
+        if run:
+            out += (prev, run)
+        prev, run = letter, 1
+    if run:
+        out += (prev, run)
     return out
 
 
 def encode(snap: Snapshot) -> bytes:
-    letters = zlib.compress(_pack_letters(snap.letters, snap.bits), 9)
-    first = snap.stamps[0] if snap.stamps else 0
-    deltas = [first] + [b - a for a, b in zip(snap.stamps, snap.stamps[1:], strict=False)]
-    stamps = zlib.compress(_varints(deltas if snap.stamps else []), 9)
+    runs = _runs(snap.letters)
+    letters = zlib.compress(_varints(runs), 9)
+    pairs: list[int] = []
+    last_i = last_s = 0
+    for i in sorted(snap.stamps):
+        pairs += (i - last_i, snap.stamps[i] - last_s)
+        last_i, last_s = i, snap.stamps[i]
+    stamps = zlib.compress(_varints(pairs), 9)
     header = json.dumps(
         {
             "v": WIRE_VERSION,
@@ -204,6 +234,8 @@ def encode(snap: Snapshot) -> bytes:
             "late": snap.late_events,
             "bits": snap.bits,
             "n": len(snap.letters),
+            "runs": len(runs) // 2,
+            "stamps": len(snap.stamps),
             "lettersLen": len(letters),
         },
         separators=(",", ":"),
@@ -212,12 +244,33 @@ def encode(snap: Snapshot) -> bytes:
     return _FRAME.pack(_MAGIC, len(header), len(body)) + header + body
 
 
+def split_frames(data: bytes) -> list[tuple[str, bytes]]:
+    """A bundle (snapshots one after another) -> (monitor, snapshot) pairs, unchecked inside."""
+    out, i = [], 0
+    while i < len(data):
+        if len(data) - i < _FRAME.size:
+            raise HandoffError("a bundle ends inside a frame")
+        magic, hlen, blen = _FRAME.unpack_from(data, i)
+        if magic != _MAGIC:
+            raise HandoffError("not an edgerv snapshot (or one of another wire version)")
+        end = i + _FRAME.size + hlen + blen
+        if end > len(data):
+            raise HandoffError("a bundle ends inside a frame")
+        try:
+            name = str(json.loads(data[i + _FRAME.size : i + _FRAME.size + hlen])["monitor"])
+        except (ValueError, KeyError, TypeError):
+            raise HandoffError("a snapshot's header is malformed") from None
+        out.append((name, data[i:end]))
+        i = end
+    return out
+
+
 def _inflate(data: bytes, limit: int) -> bytes:
     """Decompress at most ``limit`` bytes: a hostile message cannot blow up memory."""
     d = zlib.decompressobj()
     out = d.decompress(data, limit + 1)
-    if len(out) > limit or d.unconsumed_tail:
-        raise HandoffError("a section inflates beyond its announced size")
+    if len(out) > limit or d.unconsumed_tail or not d.eof:
+        raise HandoffError("a section does not inflate to its announced size")
     return out
 
 
@@ -227,7 +280,7 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
         raise HandoffError("too short for a snapshot")
     magic, hlen, blen = _FRAME.unpack_from(data)
     if magic != _MAGIC:
-        raise HandoffError("not an edgerv snapshot")
+        raise HandoffError("not an edgerv snapshot (or one of another wire version)")
     if len(data) != _FRAME.size + hlen + blen:
         raise HandoffError("length does not match its frame")
     try:
@@ -235,14 +288,30 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
         if h.get("v") != WIRE_VERSION:
             raise HandoffError(f"wire version {h.get('v')} is not {WIRE_VERSION}")
         n, bits, llen = int(h["n"]), int(h["bits"]), int(h["lettersLen"])
-        if not 0 <= n <= max_letters or not 0 <= bits <= 16 or not 0 <= llen <= blen:
+        runs, kept = int(h["runs"]), int(h["stamps"])
+        if not (0 <= n <= max_letters and 0 <= bits <= 16 and 0 <= llen <= blen):
             raise HandoffError("letter count, width or length out of range")
+        if not (0 <= runs <= n and 0 <= kept <= n):
+            raise HandoffError("run or stamp count out of range")
         body = data[_FRAME.size + hlen :]
-        packed = _inflate(body[:llen], (n * bits + 7) // 8)
-        if len(packed) != (n * bits + 7) // 8:
-            raise HandoffError("letters do not have the announced size")
-        letters = _unpack_letters(packed, n, bits)
-        stamps = _from_varints(_inflate(body[llen:], 10 * n), n) if n else []
+        flat = _from_varints(_inflate(body[:llen], 20 * runs), 2 * runs, "letters")
+        letters: list[int] = []
+        for letter, run in zip(flat[::2], flat[1::2], strict=True):
+            if not 0 <= letter < 1 << bits or run < 1:
+                raise HandoffError("a letter or run length is out of range")
+            letters += [letter] * run
+            if len(letters) > n:
+                break
+        if len(letters) != n:
+            raise HandoffError("letters do not have the announced count")
+        pairs = _from_varints(_inflate(body[llen:], 20 * kept), 2 * kept, "stamps")
+        stamps: dict[int, int] = {}
+        i = stamp = 0
+        for gap, delta in zip(pairs[::2], pairs[1::2], strict=True):
+            i, stamp = i + gap, stamp + delta
+            if not 0 <= i < n or (stamps and gap < 1):
+                raise HandoffError("a stamp's index is out of range")
+            stamps[i] = stamp
         values = tuple(h["values"])
         if not all(v is None or isinstance(v, bool | int | float | str) for v in values):
             raise HandoffError("a signal value is not a plain value")
@@ -259,7 +328,7 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
             late_events=int(h["late"]),
             bits=bits,
             letters=tuple(letters),
-            stamps=tuple(stamps),
+            stamps=stamps,
         )
     except HandoffError:
         raise

@@ -16,6 +16,9 @@ migration protocol moves.
   hysteresis that keeps a monitor from flapping; a monitor pushed back up within
   a cooldown of coming down (a bounce) waits twice as long before the next descent.
   Moving *up* is never delayed: the robot's deadlines come first.
+* **Start**: a monitor active on no handler (handlers started with ``--active
+  none``) starts on the least loaded handler of its home tier (``placement.tier``,
+  default the lowest), or of the nearest tier above that has one.
 * ``placement.migrate: pinned`` never moves; ``placement.maxLatencyMs`` forbids
   tiers whose latency from the robot is larger.
 """
@@ -32,6 +35,7 @@ class MonitorLoad:
     active: bool
     events_per_second: float = 0.0
     migration_wanted: bool = False
+    in_handoff: bool = False  # being moved right now (by anyone): placed, leave it alone
 
 
 @dataclass(frozen=True)
@@ -51,6 +55,20 @@ class Placement:
     tier: str | None = None  # home tier: where it starts and comes back to (default: lowest)
     migrate: Literal["auto", "pinned"] = "auto"
     max_latency_ms: float | None = None
+
+
+def placement_json(p: Placement) -> dict[str, object]:
+    """The placement as the API and the Monitor resource spell it."""
+    return {"tier": p.tier, "migrate": p.migrate, "maxLatencyMs": p.max_latency_ms}
+
+
+def placement_from_json(d: Mapping[str, object]) -> Placement:
+    tier, migrate, budget = d.get("tier"), d.get("migrate", "auto"), d.get("maxLatencyMs")
+    return Placement(
+        tier if isinstance(tier, str) else None,
+        "pinned" if migrate == "pinned" else "auto",
+        float(budget) if isinstance(budget, int | float) else None,
+    )
 
 
 @dataclass(frozen=True)
@@ -76,7 +94,7 @@ class PolicyConfig:
 @dataclass(frozen=True)
 class Move:
     monitor: str
-    source: str  # handler names
+    source: str  # handler names; "" to start a monitor that runs nowhere
     destination: str
     reason: str
 
@@ -139,6 +157,21 @@ def plan(
     moves: list[Move] = []
     moved: set[str] = set()
 
+    # Start: a monitor that runs nowhere starts on its home tier (or the nearest one up).
+    placed = {
+        m for h in handlers for m, load in h.monitors.items() if load.active or load.in_handoff
+    }
+    for m in sorted({m for h in handlers for m in h.monitors} - placed):
+        p = placements.get(m, Placement())
+        for tier in c.tiers[rank.get(p.tier or "", 0) :]:
+            fit = [h for h in handlers if h.tier == tier and m in h.monitors]
+            if fit and _allowed(tier, p, c):
+                start = min(fit, key=lambda h: (_pressured(h, c), h.cpu, h.name))
+                moves.append(Move(m, "", start.name, "start"))
+                moved.add(m)
+                memory.last_move[m] = now
+                break
+
     def movable(name: str, tier: str) -> bool:
         p = placements.get(name, Placement())
         return p.migrate == "auto" and _allowed(tier, p, c) and name not in moved
@@ -193,8 +226,7 @@ def plan(
         destination = min(below, key=lambda b: (b.cpu, b.name))
         for m in sorted(h.active()):
             p = placements.get(m, Placement())
-            home = p.tier if p.tier in rank else c.tiers[0]
-            if rank[h.tier] <= rank[home] or not movable(m, down):
+            if rank[h.tier] <= rank.get(p.tier or "", 0) or not movable(m, down):
                 continue
             wait = c.cooldown_seconds * 2 ** memory.bounces.get(m, 0)
             if now - memory.last_move.get(m, float("-inf")) < wait:

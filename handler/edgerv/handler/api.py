@@ -4,13 +4,16 @@ Open: ``GET /healthz``, ``GET /metrics`` (Prometheus text). Everything under
 ``/v1`` needs ``Authorization: Bearer <token>`` and answers 401 otherwise:
 
 * ``GET /v1/monitors``, ``GET /v1/monitors/{name}``: placement, state, buffers
+* ``GET /v1/load``: the load report the orchestrator reads (CPU seconds, ingest lag,
+  per monitor: active, events, migration wanted, placement)
 * ``POST /v1/monitors``: add the Monitor documents of the body (YAML or JSON); 409 if one exists
 * ``PUT /v1/monitors/{name}``: add or replace that monitor
 * ``DELETE /v1/monitors/{name}``: remove it
 * ``POST /v1/monitors/{name}/activate`` and ``/deactivate``: run it here, or stop running it
-* ``POST /v1/monitors/{name}/handoff/{step}`` with ``{"epoch": E, ...}``: one step of moving
-  a monitor between handlers (docs/protocol.md): ``hold`` and ``release`` on the sender,
-  ``receive``, ``cut`` and ``adopt`` on the receiver, ``abort`` on either
+* ``POST /v1/handoff/{step}`` with ``{"epoch": E, "monitors": [...], ...}``: one step of
+  moving monitors between handlers (docs/protocol.md): ``hold``, ``release`` and
+  ``commit`` on the sender, ``receive``, ``cut`` and ``adopt`` on the receiver, ``abort``
+  on either
 
 A body with bad documents changes nothing and gets 400 with every error located
 in the body (``request:LINE:COL``).
@@ -30,7 +33,7 @@ from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_l
 
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import MonitorSpec, parse_monitors_text
-from edgerv.core.handoff import HandoffError
+from edgerv.core.handoff import HandoffError, split_frames
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.handler.engine import Engine
 
@@ -106,6 +109,9 @@ class ControlApi:
         return web.Response(
             body=generate_latest(self.registry), headers={"Content-Type": CONTENT_TYPE_LATEST}
         )
+
+    async def load(self, request: web.Request) -> web.Response:
+        return web.json_response(self.engine.load())
 
     async def list_monitors(self, request: web.Request) -> web.Response:
         return web.json_response({"handler": self.engine.name, "monitors": self.engine.snapshot()})
@@ -188,43 +194,62 @@ class ControlApi:
             self.engine.set_active(name, active)
         except KeyError:
             return _message(404, f"no monitor '{name}'")
+        except HandoffError as exc:
+            return _message(409, str(exc))
         self.on_change()
         return web.json_response({"name": name, "active": active})
 
     async def handoff(self, request: web.Request) -> web.StreamResponse:
-        name, step = request.match_info["name"], request.match_info["step"]
+        """One step of a handoff, for a batch of monitors under one epoch (docs/protocol.md).
+
+        All or nothing: when a step fails for one monitor, ``hold`` and ``receive``
+        undo it for the others and the answer is 409 naming the monitor.
+        """
+        step = request.match_info["step"]
         e = self.engine
         try:
             if step == "adopt":
                 epoch = int(request.query["epoch"])
-                e.adopt(name, epoch, await request.read())
+                snaps = split_frames(await request.read())
+                for name, data in snaps:
+                    e.adopt(name, epoch, data)
                 self.on_change()
-                return web.json_response({"name": name, "active": True})
+                return web.json_response({"active": [name for name, _ in snaps]})
             body = await request.json()
             epoch = int(body["epoch"])
-            if step == "hold":
-                e.hold(name, epoch)
-                return web.json_response({"name": name, "held": True})
-            if step == "receive":
-                e.receive(name, epoch)
+            names = [str(n) for n in body["monitors"]]
+            if step in ("hold", "receive"):
+                done: list[str] = []
+                try:
+                    for name in names:
+                        (e.hold if step == "hold" else e.receive)(name, epoch)
+                        done.append(name)
+                except HandoffError as exc:
+                    for name in done:
+                        e.abort(name, epoch)
+                    raise HandoffError(f"{name}: {exc}") from None
                 self.on_change()
-                return web.json_response({"name": name, "receiving": True})
+                return web.json_response({"monitors": done})
             if step == "cut":
-                return web.json_response({"cut": e.cut(name, epoch)})
+                return web.json_response({"cuts": {n: e.cut(n, epoch) for n in names}})
             if step == "release":
-                data = e.release(name, epoch, int(body["cut"]), float(body.get("grace", 1.0)))
-                if data is None:
-                    return web.json_response({"ready": False}, status=202)
+                cuts, grace = body["cuts"], float(body.get("grace", 1.0))
+                released = {n: e.release(n, epoch, int(cuts[n]), grace) for n in names}
+                waiting = [n for n, data in released.items() if data is None]
                 self.on_change()
-                return web.Response(body=data, content_type="application/octet-stream")
-            if step == "abort":
-                outcome = e.abort(name, epoch)
+                if waiting:
+                    return web.json_response({"waiting": waiting}, status=202)
+                bundle = b"".join(data for data in released.values() if data is not None)
+                return web.Response(body=bundle, content_type="application/octet-stream")
+            if step in ("commit", "abort"):
+                act = e.commit if step == "commit" else e.abort
+                outcomes = {n: act(n, epoch) for n in names}
                 self.on_change()
-                return web.json_response({"name": name, "outcome": outcome})
+                return web.json_response({"outcomes": outcomes})
         except HandoffError as exc:
             return _message(409, str(exc))
         except (KeyError, ValueError, TypeError) as exc:
-            return _message(400, f"bad handoff request: {exc}")
+            return _message(400, f"bad handoff request: {exc!r}")
         return _message(404, f"no handoff step '{step}'")
 
     async def activate(self, request: web.Request) -> web.Response:
@@ -241,6 +266,7 @@ class ControlApi:
             [
                 web.get("/healthz", self.healthz),
                 web.get("/metrics", self.metrics),
+                web.get("/v1/load", self.load),
                 web.get("/v1/monitors", self.list_monitors),
                 web.post("/v1/monitors", self.post_monitors),
                 web.get("/v1/monitors/{name}", self.get_monitor),
@@ -248,7 +274,7 @@ class ControlApi:
                 web.delete("/v1/monitors/{name}", self.delete_monitor),
                 web.post("/v1/monitors/{name}/activate", self.activate),
                 web.post("/v1/monitors/{name}/deactivate", self.deactivate),
-                web.post("/v1/monitors/{name}/handoff/{step}", self.handoff),
+                web.post("/v1/handoff/{step}", self.handoff),
             ]
         )
         return app

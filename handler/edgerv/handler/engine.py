@@ -24,6 +24,7 @@ from edgerv.core.documents import MonitorSpec
 from edgerv.core.handoff import HandoffError, cut_point, decode, encode, export_snapshot, restore
 from edgerv.core.monitor import CompiledMonitor, compile_monitor
 from edgerv.core.pipeline import MonitorRuntime, Router, TopicRoute, Verdict
+from edgerv.core.placement import placement_json
 
 log = logging.getLogger("edgerv.handler")
 
@@ -57,10 +58,14 @@ class MonitorSlot:
     migration_wanted: bool = False
     capacity: int = field(init=False)
     epoch: int = 0  # the newest handoff this handler took part in, for this monitor
-    handoff: str | None = None  # "sending" (H1 holds it) or "receiving" (H2 holds it)
+    # "sending" (H1 holds it), "released" (H1 sent its snapshot, keeps it and keeps holding
+    # until H2 confirms), "receiving" (H2 holds it)
+    handoff: str | None = None
+    released: bytes | None = None  # H1: the snapshot it sent, until the handoff commits
     first_stamps: dict[str, int] = field(default_factory=dict)  # H2: first stamp per topic
     newest_stamps: dict[str, int] = field(default_factory=dict)  # H1: newest per topic
     cut_known: tuple[int, float] | None = None  # H1: the cut, and when it first heard of it
+    quiet_since: float = 0.0  # H1: when the last event of the monitor's topics came
 
     @property
     def name(self) -> str:
@@ -68,6 +73,11 @@ class MonitorSlot:
 
     def __post_init__(self) -> None:
         self.capacity = self.compiled.spec.buffer_capacity
+
+    @property
+    def active(self) -> bool:
+        """The monitor is this handler's: it runs here, or is paused here for a handoff."""
+        return self.runtime is not None and self.handoff not in ("receiving", "released")
 
     @property
     def buffered(self) -> int:
@@ -79,8 +89,8 @@ class MonitorSlot:
         return {
             "name": self.name,
             "handler": handler,
-            "active": rt is not None,
-            "state": rt.status if rt else "inactive",
+            "active": self.active,
+            "state": rt.status if rt and self.active else "inactive",
             "assertion": spec.assertion,
             "topics": spec.topics,
             "automatonState": rt.state if rt else None,
@@ -98,6 +108,7 @@ class MonitorSlot:
             "migrationWanted": self.migration_wanted,
             "handoff": self.handoff,
             "epoch": self.epoch,
+            "placement": placement_json(spec.placement),
         }
 
 
@@ -173,6 +184,10 @@ class Engine:
     def set_active(self, name: str, active: bool) -> None:
         with self.lock:
             slot = self.slots[name]
+            if slot.handoff is not None:
+                raise HandoffError(
+                    f"monitor '{name}' is in a handoff ({slot.handoff}); abort it first"
+                )
             if active and slot.runtime is None:
                 self._activate(slot)
             elif not active and slot.runtime is not None:
@@ -232,8 +247,10 @@ class Engine:
                     if topic not in slot.first_stamps and topic in slot.compiled.spec.topics:
                         slot.first_stamps[topic] = stamp
                 for slot in sending:  # H1 notes how far each topic got (when to release)
-                    if stamp > slot.newest_stamps.get(topic, stamp - 1):
-                        slot.newest_stamps[topic] = stamp
+                    if topic in slot.compiled.spec.topics:
+                        slot.quiet_since = now
+                        if stamp > slot.newest_stamps.get(topic, stamp - 1):
+                            slot.newest_stamps[topic] = stamp
                 for runtime in self.router.offer_values(route, stamp, values, admit):
                     slots[runtime.name].pending_since = now if runtime.events else None
                     self.waiting[runtime.name] = runtime
@@ -318,7 +335,7 @@ class Engine:
         """At shutdown: release every buffer and evaluate it, so no accepted event is lost."""
         with self.lock:
             for slot in self.slots.values():
-                if slot.runtime is not None:
+                if slot.runtime is not None and slot.active:  # not what is held for the other side
                     slot.runtime.flush()
                     self.waiting[slot.name] = slot.runtime
                     slot.pending_since = None
@@ -333,8 +350,9 @@ class Engine:
             raise HandoffError(f"no monitor '{name}' here")
         return slot
 
-    def hold(self, name: str, epoch: int) -> None:
+    def hold(self, name: str, epoch: int, now: float | None = None) -> None:
         """H1, step 2a: stop scheduling the monitor, keep buffering its events."""
+        now = time.monotonic() if now is None else now
         with self.lock:
             slot = self._slot(name)
             if epoch <= slot.epoch:
@@ -343,7 +361,7 @@ class Engine:
                 raise HandoffError(f"monitor '{name}' is not running here")
             slot.epoch = epoch
             self._set_handoff(slot, "sending")
-            slot.newest_stamps, slot.cut_known = {}, None
+            slot.newest_stamps, slot.cut_known, slot.quiet_since = {}, None, now
             slot.runtime.holding = True
             self.waiting.pop(name, None)
 
@@ -375,11 +393,19 @@ class Engine:
 
         Each topic is its own channel: an event stamped at or before the cut can reach
         H1 after a later one on another topic. So H1 waits until every topic of the
-        monitor brought an event past the cut, or ``grace`` seconds since it first
-        heard of the cut (for quiet topics). Then the monitor stops running here.
+        monitor brought an event past the cut. A quiet topic is let go when another
+        one has run ``grace`` seconds of stamps past the cut, or when nothing at all
+        came for ``grace`` seconds since H1 learned the cut: stream time, not H1's
+        clock, so that a lagging H1 does not give up on events still in its queues. Then the monitor stops running here, but
+        H1 keeps the snapshot and goes on holding the events after the cut until the
+        handoff commits (H2 adopted) or is aborted (H1 resumes from both: nothing lost).
+        A repeated release (its answer was lost) gets the same snapshot again.
         """
         now = time.monotonic() if now is None else now
         with self.lock:
+            slot = self._slot(name)
+            if slot.handoff == "released" and slot.epoch == epoch and slot.released:
+                return slot.released
             slot = self._handoff_slot(name, epoch, "sending")
             rt = slot.runtime
             assert rt is not None
@@ -389,40 +415,61 @@ class Engine:
                 cut = max(cut, rt.last_released)
             if slot.cut_known is None or slot.cut_known[0] != cut:
                 slot.cut_known = (cut, now)
-            past = all(slot.newest_stamps.get(t, cut) > cut for t in slot.compiled.spec.topics)
-            if not past and now - slot.cut_known[1] < grace:
+            newest = slot.newest_stamps
+            topics = slot.compiled.spec.topics
+            if not (
+                all(newest.get(t, cut) > cut for t in topics)  # every topic is past the cut
+                or max(newest.values(), default=cut) - cut >= grace * 1e9  # the rest: quiet
+                or now - max(slot.cut_known[1], slot.quiet_since) >= grace  # nothing comes
+            ):
                 return None
+            after = [e for e in rt.events if e[0] > cut]
             data = encode(export_snapshot(rt, cut, epoch))
-            self.router.remove(name)
-            slot.runtime = None
-            self._set_handoff(slot, None)
-            self.routes_version += 1
+            rt.events, rt.holding = after, True  # the rest, in case H1 must resume
+            rt.letters, rt.stamps = rt.letters[:0], rt.stamps[:0]
+            slot.released = data
+            self._set_handoff(slot, "released")
             return data
+
+    def commit(self, name: str, epoch: int) -> str:
+        """H1, after H2 adopted: let go of the snapshot and the held events."""
+        with self.lock:
+            slot = self._slot(name)
+            if slot.epoch != epoch:
+                raise HandoffError(f"no handoff of '{name}' with epoch {epoch} here")
+            if slot.handoff is None and slot.runtime is None:
+                return "committed"  # a repeated commit
+            if slot.handoff != "released":
+                raise HandoffError(f"the handoff of '{name}' is {slot.handoff or 'over'}")
+            self._let_go(slot)
+            return "committed"
 
     def adopt(self, name: str, epoch: int, data: bytes) -> None:
         """H2, step 6: take the snapshot, merge the held events after the cut, schedule."""
         with self.lock:
+            slot = self._slot(name)
+            if slot.handoff is None and slot.epoch == epoch and slot.runtime is not None:
+                return  # a repeated adoption (its answer was lost): already running
             slot = self._handoff_slot(name, epoch, "receiving")
             snap = decode(data)
             if snap.epoch != epoch or snap.monitor != name:
                 raise HandoffError("the snapshot belongs to another handoff")
-            held = slot.runtime
-            assert held is not None
-            rt = restore(slot.compiled, snap, held.events)
-            self.router.remove(name)
-            slot.runtime = rt
-            self._set_handoff(slot, None)
-            self.router.add(rt)
-            self.waiting[name] = rt
-            self.routes_version += 1
-            self.ready.notify()
+            self._resume(slot, restore(slot.compiled, snap, self._held(slot)))
 
     def abort(self, name: str, epoch: int) -> str:
-        """Undo a handoff on this side: H1 resumes the monitor, H2 drops what it held."""
+        """Undo a handoff on this side; what it did, as one word.
+
+        ``resumed``: H1 runs the monitor again (from its kept snapshot after a
+        release); ``dropped``: H2 let go of what it held, and will refuse an adoption
+        with this epoch; ``active``: too late, the monitor runs here (H2 adopted);
+        ``gone``: H1 let go already (committed); ``nothing to undo`` otherwise.
+        """
         with self.lock:
             slot = self._slot(name)
-            if slot.epoch != epoch or slot.handoff is None:
+            if slot.epoch != epoch:
                 return "nothing to undo"
+            if slot.handoff is None:
+                return "active" if slot.runtime is not None else "gone"
             rt = slot.runtime
             assert rt is not None
             if slot.handoff == "sending":
@@ -431,11 +478,33 @@ class Engine:
                     self.waiting[name] = rt
                 self._set_handoff(slot, None)
                 return "resumed"
-            self.router.remove(name)
-            slot.runtime = None
-            self._set_handoff(slot, None)
-            self.routes_version += 1
+            if slot.handoff == "released":
+                assert slot.released is not None
+                snap = decode(slot.released)
+                self._resume(slot, restore(slot.compiled, snap, self._held(slot)))
+                return "resumed"
+            self._let_go(slot)
             return "dropped"
+
+    @staticmethod
+    def _held(slot: MonitorSlot) -> list[tuple[int, int, Any]]:
+        assert slot.runtime is not None
+        return slot.runtime.events
+
+    def _resume(self, slot: MonitorSlot, rt: MonitorRuntime) -> None:
+        self.router.remove(slot.name)
+        slot.runtime, slot.released = rt, None
+        self._set_handoff(slot, None)
+        self.router.add(rt)
+        self.waiting[slot.name] = rt
+        self.routes_version += 1
+        self.ready.notify()
+
+    def _let_go(self, slot: MonitorSlot) -> None:
+        self.router.remove(slot.name)
+        slot.runtime, slot.released = None, None
+        self._set_handoff(slot, None)
+        self.routes_version += 1
 
     def _set_handoff(self, slot: MonitorSlot, role: str | None) -> None:
         slot.handoff = role
@@ -449,6 +518,26 @@ class Engine:
         if slot.handoff != role or slot.epoch != epoch:
             raise HandoffError(f"no {role} handoff of '{name}' with epoch {epoch} here")
         return slot
+
+    def load(self) -> dict[str, Any]:
+        """The load report the orchestrator reads (``GET /v1/load``): counters, not rates."""
+        with self.lock:
+            return {
+                "handler": self.name,
+                "monotonic": time.monotonic(),
+                "cpuSeconds": time.process_time(),
+                "ingestLag": self.ingest_lag,
+                "monitors": {
+                    slot.name: {
+                        "active": slot.active,
+                        "handoff": slot.handoff,
+                        "events": slot.events,
+                        "migrationWanted": slot.migration_wanted,
+                        "placement": placement_json(slot.compiled.spec.placement),
+                    }
+                    for slot in self.slots.values()
+                },
+            }
 
     def snapshot(self) -> list[dict[str, Any]]:
         with self.lock:

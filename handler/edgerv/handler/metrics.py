@@ -60,7 +60,7 @@ class EngineCollector(Collector):
                     verdicts.add_metric([slot.name, kind], n)
                 buf.add_metric(name, slot.buffered)
                 cap.add_metric(name, slot.capacity)
-                active.add_metric(name, 1 if slot.runtime is not None else 0)
+                active.add_metric(name, 1 if slot.active else 0)
                 wanted.add_metric(name, 1 if slot.migration_wanted else 0)
             messages = dict(e.messages)
             lag = e.ingest_lag

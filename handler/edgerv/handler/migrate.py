@@ -17,11 +17,22 @@ import sys
 import time
 import urllib.error
 import urllib.request
-from typing import Any
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from edgerv.core.handoff import decode, split_frames
 
 
 class MigrationFailed(Exception):
     pass
+
+
+class Unreachable(MigrationFailed):
+    """The handler did not answer (refused, reset, timed out)."""
+
+
+T = TypeVar("T")
 
 
 class Handler:
@@ -30,80 +41,171 @@ class Handler:
         self.token = token
 
     def call(
-        self, path: str, body: Any = None, raw: bytes | None = None, timeout: float = 10.0
+        self,
+        path: str,
+        body: Any = None,
+        raw: bytes | None = None,
+        timeout: float = 10.0,
+        check: bool = False,
+        method: str = "POST",
     ) -> tuple[int, bytes]:
+        """One request; with ``check``, a 4xx/5xx answer raises MigrationFailed with its reason."""
         data = raw if raw is not None else json.dumps(body or {}).encode()
         headers = {
             "Content-Type": "application/octet-stream" if raw is not None else "application/json"
         }
         if self.token:
             headers["Authorization"] = f"Bearer {self.token}"
-        req = urllib.request.Request(self.base + path, data=data, method="POST", headers=headers)
+        req = urllib.request.Request(
+            self.base + path,
+            data=data if method == "POST" else None,
+            method=method,
+            headers=headers,
+        )
         try:
             with urllib.request.urlopen(req, timeout=timeout) as resp:
-                return resp.status, resp.read()
+                status, answer = resp.status, resp.read()
         except urllib.error.HTTPError as err:
-            return err.code, err.read()
+            status, answer = err.code, err.read()
         except OSError as exc:
-            raise MigrationFailed(f"{self.base} is unreachable: {exc}") from None
-
-    def step(
-        self, monitor: str, step: str, body: Any = None, raw: bytes | None = None, query: str = ""
-    ) -> tuple[int, bytes]:
-        status, data = self.call(f"/v1/monitors/{monitor}/handoff/{step}{query}", body, raw)
-        if status >= 400:
+            raise Unreachable(f"{self.base} is unreachable: {exc}") from None
+        if check and status >= 400:
             try:
-                reason = json.loads(data)["errors"][0]["message"]
-            except (ValueError, KeyError, IndexError):
-                reason = data[:200].decode(errors="replace")
-            raise MigrationFailed(f"{self.base}: {step}: {reason} (HTTP {status})")
-        return status, data
+                reason = json.loads(answer)["errors"][0]["message"]
+            except (ValueError, KeyError, IndexError, TypeError):
+                reason = answer[:200].decode(errors="replace")
+            raise MigrationFailed(f"{self.base}{path}: {reason} (HTTP {status})")
+        return status, answer
+
+    def get(self, path: str, timeout: float = 10.0) -> Any:
+        """GET a JSON document (raises MigrationFailed on errors)."""
+        answer = self.call(path, timeout=timeout, check=True, method="GET")[1]
+        try:
+            return json.loads(answer)
+        except ValueError:
+            raise MigrationFailed(f"{self.base}{path}: the answer is not JSON") from None
+
+
+def _retry(deadline: float, call: Callable[[], T]) -> T:
+    """Repeat a call that failed on the network (every step is idempotent) until the deadline."""
+    while True:
+        try:
+            return call()
+        except Unreachable:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+
+
+@dataclass
+class Moved:
+    seconds: float  # from the request to the monitors active on the destination
+    snapshot_bytes: int  # what crossed for the monitors' state and buffered letters
+    letters: int  # buffered letters (events) moved
 
 
 def migrate(
-    source: Handler, destination: Handler, monitor: str, timeout: float, grace: float
-) -> float:
-    """Move ``monitor``; return the seconds it took. Raises MigrationFailed after undoing."""
+    source: Handler,
+    destination: Handler,
+    monitors: Sequence[str],
+    timeout: float = 30.0,
+    grace: float = 1.0,
+    after_release: Callable[[], None] | None = None,
+) -> Moved:
+    """Move ``monitors`` (one handoff, one epoch). Raises MigrationFailed after undoing.
+
+    Up to the release, any failure aborts both sides: the monitors resume on the
+    source. After it, the destination's adoption decides who owns each monitor
+    (docs/protocol.md, "Failures"): adopted -> the source commits (lets go);
+    not adopted, or the destination stays unreachable until the deadline (it
+    crashed) -> the destination is fenced and the source resumes from the
+    snapshot and the events it kept. (``after_release`` is a seam for tests
+    that break things at that moment.)
+    """
     epoch = time.time_ns()
     started = time.monotonic()
     deadline = started + timeout
+    names = list(monitors)
+
+    def step(side: Handler, name: str, **body: Any) -> tuple[int, bytes]:
+        return side.call(
+            f"/v1/handoff/{name}", {"epoch": epoch, "monitors": names, **body}, check=True
+        )
+
     try:
-        source.step(monitor, "hold", {"epoch": epoch})  # 2a first, as in the paper
-        destination.step(monitor, "receive", {"epoch": epoch})
-        cut = None
-        while cut is None:
-            cut = json.loads(destination.step(monitor, "cut", {"epoch": epoch})[1])["cut"]
-            if cut is None:
-                if time.monotonic() > deadline:
-                    raise MigrationFailed(
-                        f"{destination.base} received no message on some "
-                        f"topic of '{monitor}' within {timeout:g} s"
-                    )
-                time.sleep(0.01)
+        step(source, "hold")  # 2a first, as in the paper
+        step(destination, "receive")
         while True:
-            status, snapshot = source.step(
-                monitor, "release", {"epoch": epoch, "cut": cut, "grace": grace}
+            cuts = json.loads(step(destination, "cut")[1])["cuts"]
+            waiting = sorted(n for n, c in cuts.items() if c is None)
+            if not waiting:
+                break
+            if time.monotonic() > deadline:
+                raise MigrationFailed(
+                    f"{destination.base} received no message on some topic of "
+                    f"{', '.join(waiting)} within {timeout:g} s"
+                )
+            time.sleep(0.005)
+        while True:
+            status, bundle = _retry(
+                deadline, lambda: step(source, "release", cuts=cuts, grace=grace)
             )
             if status == 200:
                 break
             if time.monotonic() > deadline:
-                raise MigrationFailed("the sender did not release the monitor in time")
-            time.sleep(0.01)
+                raise MigrationFailed("the sender did not release the monitors in time")
+            time.sleep(0.005)
     except MigrationFailed:
         for side in (source, destination):
             with contextlib.suppress(MigrationFailed):  # best effort: report the first error
-                side.step(monitor, "abort", {"epoch": epoch})
+                step(side, "abort")
         raise
-    # From here the sender has let go: the receiver must adopt (retrying is safe: fenced).
-    for attempt in range(5):
-        try:
-            destination.step(monitor, "adopt", raw=snapshot, query=f"?epoch={epoch}")
-            return time.monotonic() - started
-        except MigrationFailed:
-            if attempt == 4:
-                raise
-            time.sleep(0.2)
-    raise AssertionError("unreachable")
+    if after_release is not None:
+        after_release()
+    # The source has let go and keeps what it needs to resume: the adoption decides.
+    try:
+        _retry(
+            deadline,
+            lambda: destination.call(f"/v1/handoff/adopt?epoch={epoch}", raw=bundle, check=True),
+        )
+    except MigrationFailed as failed:
+        _settle(
+            lambda side, name: step(side, name), source, destination, deadline + timeout, failed
+        )
+    seconds = time.monotonic() - started
+    with contextlib.suppress(MigrationFailed):  # a source that crashed has let go too
+        _retry(deadline + timeout, lambda: step(source, "commit"))
+    letters = sum(len(decode(data).letters) for _, data in split_frames(bundle))
+    return Moved(seconds, len(bundle), letters)
+
+
+def _settle(
+    step: Callable[[Handler, str], tuple[int, bytes]],
+    source: Handler,
+    destination: Handler,
+    deadline: float,
+    failed: MigrationFailed,
+) -> None:
+    """The adoption failed or its answer was lost: find out, then commit or resume.
+
+    Returns when every monitor runs on the destination after all; raises
+    MigrationFailed when (some) resumed on the source.
+    """
+    try:
+        outcomes = json.loads(_retry(deadline, lambda: step(destination, "abort"))[1])["outcomes"]
+    except MigrationFailed:
+        outcomes = None  # unreachable: treated as crashed, whatever it held is gone
+    if outcomes and all(o == "active" for o in outcomes.values()):
+        return  # it adopted after all: the answer was lost
+    try:
+        _retry(deadline, lambda: step(source, "abort"))
+    except MigrationFailed as exc:
+        raise MigrationFailed(
+            f"{failed}; and the sender could not resume them: {exc} "
+            "(it keeps the snapshots: abort the handoff there once it is reachable)"
+        ) from None
+    state = "unreachable" if outcomes is None else ", ".join(sorted(set(outcomes.values())))
+    raise MigrationFailed(f"{failed}; the destination was {state}, the sender resumed them")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -117,7 +219,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--to", dest="destination", required=True, metavar="HOST:PORT", help="the handler to run it"
     )
-    p.add_argument("--monitor", required=True, help="the monitor's name")
+    p.add_argument(
+        "--monitor",
+        required=True,
+        action="append",
+        metavar="NAME[,NAME...]",
+        help="the monitor(s) to move, in one handoff (repeat or separate with commas)",
+    )
     p.add_argument("--timeout", type=float, default=30.0, metavar="SECONDS")
     p.add_argument(
         "--grace",
@@ -130,19 +238,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     token = os.environ.get("EDGERV_TOKEN")
+    names = [n.strip() for item in args.monitor for n in item.split(",") if n.strip()]
+    what = ", ".join(names)
     try:
-        seconds = migrate(
+        moved = migrate(
             Handler(args.source, token),
             Handler(args.destination, token),
-            args.monitor,
+            names,
             args.timeout,
             args.grace,
         )
     except MigrationFailed as exc:
-        print(f"edgerv migrate: {args.monitor} stays on {args.source}: {exc}", file=sys.stderr)
+        print(f"edgerv migrate: {what} stays on {args.source}: {exc}", file=sys.stderr)
         return 1
     print(
-        f"edgerv migrate: {args.monitor} runs on {args.destination} ({seconds * 1000:.0f} ms)",
+        f"edgerv migrate: {what} runs on {args.destination} ({moved.seconds * 1000:.0f} ms, "
+        f"{moved.snapshot_bytes} bytes for {moved.letters} buffered events)",
         file=sys.stderr,
     )
     return 0

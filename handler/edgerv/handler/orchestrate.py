@@ -1,0 +1,286 @@
+"""``edgerv orchestrate``: a local orchestrator that polls handlers and moves monitors.
+
+Each round it reads every handler's load report (``GET /v1/load``), turns the
+counters into rates (:func:`build_reports`), asks the policy
+(:func:`edgerv.core.placement.plan`) what to do, and does it: ``start`` activates
+a monitor that runs nowhere, the other moves run the handoff of
+:mod:`edgerv.handler.migrate`. Each action is printed as one JSON line on stdout.
+A handler that does not answer is left out of that round (its monitors are not
+moved: it may only be slow). Authenticates with ``EDGERV_TOKEN`` like the handlers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from edgerv.core.diagnostics import Diagnostic, InputError, Location
+from edgerv.core.placement import (
+    HandlerReport,
+    MonitorLoad,
+    Placement,
+    PolicyConfig,
+    PolicyMemory,
+    placement_from_json,
+    plan,
+)
+from edgerv.handler.migrate import Handler, MigrationFailed, migrate
+
+log = logging.getLogger("edgerv.orchestrate")
+
+
+@dataclass(frozen=True)
+class Target:
+    tier: str
+    address: str
+
+
+def parse_handlers(text: str) -> list[Target]:
+    """``edge=HOST:PORT,cloud=HOST:PORT`` (a tier may have several handlers)."""
+    targets = []
+    for i, item in enumerate(p.strip() for p in text.split(",")):
+        tier, eq, address = item.partition("=")
+        if not eq or not tier.strip() or not address.strip():
+            raise InputError(
+                [
+                    Diagnostic(
+                        Location("--handlers"),
+                        f"item {i + 1} '{item}' is not TIER=HOST:PORT",
+                        hint="e.g. --handlers edge=10.0.0.2:8080,cloud=10.0.0.9:8080",
+                    )
+                ]
+            )
+        targets.append(Target(tier.strip(), address.strip()))
+    return targets
+
+
+def parse_pairs(text: str, flag: str) -> dict[str, float]:
+    """``edge=0,cloud=40``."""
+    out = {}
+    for item in filter(None, (p.strip() for p in text.split(","))):
+        key, eq, value = item.partition("=")
+        try:
+            if not eq:
+                raise ValueError
+            out[key.strip()] = float(value)
+        except ValueError:
+            raise InputError([Diagnostic(Location(flag), f"'{item}' is not NAME=NUMBER")]) from None
+    return out
+
+
+@dataclass
+class Counters:
+    monotonic: float
+    cpu_seconds: float
+    events: Mapping[str, int]
+
+
+def build_reports(
+    loads: Mapping[Target, Mapping[str, Any]],
+    previous: dict[Target, Counters],
+) -> tuple[list[HandlerReport], dict[str, Placement], dict[str, Target]]:
+    """Load reports -> the policy's inputs; updates ``previous`` (the last counters).
+
+    CPU is the handler's share of one core since the last poll (the handler's data
+    path is one Python thread); events per second likewise per monitor. On the
+    first poll of a handler both are 0: nothing moves for load before a rate is known.
+    """
+    reports: list[HandlerReport] = []
+    placements: dict[str, Placement] = {}
+    where: dict[str, Target] = {}
+    for target, load in loads.items():
+        name = str(load["handler"])
+        now, cpu_s = float(load["monotonic"]), float(load["cpuSeconds"])
+        monitors = load["monitors"]
+        events = {m: int(d["events"]) for m, d in monitors.items()}
+        last = previous.get(target)
+        span = now - last.monotonic if last else 0.0
+        cpu = (cpu_s - last.cpu_seconds) / span if last and span > 0 else 0.0
+        rates = {
+            m: (n - last.events.get(m, n)) / span if last and span > 0 else 0.0
+            for m, n in events.items()
+        }
+        previous[target] = Counters(now, cpu_s, events)
+        reports.append(
+            HandlerReport(
+                name=name,
+                tier=target.tier,
+                cpu=max(0.0, cpu),
+                ingest_lag=float(load.get("ingestLag", 0.0)),
+                monitors={
+                    m: MonitorLoad(
+                        active=bool(d["active"]),
+                        events_per_second=max(0.0, rates[m]),
+                        migration_wanted=bool(d["migrationWanted"]),
+                        in_handoff=d.get("handoff") is not None,
+                    )
+                    for m, d in monitors.items()
+                },
+            )
+        )
+        where[name] = target
+        for m, d in monitors.items():
+            placements.setdefault(m, placement_from_json(d.get("placement") or {}))
+    return reports, placements, where
+
+
+class Orchestrator:
+    def __init__(
+        self,
+        targets: Sequence[Target],
+        config: PolicyConfig,
+        token: str | None,
+        timeout: float = 30.0,
+        grace: float = 1.0,
+    ) -> None:
+        self.targets = list(targets)
+        self.config = config
+        self.clients = {t: Handler(t.address, token) for t in self.targets}
+        self.memory = PolicyMemory()
+        self.previous: dict[Target, Counters] = {}
+        self.timeout, self.grace = timeout, grace
+        self.warned: set[str] = set()
+
+    def poll(self) -> dict[Target, Mapping[str, Any]]:
+        loads = {}
+        for t, client in self.clients.items():
+            try:
+                loads[t] = client.get("/v1/load", timeout=5.0)
+            except MigrationFailed as exc:
+                log.warning("%s (%s) left out of this round: %s", t.address, t.tier, exc)
+        return loads
+
+    def round(self) -> list[dict[str, Any]]:
+        """Poll, decide, act; return what was done, one record per action."""
+        reports, placements, where = build_reports(self.poll(), self.previous)
+        for m, p in placements.items():
+            if p.tier is not None and p.tier not in self.config.tiers and m not in self.warned:
+                self.warned.add(m)
+                log.warning(
+                    "monitor %s: placement.tier '%s' is not one of the tiers %s; "
+                    "it starts on the lowest",
+                    m,
+                    p.tier,
+                    ",".join(self.config.tiers),
+                )
+        moves = plan(reports, placements, self.config, self.memory, time.monotonic())
+        done = []
+        for start in (m for m in moves if not m.source):
+            client = self.clients[where[start.destination]]
+            started = time.monotonic()
+            record: dict[str, Any] = {
+                "monitors": [start.monitor],
+                "from": None,
+                "to": client.base,
+                "reason": start.reason,
+            }
+            try:
+                client.call(f"/v1/monitors/{start.monitor}/activate", check=True)
+                record["ok"] = True
+            except MigrationFailed as exc:
+                record["ok"], record["error"] = False, str(exc)
+            record["ms"] = round((time.monotonic() - started) * 1000, 1)
+            done.append(record)
+        batches: dict[tuple[str, str, str], list[str]] = {}
+        for move in (m for m in moves if m.source):  # one handoff per pair of handlers
+            batches.setdefault((move.source, move.destination, move.reason), []).append(
+                move.monitor
+            )
+        for (source, destination, reason), names in batches.items():
+            src, dst = self.clients[where[source]], self.clients[where[destination]]
+            record = {"monitors": names, "from": src.base, "to": dst.base, "reason": reason}
+            started = time.monotonic()
+            try:
+                moved = migrate(src, dst, names, self.timeout, self.grace)
+                record.update(ok=True, bytes=moved.snapshot_bytes, events=moved.letters)
+            except MigrationFailed as exc:
+                record["ok"], record["error"] = False, str(exc)
+            record["ms"] = round((time.monotonic() - started) * 1000, 1)
+            done.append(record)
+        return done
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--handlers",
+        required=True,
+        metavar="TIER=HOST:PORT,...",
+        help="the handlers and their tiers, e.g. edge=10.0.0.2:8080,cloud=10.0.0.9:8080",
+    )
+    p.add_argument(
+        "--tiers",
+        metavar="LOW,...,HIGH",
+        help="the tiers in order, closest to the robot first (default: as --handlers lists them)",
+    )
+    p.add_argument(
+        "--tier-latency",
+        default="",
+        metavar="TIER=MS,...",
+        help="each tier's latency from the robot, for placement.maxLatencyMs",
+    )
+    p.add_argument("--interval", type=float, default=1.0, metavar="SECONDS")
+    p.add_argument(
+        "--calm", type=float, default=30.0, metavar="SECONDS", help="calm before coming down"
+    )
+    p.add_argument(
+        "--cooldown", type=float, default=60.0, metavar="SECONDS", help="least time between moves"
+    )
+    p.add_argument("--timeout", type=float, default=30.0, metavar="SECONDS", help="per migration")
+    p.add_argument("--once", action="store_true", help="one round (after a first poll), then exit")
+
+
+def config_from(args: argparse.Namespace, targets: Sequence[Target]) -> PolicyConfig:
+    tiers = (
+        [t.strip() for t in args.tiers.split(",") if t.strip()]
+        if args.tiers
+        else list(dict.fromkeys(t.tier for t in targets))
+    )
+    unknown = sorted({t.tier for t in targets} - set(tiers))
+    if unknown:
+        raise InputError(
+            [
+                Diagnostic(
+                    Location("--handlers"),
+                    f"tier {', '.join(unknown)} is not in --tiers {','.join(tiers)}",
+                )
+            ]
+        )
+    try:
+        return PolicyConfig(
+            tiers=tuple(tiers),
+            tier_latency_ms=parse_pairs(args.tier_latency, "--tier-latency"),
+            calm_seconds=args.calm,
+            cooldown_seconds=args.cooldown,
+        )
+    except ValueError as exc:
+        raise InputError([Diagnostic(Location("--tiers"), str(exc))]) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        targets = parse_handlers(args.handlers)
+        config = config_from(args, targets)
+    except InputError as exc:
+        print(exc, file=sys.stderr)
+        return 2
+    orchestrator = Orchestrator(targets, config, os.environ.get("EDGERV_TOKEN"), args.timeout)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    if args.once:  # two polls: the first gives the counters the rates start from
+        build_reports(orchestrator.poll(), orchestrator.previous)
+        time.sleep(min(args.interval, 1.0))
+    while True:
+        for record in orchestrator.round():
+            print(json.dumps(record), flush=True)
+        if args.once or stop.wait(args.interval):
+            return 0
