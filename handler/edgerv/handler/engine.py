@@ -396,9 +396,11 @@ class Engine:
         monitor brought an event past the cut. A quiet topic is let go when another
         one has run ``grace`` seconds of stamps past the cut, or when nothing at all
         came for ``grace`` seconds since H1 learned the cut: stream time, not H1's
-        clock, so that a lagging H1 does not give up on events still in its queues. Then the monitor stops running here, but
-        H1 keeps the snapshot and goes on holding the events after the cut until the
-        handoff commits (H2 adopted) or is aborted (H1 resumes from both: nothing lost).
+        clock, so that a lagging H1 does not give up on events still in its queues.
+
+        Then the monitor stops running here, but H1 keeps the snapshot and goes on
+        holding the events after the cut until the handoff commits (H2 adopted) or is
+        aborted (H1 resumes from both: nothing lost).
         A repeated release (its answer was lost) gets the same snapshot again.
         """
         now = time.monotonic() if now is None else now
