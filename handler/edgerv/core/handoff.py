@@ -244,6 +244,11 @@ def encode(snap: Snapshot) -> bytes:
     return _FRAME.pack(_MAGIC, len(header), len(body)) + header + body
 
 
+def header_size(frame: bytes) -> int:
+    """The bytes of a snapshot that do not grow with its events: frame and header."""
+    return _FRAME.size + int(_FRAME.unpack_from(frame)[1])
+
+
 def split_frames(data: bytes) -> list[tuple[str, bytes]]:
     """A bundle (snapshots one after another) -> (monitor, snapshot) pairs, unchecked inside."""
     out, i = [], 0

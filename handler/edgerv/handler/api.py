@@ -68,11 +68,13 @@ class ControlApi:
         registry: CollectorRegistry,
         token: str | None,
         on_change: Callable[[], None],
+        on_routes: Callable[[], None] | None = None,
     ) -> None:
         self.engine = engine
         self.registry = registry
         self.token = token
-        self.on_change = on_change
+        self.on_change = on_change  # monitors defined or removed
+        self.on_routes = on_routes or on_change  # only the topics to read changed
         self._loop: asyncio.AbstractEventLoop | None = None
         self._runner: web.AppRunner | None = None
         self._thread: threading.Thread | None = None
@@ -211,40 +213,45 @@ class ControlApi:
             if step == "adopt":
                 epoch = int(request.query["epoch"])
                 snaps = split_frames(await request.read())
-                for name, data in snaps:
-                    e.adopt(name, epoch, data)
-                self.on_change()
+                with e.lock:  # once for the batch: the ingest thread would starve the calls
+                    for name, data in snaps:
+                        e.adopt(name, epoch, data)
+                self.on_routes()
                 return web.json_response({"active": [name for name, _ in snaps]})
             body = await request.json()
             epoch = int(body["epoch"])
             names = [str(n) for n in body["monitors"]]
             if step in ("hold", "receive"):
                 done: list[str] = []
-                try:
-                    for name in names:
-                        (e.hold if step == "hold" else e.receive)(name, epoch)
-                        done.append(name)
-                except HandoffError as exc:
-                    for name in done:
-                        e.abort(name, epoch)
-                    raise HandoffError(f"{name}: {exc}") from None
-                self.on_change()
+                with e.lock:
+                    try:
+                        for name in names:
+                            (e.hold if step == "hold" else e.receive)(name, epoch)
+                            done.append(name)
+                    except HandoffError as exc:
+                        for name in done:
+                            e.abort(name, epoch)
+                        raise HandoffError(f"{name}: {exc}") from None
+                self.on_routes()
                 return web.json_response({"monitors": done})
             if step == "cut":
-                return web.json_response({"cuts": {n: e.cut(n, epoch) for n in names}})
+                with e.lock:
+                    cuts = {n: e.cut(n, epoch) for n in names}
+                return web.json_response({"cuts": cuts})
             if step == "release":
                 cuts, grace = body["cuts"], float(body.get("grace", 1.0))
-                released = {n: e.release(n, epoch, int(cuts[n]), grace) for n in names}
+                with e.lock:
+                    released = {n: e.release(n, epoch, int(cuts[n]), grace) for n in names}
                 waiting = [n for n, data in released.items() if data is None]
-                self.on_change()
                 if waiting:
                     return web.json_response({"waiting": waiting}, status=202)
                 bundle = b"".join(data for data in released.values() if data is not None)
                 return web.Response(body=bundle, content_type="application/octet-stream")
             if step in ("commit", "abort"):
                 act = e.commit if step == "commit" else e.abort
-                outcomes = {n: act(n, epoch) for n in names}
-                self.on_change()
+                with e.lock:
+                    outcomes = {n: act(n, epoch) for n in names}
+                self.on_routes()
                 return web.json_response({"outcomes": outcomes})
         except HandoffError as exc:
             return _message(409, str(exc))

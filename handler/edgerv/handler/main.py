@@ -191,6 +191,7 @@ def run(args: argparse.Namespace) -> int:
             build_registry(engine, lambda: dict(ros.qos_problems)),
             token,
             on_change=on_change,
+            on_routes=ros.wake,
         )
         try:
             api.start(*args.listen)

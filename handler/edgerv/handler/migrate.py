@@ -11,17 +11,17 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import http.client
 import json
 import os
 import sys
 import time
-import urllib.error
-import urllib.request
+import urllib.parse
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from edgerv.core.handoff import decode, split_frames
+from edgerv.core.handoff import decode, header_size, split_frames
 
 
 class MigrationFailed(Exception):
@@ -36,9 +36,29 @@ T = TypeVar("T")
 
 
 class Handler:
+    """A handler's control API, over one kept-alive connection (a round trip per call)."""
+
     def __init__(self, address: str, token: str | None) -> None:
         self.base = address if "://" in address else f"http://{address}"
         self.token = token
+        parts = urllib.parse.urlsplit(self.base)
+        self._https = parts.scheme == "https"
+        self._netloc = parts.netloc
+        self._conn: http.client.HTTPConnection | None = None
+
+    def _connection(self, timeout: float) -> http.client.HTTPConnection:
+        if self._conn is None:
+            cls = http.client.HTTPSConnection if self._https else http.client.HTTPConnection
+            self._conn = cls(self._netloc, timeout=timeout)
+        self._conn.timeout = timeout
+        if self._conn.sock is not None:
+            self._conn.sock.settimeout(timeout)
+        return self._conn
+
+    def close(self) -> None:
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
 
     def call(
         self,
@@ -49,26 +69,30 @@ class Handler:
         check: bool = False,
         method: str = "POST",
     ) -> tuple[int, bytes]:
-        """One request; with ``check``, a 4xx/5xx answer raises MigrationFailed with its reason."""
+        """One request; with ``check``, a 4xx/5xx answer raises MigrationFailed with its reason.
+
+        Every call of the protocol is idempotent, so a call on a kept-alive connection
+        that the handler had closed is sent once more on a new one.
+        """
         data = raw if raw is not None else json.dumps(body or {}).encode()
         headers = {
             "Content-Type": "application/octet-stream" if raw is not None else "application/json"
         }
         if self.token:
             headers["Authorization"] = f"Bearer {self.token}"
-        req = urllib.request.Request(
-            self.base + path,
-            data=data if method == "POST" else None,
-            method=method,
-            headers=headers,
-        )
-        try:
-            with urllib.request.urlopen(req, timeout=timeout) as resp:
+        for attempt in (1, 2):
+            reused = self._conn is not None and self._conn.sock is not None
+            conn = self._connection(timeout)
+            try:
+                conn.request(method, path, body=data if method == "POST" else None, headers=headers)
+                resp = conn.getresponse()
                 status, answer = resp.status, resp.read()
-        except urllib.error.HTTPError as err:
-            status, answer = err.code, err.read()
-        except OSError as exc:
-            raise Unreachable(f"{self.base} is unreachable: {exc}") from None
+                break
+            except (http.client.HTTPException, OSError) as exc:
+                self.close()
+                if attempt == 1 and reused and not isinstance(exc, TimeoutError):
+                    continue  # the kept-alive connection had been closed: once more
+                raise Unreachable(f"{self.base} is unreachable: {exc}") from None
         if check and status >= 400:
             try:
                 reason = json.loads(answer)["errors"][0]["message"]
@@ -102,6 +126,8 @@ class Moved:
     seconds: float  # from the request to the monitors active on the destination
     snapshot_bytes: int  # what crossed for the monitors' state and buffered letters
     letters: int  # buffered letters (events) moved
+    header_bytes: int  # of snapshot_bytes, the per-monitor headers (the constant part)
+    steps: dict[str, float]  # seconds from the request to the end of each step
 
 
 def migrate(
@@ -132,9 +158,16 @@ def migrate(
             f"/v1/handoff/{name}", {"epoch": epoch, "monitors": names, **body}, check=True
         )
 
+    steps: dict[str, float] = {}
+
+    def mark(name: str) -> None:
+        steps[name] = time.monotonic() - started
+
     try:
         step(source, "hold")  # 2a first, as in the paper
+        mark("hold")
         step(destination, "receive")
+        mark("receive")
         while True:
             cuts = json.loads(step(destination, "cut")[1])["cuts"]
             waiting = sorted(n for n, c in cuts.items() if c is None)
@@ -146,6 +179,7 @@ def migrate(
                     f"{', '.join(waiting)} within {timeout:g} s"
                 )
             time.sleep(0.005)
+        mark("cut")
         while True:
             status, bundle = _retry(
                 deadline, lambda: step(source, "release", cuts=cuts, grace=grace)
@@ -155,6 +189,7 @@ def migrate(
             if time.monotonic() > deadline:
                 raise MigrationFailed("the sender did not release the monitors in time")
             time.sleep(0.005)
+        mark("release")
     except MigrationFailed:
         for side in (source, destination):
             with contextlib.suppress(MigrationFailed):  # best effort: report the first error
@@ -173,10 +208,14 @@ def migrate(
             lambda side, name: step(side, name), source, destination, deadline + timeout, failed
         )
     seconds = time.monotonic() - started
+    mark("adopt")
     with contextlib.suppress(MigrationFailed):  # a source that crashed has let go too
         _retry(deadline + timeout, lambda: step(source, "commit"))
-    letters = sum(len(decode(data).letters) for _, data in split_frames(bundle))
-    return Moved(seconds, len(bundle), letters)
+    mark("commit")
+    frames = [decode(data) for _, data in split_frames(bundle)]
+    letters = sum(len(f.letters) for f in frames)
+    headers = sum(header_size(data) for _, data in split_frames(bundle))
+    return Moved(seconds, len(bundle), letters, headers, steps)
 
 
 def _settle(
