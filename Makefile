@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install test test-unit test-integration lint demo bench clean
+.PHONY: install test test-unit test-integration test-e2e lint demo bench clean cluster-up cluster-down
 
 install: $(STAMP)
 
@@ -28,9 +28,20 @@ test-unit: install
 test-integration: install
 	$(BIN)/pytest -q tests/integration
 
-# All tiers: lint, unit (fast, no ROS), integration (real ROS 2), e2e (a real cluster, when present).
+test-e2e: install
+	$(BIN)/pytest -q tests/e2e
+
+# All tiers: lint, unit (fast, no ROS), integration (real ROS 2, network namespaces),
+# e2e (a real cluster: $$KUBECONFIG's, else the project's own, brought up and down).
 test: lint
 	$(BIN)/pytest -q tests
+
+# The project's test cluster (tests/cluster): Kubernetes built from sources, two nodes.
+cluster-up: install
+	$(BIN)/python tests/cluster/cluster.py up
+
+cluster-down:
+	$(PYTHON) tests/cluster/cluster.py down
 
 demo: install
 	bash examples/demo.sh

@@ -1,0 +1,751 @@
+"""A real Kubernetes cluster on this machine, built from sources: ``make cluster-up/down``.
+
+What ``up`` does, in order (each step is skipped when already done):
+
+1. binaries: ``build.sh`` compiles Kubernetes (kube-apiserver, controller-manager,
+   scheduler, kubelet, kubectl), etcd, helm and pause from the Go module proxy
+   into ``~/.cache/edgerv/k8s-vX`` (once per machine); kubectl and helm are
+   linked into ``.cluster/bin``;
+2. PKI: a CA, serving and client certificates, the service-account key
+   (``openssl``), kubeconfigs; the admin one is ``.cluster/kubeconfig``;
+3. the control plane, on this host: etcd, kube-apiserver (RBAC and Node
+   authorization, NodeRestriction), kube-controller-manager, kube-scheduler;
+4. two nodes, ``edge`` and ``cloud``, each a network namespace with its own
+   containerd (Debian's, runc, cgroupfs) and kubelet (its own root dir and
+   cgroup root). Each node reaches the API server over a veth pair; the nodes
+   reach each other over ``tests/netlab/linkdelay.py``, a user-space link that
+   holds each packet ``EDGERV_LINK_DELAY_MS`` (20 ms) each way (no netem here).
+   Pod networking is the CNI bridge plugin (a subnet per node, no routes
+   between nodes): edgerv's pods use the host network of their node;
+5. images: a Debian base made with debootstrap and ``docker import``, the
+   project's images built FROM it by Docker (``images/``) and imported into
+   each node's containerd: ``edgerv/handler:dev``, and the pause image;
+6. labels ``edgerv.io/tier=edge`` / ``cloud``; waits until both nodes are Ready.
+
+``down`` stops everything ``up`` started (recorded in ``.cluster/pids``),
+unmounts what the kubelets and containerds mounted, removes the namespaces and
+cgroups. Traffic stays on this machine: loopback, the veths and the link.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+STATE = Path(os.environ.get("EDGERV_CLUSTER_DIR", ROOT / ".cluster"))
+CACHE = Path(os.environ.get("EDGERV_CACHE", Path.home() / ".cache" / "edgerv"))
+LINKDELAY = ROOT / "tests" / "netlab" / "linkdelay.py"
+DELAY_MS = float(os.environ.get("EDGERV_LINK_DELAY_MS", "20"))
+PAUSE_IMAGE = "registry.k8s.io/pause:3.10"
+HANDLER_IMAGE = "edgerv/handler:dev"
+BASE_IMAGE = "edgerv/base:bookworm"
+SERVICE_CIDR = "10.96.0.0/16"
+API_PORT = 6443
+READY = "jsonpath={.status.conditions[?(@.type=='Ready')].status}"
+
+# name -> (veth subnet index, link address, pod CIDR)
+NODES = {
+    "edge": {"index": 1, "link": "10.77.250.1", "pods": "10.244.1.0/24"},
+    "cloud": {"index": 2, "link": "10.77.250.2", "pods": "10.244.2.0/24"},
+}
+
+
+def log(msg: str) -> None:
+    print(f"cluster: {msg}", file=sys.stderr, flush=True)
+
+
+def sh(*args: str, check: bool = True, **kw: object) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(list(args), check=check, text=True, capture_output=True, **kw)  # type: ignore[call-overload, no-any-return]
+
+
+def versions() -> dict[str, str]:
+    out = {}
+    for line in (HERE / "versions.env").read_text().splitlines():
+        if "=" in line and not line.startswith("#"):
+            k, v = line.split("=", 1)
+            out[k.strip()] = v.strip()
+    return out
+
+
+# -- processes -------------------------------------------------------------------------------
+
+
+def netns(node: str) -> str:
+    return f"ervk-{node}"
+
+
+def start(
+    name: str, argv: list[str], node: str | None = None, env: dict[str, str] | None = None
+) -> int:
+    """Start a long-running process (in ``node``'s network namespace), recorded for ``down``."""
+    logs = STATE / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    if node is not None:  # only the network namespace: mounts must be shared with the host
+        argv = ["nsenter", f"--net=/var/run/netns/{netns(node)}", *argv]
+    with (logs / f"{name}.log").open("wb") as out:
+        proc = subprocess.Popen(
+            argv,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,
+            env={**os.environ, **(env or {})},
+        )
+    pids = STATE / "pids"
+    pids.mkdir(exist_ok=True)
+    (pids / name).write_text(str(proc.pid))
+    return proc.pid
+
+
+def alive(name: str) -> bool:
+    f = STATE / "pids" / name
+    if not f.exists():
+        return False
+    try:
+        os.kill(int(f.read_text()), 0)
+    except (ProcessLookupError, ValueError):
+        return False
+    return True
+
+
+def wait(what: str, check: object, timeout: float = 120.0, logname: str | None = None) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            if check():  # type: ignore[operator]
+                return
+        except Exception:  # not up yet
+            pass
+        if logname and not alive(logname):
+            tail = (STATE / "logs" / f"{logname}.log").read_text()[-3000:]
+            raise RuntimeError(f"{logname} exited while waiting for {what}:\n{tail}")
+        time.sleep(0.5)
+    tail = (STATE / "logs" / f"{logname}.log").read_text()[-3000:] if logname else ""
+    raise TimeoutError(f"timed out waiting for {what}\n{tail}")
+
+
+# -- PKI -------------------------------------------------------------------------------------
+
+
+def _cert(
+    pki: Path, name: str, subject: str, sans: list[str] | None = None, server: bool = False
+) -> None:
+    key, crt = pki / f"{name}.key", pki / f"{name}.crt"
+    if crt.exists():
+        return
+    sh("openssl", "genrsa", "-out", str(key), "2048")
+    ext = pki / f"{name}.ext"
+    usage = "serverAuth" if server else "clientAuth"
+    lines = [
+        "basicConstraints=CA:FALSE",
+        "keyUsage=critical,digitalSignature,keyEncipherment",
+        f"extendedKeyUsage={usage}" + (",clientAuth" if server else ""),
+    ]
+    if sans:
+        lines.append("subjectAltName=" + ",".join(sans))
+    ext.write_text("\n".join(lines) + "\n")
+    csr = pki / f"{name}.csr"
+    sh("openssl", "req", "-new", "-key", str(key), "-subj", subject, "-out", str(csr))
+    sh(
+        "openssl", "x509", "-req", "-in", str(csr), "-CA", str(pki / "ca.crt"),
+        "-CAkey", str(pki / "ca.key"), "-CAcreateserial", "-days", "3650",
+        "-extfile", str(ext), "-out", str(crt),
+    )  # fmt: skip
+
+
+def make_pki() -> Path:
+    pki = STATE / "pki"
+    pki.mkdir(parents=True, exist_ok=True)
+    if not (pki / "ca.crt").exists():
+        sh("openssl", "genrsa", "-out", str(pki / "ca.key"), "2048")
+        sh(
+            "openssl", "req", "-x509", "-new", "-key", str(pki / "ca.key"), "-days", "3650",
+            "-subj", "/CN=edgerv-test-ca", "-out", str(pki / "ca.crt"),
+        )  # fmt: skip
+    sans = ["DNS:kubernetes", "DNS:kubernetes.default", "DNS:kubernetes.default.svc",
+            "DNS:kubernetes.default.svc.cluster.local", "DNS:localhost",
+            "IP:127.0.0.1", "IP:10.96.0.1"]  # fmt: skip
+    sans += [f"IP:10.79.{n['index']}.1" for n in NODES.values()]
+    _cert(pki, "apiserver", "/CN=kube-apiserver", sans, server=True)
+    _cert(pki, "apiserver-kubelet-client", "/CN=kube-apiserver-kubelet-client/O=system:masters")
+    _cert(pki, "etcd", "/CN=etcd", ["IP:127.0.0.1", "DNS:localhost"], server=True)
+    _cert(pki, "admin", "/CN=edgerv-admin/O=system:masters")
+    _cert(pki, "controller-manager", "/CN=system:kube-controller-manager")
+    _cert(pki, "scheduler", "/CN=system:kube-scheduler")
+    for node in NODES:
+        _cert(pki, f"kubelet-{node}", f"/CN=system:node:{node}/O=system:nodes")
+    if not (pki / "sa.key").exists():
+        sh("openssl", "genrsa", "-out", str(pki / "sa.key"), "2048")
+        sh("openssl", "rsa", "-in", str(pki / "sa.key"), "-pubout", "-out", str(pki / "sa.pub"))
+    return pki
+
+
+def kubeconfig(path: Path, server: str, cert: str) -> Path:
+    pki = STATE / "pki"
+    path.write_text(
+        json.dumps(
+            {
+                "apiVersion": "v1",
+                "kind": "Config",
+                "clusters": [
+                    {
+                        "name": "edgerv",
+                        "cluster": {"server": server, "certificate-authority": str(pki / "ca.crt")},
+                    }
+                ],
+                "users": [
+                    {
+                        "name": cert,
+                        "user": {
+                            "client-certificate": str(pki / f"{cert}.crt"),
+                            "client-key": str(pki / f"{cert}.key"),
+                        },
+                    }
+                ],
+                "contexts": [{"name": "edgerv", "context": {"cluster": "edgerv", "user": cert}}],
+                "current-context": "edgerv",
+            },
+            indent=1,
+        )
+    )
+    return path
+
+
+# -- control plane ---------------------------------------------------------------------------
+
+
+def control_plane(bins: Path) -> None:
+    pki = STATE / "pki"
+    if not alive("etcd"):
+        start(
+            "etcd",
+            [
+                str(bins / "etcd"), "--data-dir", str(STATE / "etcd"), "--name", "edgerv",
+                "--listen-client-urls", "https://127.0.0.1:2379",
+                "--advertise-client-urls", "https://127.0.0.1:2379",
+                "--listen-peer-urls", "http://127.0.0.1:2380",
+                "--cert-file", str(pki / "etcd.crt"), "--key-file", str(pki / "etcd.key"),
+                "--client-cert-auth", "--trusted-ca-file", str(pki / "ca.crt"),
+                "--log-level", "warn",
+            ],
+        )  # fmt: skip
+    if not alive("kube-apiserver"):
+        start(
+            "kube-apiserver",
+            [
+                str(bins / "kube-apiserver"),
+                "--etcd-servers", "https://127.0.0.1:2379",
+                "--etcd-cafile", str(pki / "ca.crt"),
+                "--etcd-certfile", str(pki / "apiserver-kubelet-client.crt"),
+                "--etcd-keyfile", str(pki / "apiserver-kubelet-client.key"),
+                "--bind-address", "0.0.0.0", "--secure-port", str(API_PORT),
+                "--advertise-address", "10.79.1.1",
+                "--tls-cert-file", str(pki / "apiserver.crt"),
+                "--tls-private-key-file", str(pki / "apiserver.key"),
+                "--client-ca-file", str(pki / "ca.crt"),
+                "--kubelet-client-certificate", str(pki / "apiserver-kubelet-client.crt"),
+                "--kubelet-client-key", str(pki / "apiserver-kubelet-client.key"),
+                "--kubelet-preferred-address-types", "InternalIP",
+                "--service-account-key-file", str(pki / "sa.pub"),
+                "--service-account-signing-key-file", str(pki / "sa.key"),
+                "--service-account-issuer", "https://kubernetes.default.svc.cluster.local",
+                "--service-cluster-ip-range", SERVICE_CIDR,
+                "--authorization-mode", "Node,RBAC",
+                "--enable-admission-plugins", "NodeRestriction",
+                "--allow-privileged=true",
+                "--profiling=false",
+            ],
+        )  # fmt: skip
+    admin = kubeconfig(STATE / "kubeconfig", f"https://127.0.0.1:{API_PORT}", "admin")
+    wait(
+        "the API server",
+        lambda: (
+            sh(
+                str(bins / "kubectl"), "--kubeconfig", str(admin), "get", "--raw", "/readyz"
+            ).returncode
+            == 0
+        ),
+        logname="kube-apiserver",
+    )
+    cm = kubeconfig(
+        STATE / "controller-manager.kubeconfig",
+        f"https://127.0.0.1:{API_PORT}",
+        "controller-manager",
+    )
+    if not alive("kube-controller-manager"):
+        start(
+            "kube-controller-manager",
+            [
+                str(bins / "kube-controller-manager"), "--kubeconfig", str(cm),
+                "--authentication-kubeconfig", str(cm), "--authorization-kubeconfig", str(cm),
+                "--service-account-private-key-file", str(pki / "sa.key"),
+                "--root-ca-file", str(pki / "ca.crt"),
+                "--cluster-signing-cert-file", str(pki / "ca.crt"),
+                "--cluster-signing-key-file", str(pki / "ca.key"),
+                "--use-service-account-credentials",
+                "--service-cluster-ip-range", SERVICE_CIDR,
+                "--bind-address", "127.0.0.1", "--leader-elect=false",
+            ],
+        )  # fmt: skip
+    sched = kubeconfig(STATE / "scheduler.kubeconfig", f"https://127.0.0.1:{API_PORT}", "scheduler")
+    if not alive("kube-scheduler"):
+        start(
+            "kube-scheduler",
+            [
+                str(bins / "kube-scheduler"), "--kubeconfig", str(sched),
+                "--authentication-kubeconfig", str(sched), "--authorization-kubeconfig", str(sched),
+                "--bind-address", "127.0.0.1", "--leader-elect=false",
+            ],
+        )  # fmt: skip
+
+
+# -- nodes -----------------------------------------------------------------------------------
+
+
+def node_network() -> None:
+    """The nodes' namespaces, their veths to this host, and the delayed link between them."""
+    existing = sh("ip", "netns", "list").stdout
+    for node, n in NODES.items():
+        ns, i = netns(node), n["index"]
+        if ns not in existing:
+            sh("ip", "netns", "add", ns)
+            sh("ip", "-n", ns, "link", "set", "lo", "up")
+            host_if, node_if = f"ervk{i}h", f"ervk{i}n"
+            sh("ip", "link", "add", host_if, "type", "veth", "peer", "name", node_if)
+            sh("ip", "link", "set", node_if, "netns", ns)
+            sh("ip", "addr", "add", f"10.79.{i}.1/30", "dev", host_if)
+            sh("ip", "link", "set", host_if, "up")
+            sh("ip", "-n", ns, "addr", "add", f"10.79.{i}.2/30", "dev", node_if)
+            sh("ip", "-n", ns, "link", "set", node_if, "up")
+    if not alive("linkdelay"):
+        start("linkdelay", [sys.executable, str(LINKDELAY), "ervkle", "ervklc", str(DELAY_MS)])
+        wait(
+            "the link",
+            lambda: "ready" in (STATE / "logs" / "linkdelay.log").read_text(),
+            20,
+            "linkdelay",
+        )
+        for node, dev in (("edge", "ervkle"), ("cloud", "ervklc")):
+            ns = netns(node)
+            sh("ip", "link", "set", dev, "netns", ns)
+            sh("ip", "-n", ns, "addr", "add", f"{NODES[node]['link']}/24", "dev", dev)
+            sh("ip", "-n", ns, "link", "set", dev, "up", "multicast", "on")
+
+
+def node_dirs(node: str) -> Path:
+    d = STATE / "nodes" / node
+    for sub in ("containerd", "containerd-state", "kubelet", "cni", "logs"):
+        (d / sub).mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def containerd(node: str) -> Path:
+    d = node_dirs(node)
+    sock = d / "containerd.sock"
+    config = d / "containerd.toml"
+    config.write_text(
+        textwrap.dedent(
+            f"""\
+            version = 2
+            root = "{d / "containerd"}"
+            state = "{d / "containerd-state"}"
+            [grpc]
+              address = "{sock}"
+            [ttrpc]
+              address = "{d / "containerd-ttrpc.sock"}"
+            [debug]
+              address = "{d / "containerd-debug.sock"}"
+            [plugins."io.containerd.grpc.v1.cri"]
+              sandbox_image = "{PAUSE_IMAGE}"
+              # this machine denies CAP_SYS_RESOURCE: oom_score_adj may only go up
+              restrict_oom_score_adj = true
+              [plugins."io.containerd.grpc.v1.cri".containerd]
+                snapshotter = "overlayfs"
+                default_runtime_name = "runc"
+                [plugins."io.containerd.grpc.v1.cri".containerd.runtimes.runc]
+                  runtime_type = "io.containerd.runc.v2"
+                  [plugins."io.containerd.grpc.v1.cri".containerd.runtimes.runc.options]
+                    SystemdCgroup = false
+              [plugins."io.containerd.grpc.v1.cri".cni]
+                bin_dir = "/usr/lib/cni"
+                conf_dir = "{d / "cni"}"
+            """
+        )
+    )
+    (d / "cni" / "10-bridge.conflist").write_text(
+        json.dumps(
+            {
+                "cniVersion": "0.4.0",
+                "name": f"edgerv-{node}",
+                "plugins": [
+                    {
+                        "type": "bridge",
+                        "bridge": "cni0",
+                        "isGateway": True,
+                        "ipMasq": False,
+                        "ipam": {
+                            "type": "host-local",
+                            "ranges": [[{"subnet": NODES[node]["pods"]}]],
+                            "dataDir": str(d / "cni-ipam"),
+                        },
+                    },
+                    {"type": "loopback"},
+                ],
+            }
+        )
+    )
+    name = f"containerd-{node}"
+    if not alive(name):
+        start(name, ["containerd", "--config", str(config)], node=node)
+        wait(f"containerd on {node}", lambda: sock.exists(), 30, name)
+    return sock
+
+
+def kubelet(node: str, bins: Path) -> None:
+    d = node_dirs(node)
+    pki = STATE / "pki"
+    kc = kubeconfig(
+        d / "kubelet.kubeconfig",
+        f"https://10.79.{NODES[node]['index']}.1:{API_PORT}",
+        f"kubelet-{node}",
+    )
+    config = d / "kubelet.yaml"
+    config.write_text(
+        json.dumps(
+            {
+                "apiVersion": "kubelet.config.k8s.io/v1beta1",
+                "kind": "KubeletConfiguration",
+                "authentication": {
+                    "anonymous": {"enabled": False},
+                    "webhook": {"enabled": False},
+                    "x509": {"clientCAFile": str(pki / "ca.crt")},
+                },
+                "authorization": {"mode": "AlwaysAllow"},
+                "cgroupDriver": "cgroupfs",
+                "cgroupRoot": f"/edgerv-{node}",
+                "cgroupsPerQOS": True,
+                "enforceNodeAllocatable": [],
+                "failSwapOn": False,
+                "failCgroupV1": False,
+                "containerRuntimeEndpoint": f"unix://{d / 'containerd.sock'}",
+                "podCIDR": NODES[node]["pods"],
+                "resolvConf": "",
+                "clusterDomain": "cluster.local",
+                "evictionHard": {"memory.available": "100Mi", "nodefs.available": "1%",
+                                 "imagefs.available": "1%"},
+                "imageGCHighThresholdPercent": 100,
+                "serializeImagePulls": False,
+                "makeIPTablesUtilChains": False,
+                "localStorageCapacityIsolation": False,
+            },
+            indent=1,
+        )
+    )  # fmt: skip
+    for sub in Path("/sys/fs/cgroup").iterdir():  # the kubelet wants its cgroup root made
+        if sub.name != "unified" and (sub / "cgroup.procs").exists():
+            (sub / f"edgerv-{node}").mkdir(exist_ok=True)
+    name = f"kubelet-{node}"
+    if not alive(name):
+        start(
+            name,
+            [
+                str(bins / "kubelet"), "--config", str(config), "--kubeconfig", str(kc),
+                "--root-dir", str(d / "kubelet"), "--hostname-override", node,
+                "--node-ip", f"10.79.{NODES[node]['index']}.2",
+                "--node-labels", f"edgerv.io/tier={node}",
+                "--cert-dir", str(d / "kubelet-pki"),
+            ],
+            node=node,
+        )  # fmt: skip
+
+
+# -- images ----------------------------------------------------------------------------------
+
+
+def docker_ready() -> None:
+    if sh("docker", "info", check=False).returncode == 0:
+        return
+    if shutil.which("dockerd") is None:
+        raise RuntimeError("Docker is not installed: apt-get install -y docker.io")
+    log("starting dockerd (host networking only: no bridge, no iptables)")
+    start("dockerd", ["dockerd", "--bridge=none", "--iptables=false", "--ip-masq=false"])
+    wait("dockerd", lambda: sh("docker", "info", check=False).returncode == 0, 60, "dockerd")
+
+
+def base_image() -> None:
+    if sh("docker", "image", "inspect", BASE_IMAGE, check=False).returncode == 0:
+        return
+    rootfs = CACHE / "rootfs-bookworm"
+    if not rootfs.exists():
+        log("debootstrap: a minimal Debian bookworm with python3 (about a minute)")
+        tmp = CACHE / "rootfs-bookworm.tmp"
+        shutil.rmtree(tmp, ignore_errors=True)
+        subprocess.run(
+            ["debootstrap", "--variant=minbase", "--include=python3,python3-venv",
+             "bookworm", str(tmp), "http://deb.debian.org/debian"],
+            check=True, stdout=subprocess.DEVNULL,
+        )  # fmt: skip
+        tmp.rename(rootfs)
+    log(f"docker import {BASE_IMAGE}")
+    tar = subprocess.Popen(["tar", "-C", str(rootfs), "-c", "."], stdout=subprocess.PIPE)
+    subprocess.run(["docker", "import", "-", BASE_IMAGE], stdin=tar.stdout, check=True,
+                   stdout=subprocess.DEVNULL)  # fmt: skip
+    tar.wait()
+
+
+def handler_image() -> Path:
+    """Build edgerv/handler:dev from the working tree; return the saved image (a tar)."""
+    context = CACHE / "image-context"
+    wheels = context / "wheels"
+    wheels.mkdir(parents=True, exist_ok=True)
+    for old in wheels.glob("edgerv-*.whl"):
+        old.unlink()
+    log("wheels: edgerv and its dependencies (pip's cache makes this quick after the first)")
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "--quiet",
+            "--wheel-dir",
+            str(wheels),
+            f"{ROOT}[ros]",
+        ],
+        check=True,
+    )
+    log(f"docker build {HANDLER_IMAGE}")
+    subprocess.run(
+        ["docker", "build", "--quiet", "--network", "host", "--build-arg", f"BASE={BASE_IMAGE}",
+         "-t", HANDLER_IMAGE, "-f", str(ROOT / "images" / "handler" / "Dockerfile"), str(context)],
+        check=True, stdout=subprocess.DEVNULL,
+    )  # fmt: skip
+    out = STATE / "images" / "handler.tar"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    subprocess.run(["docker", "save", "-o", str(out), HANDLER_IMAGE], check=True)
+    return out
+
+
+def pause_image(bins: Path) -> Path:
+    out = STATE / "images" / "pause.tar"
+    if out.exists():
+        return out
+    ctx = STATE / "images" / "pause-context"
+    ctx.mkdir(parents=True, exist_ok=True)
+    shutil.copy(bins / "pause", ctx / "pause")
+    (ctx / "Dockerfile").write_text(
+        'FROM scratch\nCOPY pause /pause\nUSER 65535:65535\nENTRYPOINT ["/pause"]\n'
+    )
+    subprocess.run(["docker", "build", "--quiet", "--network", "host", "-t", PAUSE_IMAGE, str(ctx)],
+                   check=True, stdout=subprocess.DEVNULL)  # fmt: skip
+    subprocess.run(["docker", "save", "-o", str(out), PAUSE_IMAGE], check=True)
+    return out
+
+
+def load_images(tars: list[Path]) -> None:
+    for node in NODES:
+        sock = STATE / "nodes" / node / "containerd.sock"
+        for tar in tars:
+            subprocess.run(
+                ["ctr", "--address", str(sock), "-n", "k8s.io", "images", "import", str(tar)],
+                check=True, stdout=subprocess.DEVNULL,
+            )  # fmt: skip
+
+
+# -- up / down -------------------------------------------------------------------------------
+
+
+def kubectl(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
+    return sh(
+        str(STATE / "bin" / "kubectl"),
+        "--kubeconfig",
+        str(STATE / "kubeconfig"),
+        *args,
+        check=check,
+    )
+
+
+PACKAGES = {  # what the cluster needs from Debian: a command (or file) it provides -> package
+    "containerd": "containerd",
+    "ctr": "containerd",
+    "runc": "runc",
+    "dockerd": "docker.io",
+    "debootstrap": "debootstrap",
+    "/usr/lib/cni/bridge": "containernetworking-plugins",
+    "nsenter": "util-linux",
+    "iptables": "iptables",
+    "openssl": "openssl",
+    "go": "golang",
+}
+
+
+def ensure_packages() -> None:
+    missing = sorted(
+        {
+            pkg
+            for need, pkg in PACKAGES.items()
+            if not (Path(need).exists() if need.startswith("/") else shutil.which(need))
+        }
+    )
+    if not missing:
+        return
+    if "golang" in missing:
+        raise RuntimeError("Go is needed to build Kubernetes: install Go >= 1.24")
+    log(f"installing from Debian: {' '.join(missing)}")
+    subprocess.run(["apt-get", "update", "-q"], check=True, stdout=subprocess.DEVNULL)
+    subprocess.run(
+        ["apt-get", "install", "-y", "-q", *missing],
+        check=True,
+        stdout=subprocess.DEVNULL,
+        env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"},
+    )
+
+
+def up() -> None:
+    started = time.monotonic()
+    STATE.mkdir(parents=True, exist_ok=True)
+    ensure_packages()
+    if not alive("kube-apiserver"):  # leftovers of a run that was killed: clear them first
+        down(quiet=True)
+    log("binaries (compiled once per machine into the cache)")
+    built = subprocess.run(
+        ["bash", str(HERE / "build.sh")], check=True, stdout=subprocess.PIPE, text=True
+    )
+    bins = Path(built.stdout.strip().splitlines()[-1])
+    (STATE / "bin").mkdir(exist_ok=True)
+    for b in ("kubectl", "helm"):
+        link = STATE / "bin" / b
+        if not link.exists():
+            link.symlink_to(bins / b)
+    log("certificates")
+    make_pki()
+    log("control plane: etcd, kube-apiserver, kube-controller-manager, kube-scheduler")
+    control_plane(bins)
+    log(f"nodes: edge and cloud (network namespaces, a {DELAY_MS:g} ms link between them)")
+    node_network()
+    for node in NODES:
+        containerd(node)
+    log("images")
+    docker_ready()
+    base_image()
+    tars = [pause_image(bins), handler_image()]
+    load_images(tars)
+    for node in NODES:
+        kubelet(node, bins)
+    for node in NODES:
+        wait(
+            f"node {node} Ready",
+            lambda node=node: kubectl("get", "node", node, "-o", READY).stdout == "True",
+            180,
+            f"kubelet-{node}",
+        )  # fmt: skip
+    log(f"up in {time.monotonic() - started:.0f} s: KUBECONFIG={STATE / 'kubeconfig'}")
+    print(kubectl("get", "nodes", "-L", "edgerv.io/tier", "-o", "wide").stdout)
+
+
+def _unmount_under(path: Path) -> None:
+    mounts = []
+    for line in Path("/proc/self/mountinfo").read_text().splitlines():
+        point = line.split()[4]
+        if point.startswith(str(path)):
+            mounts.append(point)
+    for point in sorted(mounts, key=len, reverse=True):
+        subprocess.run(["umount", "-l", point], capture_output=True)
+
+
+def down(quiet: bool = False) -> None:
+    pids = STATE / "pids"
+    order = ["kubelet-edge", "kubelet-cloud", "kube-scheduler", "kube-controller-manager",
+             "kube-apiserver", "etcd", "containerd-edge", "containerd-cloud", "linkdelay",
+             "dockerd"]  # fmt: skip
+    names = (
+        order + sorted(p.name for p in pids.glob("*") if p.name not in order)
+        if pids.exists()
+        else []
+    )
+    for name in names:
+        f = pids / name
+        if not f.exists():
+            continue
+        pid = int(f.read_text())
+        try:
+            os.killpg(pid, signal.SIGTERM)
+        except ProcessLookupError:
+            f.unlink()
+            continue
+        for _ in range(100):
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.1)
+        else:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(pid, signal.SIGKILL)
+        f.unlink()
+    # containers left by the shims (their own sessions): kill what runs from the nodes' dirs
+    for node in NODES:
+        subprocess.run(
+            ["pkill", "-9", "-f", f"containerd-shim.*{STATE / 'nodes' / node}"], capture_output=True
+        )
+    runc_root = Path("/run/containerd/runc/k8s.io")  # the runc state of the nodes' containers
+    for state in runc_root.glob("*/state.json") if runc_root.exists() else []:
+        with contextlib.suppress(OSError, ValueError):
+            if str(STATE) in json.loads(state.read_text()).get("config", {}).get("rootfs", ""):
+                subprocess.run(["runc", "--root", str(runc_root), "delete", "--force",
+                                state.parent.name], capture_output=True)  # fmt: skip
+    _unmount_under(STATE / "nodes")
+    for node in NODES:
+        subprocess.run(["ip", "netns", "del", netns(node)], capture_output=True)
+        for i in (NODES[node]["index"],):
+            subprocess.run(["ip", "link", "del", f"ervk{i}h"], capture_output=True)
+        for sub in Path("/sys/fs/cgroup").iterdir():
+            root = sub / f"edgerv-{node}"
+            if root.exists():
+                for d in sorted(root.rglob("*"), key=lambda p: len(str(p)), reverse=True):
+                    if d.is_dir():
+                        with contextlib.suppress(OSError):
+                            d.rmdir()
+                with contextlib.suppress(OSError):
+                    root.rmdir()
+    # a fresh cluster each time: etcd's data and the nodes' state go; certificates, images stay
+    for d in (STATE / "etcd", STATE / "nodes"):
+        shutil.rmtree(d, ignore_errors=True)
+    if not quiet:
+        log("down")
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("action", choices=["up", "down"])
+    args = p.parse_args()
+    if os.geteuid() != 0:
+        print("cluster: needs root (network namespaces, containerd, kubelet)", file=sys.stderr)
+        return 2
+    if args.action == "up":
+        try:
+            up()
+        except (subprocess.CalledProcessError, RuntimeError, TimeoutError) as exc:
+            detail = getattr(exc, "stderr", None) or ""
+            print(f"cluster: up failed: {exc}\n{detail}", file=sys.stderr)
+            return 1
+    else:
+        down()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
