@@ -17,6 +17,7 @@ from typing import Any
 import pytest
 import spot
 
+from edgerv.core.pipeline import MonitorRuntime
 from edgerv.core.traces import TraceEvent
 from helpers import compiled, events, run, verdicts
 from reference import ReferenceMonitor
@@ -253,3 +254,52 @@ def test_verdicts_use_only_letters_that_values_can_make(assertion: str, expected
     texts = [a.text for a in m.parsed.atoms]
     want = reference_verdicts(m.parsed.formula, texts, arrival, {}, halt=False)
     assert verdicts(run([m], arrival)[0]) == want == [(expected, 1, 3), (expected, 2, 4)]
+
+
+COLUMN_CASES = [
+    ("always (a -> x < 5)", {"a": "bool", "x": "float"}),
+    ("always (x <= y | s == mode)", {"x": "float", "y": "float", "s": "string"}),
+    ("always (n != 3 -> next (n >= 2 & !a))", {"n": "int", "a": "bool"}),
+    ("eventually! (x > 9.5 & x < y)", {"x": "float", "y": "float"}),
+]
+
+
+@pytest.mark.parametrize("seed", range(24))
+def test_batches_compressed_column_wise_give_the_letters_of_one_by_one(seed: int) -> None:
+    """The NumPy path of a long batch against the scalar path, on random batches.
+
+    Random values include NaN, ties of stamps, signals that get their first value
+    mid-batch (or never), several signals updated by one event.
+    """
+    from edgerv.core import pipeline
+
+    rng = random.Random(seed)
+    assertion, kinds = COLUMN_CASES[seed % len(COLUMN_CASES)]
+    m = compiled(assertion, kinds, parameters={"mode": "go"} if "mode" in assertion else {})
+    names = list(m.signal_names)
+
+    def value(kind: str) -> object:
+        if kind == "bool":
+            return rng.random() < 0.5
+        if kind == "int":
+            return rng.randint(0, 5)
+        if kind == "string":
+            return rng.choice(["go", "stop", ""])
+        return rng.choice([float("nan"), rng.uniform(0, 10), 5.0, 3.0])
+
+    column_rt, scalar_rt = MonitorRuntime(m), MonitorRuntime(m)
+    for _ in range(4):
+        batch = []
+        never = rng.choice([None, *names]) if rng.random() < 0.2 else None
+        for i in range(rng.randint(pipeline.COLUMNS_FROM, 300)):
+            sigs = rng.sample(range(len(names)), rng.randint(1, len(names)))
+            updates = [(s, value(kinds[names[s]])) for s in sigs if names[s] != never]
+            batch.append((1000 + i // 3, i, updates))
+        column_rt._compress(batch)
+        for stamp, _seq, updates in batch:
+            scalar_rt._compress_one(stamp, updates)
+        assert list(column_rt.letters) == list(scalar_rt.letters)
+        assert list(column_rt.stamps) == list(scalar_rt.stamps)
+        assert (column_rt.valuation, column_rt.missing) == (scalar_rt.valuation, scalar_rt.missing)
+        assert [repr(v) for v in column_rt.values] == [repr(v) for v in scalar_rt.values]
+    assert len(column_rt.letters) > 0

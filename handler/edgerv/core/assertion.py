@@ -749,6 +749,23 @@ def _compare(value: Any, op: str, const: Any) -> bool:
         return False
 
 
+def compile_atom_columns(atom: Atom, index_of: dict[str, int]) -> Callable[[list[Any]], Any]:
+    """The atom over columns of values (one array per signal): an array of truth values.
+
+    The same comparison as :func:`compile_atom`, applied elementwise (the columns are
+    NumPy object arrays, so each element is compared as the Python values it holds).
+    """
+    func = _CMP_FUNCS[atom.op]
+    if atom.lhs.signal is None:
+        raise ValueError(atom)
+    li = index_of[atom.lhs.signal]
+    if atom.rhs.signal is not None:
+        ri = index_of[atom.rhs.signal]
+        return lambda cols: func(cols[li], cols[ri])
+    const = atom.rhs.value
+    return lambda cols: func(cols[li], const)
+
+
 def compile_atom(atom: Atom, index_of: dict[str, int]) -> Callable[[list[Any]], bool]:
     """A function from the signal values (by index) to the atom's truth value."""
     func = _CMP_FUNCS[atom.op]

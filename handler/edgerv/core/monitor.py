@@ -6,7 +6,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from edgerv.core.assertion import ParsedAssertion, compile_atom, parse_assertion
+from edgerv.core.assertion import (
+    ParsedAssertion,
+    compile_atom,
+    compile_atom_columns,
+    parse_assertion,
+)
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import MonitorSpec
 from edgerv.core.synthesis import MonitorTable, SynthesisError, synthesize
@@ -20,6 +25,7 @@ class CompiledMonitor:
     signal_names: tuple[str, ...]  # signal index -> name
     atom_funcs: tuple[Callable[[list[Any]], bool], ...]  # placeholder i -> its truth value
     atoms_of_signal: tuple[tuple[int, ...], ...]  # signal index -> placeholders reading it
+    atom_columns: tuple[Callable[[list[Any]], Any], ...]  # the same over columns of values
 
     @property
     def name(self) -> str:
@@ -44,7 +50,8 @@ def compile_monitor(spec: MonitorSpec) -> CompiledMonitor:
     readers = tuple(
         tuple(i for i, a in enumerate(parsed.atoms) if name in a.signals) for name in names
     )
-    return CompiledMonitor(spec, parsed, table, names, funcs, readers)
+    columns = tuple(compile_atom_columns(a, index_of) for a in parsed.atoms)
+    return CompiledMonitor(spec, parsed, table, names, funcs, readers, columns)
 
 
 def compile_monitors(

@@ -17,8 +17,11 @@ from array import array
 from bisect import bisect_left
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from itertools import chain
 from operator import itemgetter
 from typing import Any, Literal
+
+import numpy as np
 
 from edgerv.core.documents import QosSpec
 from edgerv.core.monitor import CompiledMonitor
@@ -29,6 +32,10 @@ MonitorState = Literal["pending", "violated", "satisfied", "halted"]
 Update = tuple[int, Any]  # (signal index in the monitor, new value)
 _UNSET = object()
 _STAMP = itemgetter(0)
+_UPDATES = itemgetter(2)
+_VALUE = itemgetter(1)
+_LETTER_DTYPE: dict[str, Any] = {"B": np.uint8, "H": np.uint16, "L": np.dtype("L")}  # typecode
+COLUMNS_FROM = 48  # batches this long are compressed column-wise (NumPy), shorter one by one
 
 
 @dataclass(frozen=True)
@@ -139,9 +146,64 @@ class MonitorRuntime:
                 bits |= 1 << i
         return bits
 
-    def _compress(self, batch: Iterable[tuple[int, int, Sequence[Update]]]) -> None:
+    def _compress(self, batch: Sequence[tuple[int, int, Sequence[Update]]]) -> None:
+        if len(batch) >= COLUMNS_FROM:
+            self._compress_columns(batch)
+            return
         for stamp, _seq, updates in batch:
             self._compress_one(stamp, updates)
+
+    def _compress_columns(self, batch: Sequence[tuple[int, int, Sequence[Update]]]) -> None:
+        """What :meth:`_compress_one` does event by event, for a whole sorted batch at once.
+
+        Each signal's value after each event becomes a column (forward-filled from
+        its updates); each placeholder is its comparison over the columns; a letter
+        is their bits, from the event at which every signal has a value. The
+        columns are object arrays: each element is compared as the Python value it
+        holds, so the letters are those of the scalar path (tested side by side).
+        """
+        n = len(batch)
+        values = self.values
+        stamps = np.fromiter(map(_STAMP, batch), np.int64, n)
+        per_event = list(map(_UPDATES, batch))
+        flat = list(chain.from_iterable(per_event))  # every (signal, value), in order
+        event_of = np.repeat(np.arange(n), np.fromiter(map(len, per_event), np.int64, n))
+        signal_of = np.fromiter(map(_STAMP, flat), np.int64, len(flat))
+        new_values = np.empty(len(flat), dtype=object)
+        new_values[:] = list(map(_VALUE, flat))
+        first = 0  # the first event after which every signal has a value
+        columns = []
+        for sig in range(len(values)):
+            before = values[sig]
+            mine = signal_of == sig
+            pos = event_of[mine]
+            if len(pos):
+                new = new_values[mine]
+                values[sig] = new[-1]
+                if before is _UNSET:
+                    first = max(first, int(pos[0]))
+            elif before is _UNSET:
+                first = n  # still without a value: no letter in this batch
+            if first >= n:
+                continue
+            source = np.empty(len(pos) + 1, dtype=object)
+            source[: len(pos)] = new if len(pos) else []
+            source[len(pos)] = before  # index -1: the value from before the batch
+            index = np.full(n, -1, dtype=np.int64)
+            index[pos] = np.arange(len(pos))
+            np.maximum.accumulate(index, out=index)
+            columns.append(source[index])
+        self.missing = sum(v is _UNSET for v in values)
+        if first >= n:
+            return
+        columns = [c[first:] for c in columns]
+        letters = np.zeros(n - first, dtype=np.int64)
+        with np.errstate(all="ignore"):  # NaN compares false, as in Python
+            for atom, compare in enumerate(self.monitor.atom_columns):
+                letters |= np.asarray(compare(columns), dtype=bool).astype(np.int64) << atom
+        self.valuation = int(letters[-1])
+        self.letters.frombytes(letters.astype(_LETTER_DTYPE[self.letters.typecode]).tobytes())
+        self.stamps.frombytes(stamps[first:].tobytes())
 
     def _compress_one(self, stamp: int, updates: Sequence[Update]) -> None:
         """Apply one event to the signal values; append its letter once all have a value."""
