@@ -149,6 +149,7 @@ def one(n: int) -> dict[str, Any]:
         if done.returncode != 0:
             raise RuntimeError(f"migration failed: {done.stderr}")
         result = json.loads(done.stdout)
+        print(f"  {n}: {result}", file=sys.stderr, flush=True)
         after = api(lab, "cloud", 8080, "/v1/monitors")
         active = sum(1 for m in after["monitors"] if m["active"])
         result.update(n=n, rtt_ms=min(rtt), active=active)

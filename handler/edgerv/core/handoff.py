@@ -147,10 +147,10 @@ def restore(
     rt.valuation = snap.valuation
     rt.last_released, rt.late_events = snap.last_released, snap.late_events
     rt.letters.extend(snap.letters)
-    stamps = [0] * len(snap.letters)  # unreported steps need none (see the module's doc)
+    base = len(rt.stamps)
+    rt.stamps.frombytes(bytes(8 * len(snap.letters)))  # unreported steps need none
     for i, stamp in snap.stamps.items():
-        stamps[i] = stamp
-    rt.stamps.extend(stamps)
+        rt.stamps[base + i] = stamp
     # Events up to the cut are H1's, also those H2 has not taken yet (still in its queues)
     rt.floor = snap.cut
     rt.events = [e for e in held if e[0] > snap.cut]

@@ -127,10 +127,16 @@ class MonitorRuntime:
 
     def flush(self) -> bool:
         """Sort and compress whatever the event buffer holds now."""
-        if not self.events:
+        return self.flush_prefix(len(self.events))
+
+    def flush_prefix(self, count: int) -> bool:
+        """Sort and compress the ``count`` oldest arrivals of the event buffer."""
+        if not self.events or count <= 0:
             return False
-        batch = self.events
-        self.events = []
+        if count >= len(self.events):
+            batch, self.events = self.events, []
+        else:
+            batch, self.events = self.events[:count], self.events[count:]
         batch.sort(key=_STAMP)  # stable: equal timestamps keep their arrival order
         last = self.last_released
         if last is not None and batch[0][0] < last:  # rare: count what came too late

@@ -38,6 +38,7 @@ PRESSURE_SECONDS = 1.0
 # message would cost more than evaluating.
 SCHEDULE_SECONDS = 0.002
 WAKE_LETTERS = 512
+PREHOLD_PER_TICK = 8192  # events a scheduler tick compresses for monitors being handed off
 
 
 class VerdictSink(Protocol):
@@ -66,6 +67,7 @@ class MonitorSlot:
     newest_stamps: dict[str, int] = field(default_factory=dict)  # H1: newest per topic
     cut_known: tuple[int, float] | None = None  # H1: the cut, and when it first heard of it
     quiet_since: float = 0.0  # H1: when the last event of the monitor's topics came
+    prehold: int = 0  # H1: events buffered before the hold, not yet compressed (see hold)
 
     @property
     def name(self) -> str:
@@ -275,6 +277,12 @@ class Engine:
         """Release event buffers that waited longer than ``flush_after``; update pressure."""
         now = time.monotonic() if now is None else now
         with self.lock:
+            budget = PREHOLD_PER_TICK  # a few ms at a time: ingestion must not wait long
+            for slot in self.in_handoff.values():
+                if budget <= 0:
+                    break
+                budget -= slot.prehold
+                self._compress_prehold(slot)
             for slot in self.slots.values():
                 rt = slot.runtime
                 if rt is None:
@@ -363,6 +371,11 @@ class Engine:
             self._set_handoff(slot, "sending")
             slot.newest_stamps, slot.cut_known, slot.quiet_since = {}, None, now
             slot.runtime.holding = True
+            # What the sort buffer holds now is all at or before any cut H2 can report
+            # (H2 subscribes after this, and each topic is delivered in order): the
+            # scheduler compresses it while the handoff goes on (a partial batch, as
+            # flushAfter releases one), so that the release has only the rest to do.
+            slot.prehold = len(slot.runtime.events)
             self.waiting.pop(name, None)
 
     def receive(self, name: str, epoch: int) -> None:
@@ -425,6 +438,7 @@ class Engine:
                 or now - max(slot.cut_known[1], slot.quiet_since) >= grace  # nothing comes
             ):
                 return None
+            self._compress_prehold(slot)
             after = [e for e in rt.events if e[0] > cut]
             data = encode(export_snapshot(rt, cut, epoch))
             rt.events, rt.holding = after, True  # the rest, in case H1 must resume
@@ -507,6 +521,13 @@ class Engine:
         slot.runtime, slot.released = None, None
         self._set_handoff(slot, None)
         self.routes_version += 1
+
+    @staticmethod
+    def _compress_prehold(slot: MonitorSlot) -> None:
+        rt = slot.runtime
+        if slot.prehold and slot.handoff == "sending" and rt is not None:
+            rt.flush_prefix(slot.prehold)
+        slot.prehold = 0
 
     def _set_handoff(self, slot: MonitorSlot, role: str | None) -> None:
         slot.handoff = role
