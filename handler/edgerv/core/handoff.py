@@ -32,8 +32,9 @@ from H1 to H2. This module is its data side:
   released (docs/protocol.md).
 
 :func:`encode` and :func:`decode` give the snapshot's wire form (``ERV2``): a
-frame, a JSON header, then the letters run-length encoded as varint pairs and
-the kept stamps as varint (index gap, stamp delta) pairs, each section deflated.
+frame, a JSON header, then the letters run-length encoded (each run's letter as
+16 bits, then each run's length as 32 bits) and the kept stamps as varint (index
+gap, stamp delta) pairs, each section deflated.
 A trace whose letters change every few dozen events costs well under a bit an
 event. :func:`decode` checks everything and raises :class:`HandoffError`.
 """
@@ -46,6 +47,8 @@ import zlib
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
 
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import _UNSET, MonitorRuntime, Update
@@ -91,6 +94,7 @@ def export_snapshot(rt: MonitorRuntime, cut: int, epoch: int) -> Snapshot:
 
     Afterwards ``rt`` must not run any more: the monitor belongs to H2.
     """
+    rt.unspeculate()  # (the engine commits what came before the hold; see Engine.hold)
     covered = [e for e in rt.events if e[0] <= cut]
     rt.events = covered
     rt.holding = False
@@ -114,16 +118,38 @@ def export_snapshot(rt: MonitorRuntime, cut: int, epoch: int) -> Snapshot:
     )
 
 
-def deciding_steps(monitor: CompiledMonitor, state: int, letters: Iterable[int]) -> list[int]:
-    """The indices of the letters that take the automaton to a verdict, from ``state``."""
+def deciding_steps(monitor: CompiledMonitor, state: int, letters: Sequence[int]) -> list[int]:
+    """The indices of the letters that take the automaton to a verdict, from ``state``.
+
+    Walks run by run: within a run of one letter, once a step leaves a state that is
+    not a verdict unchanged, the rest of the run stays there.
+    """
     table = monitor.table
     rows, bits, live = table.table, table.bits, table.live
     found = []
-    for i, letter in enumerate(letters):
-        state = rows[(state << bits) | letter]
-        if state >= live:
-            found.append(i)
+    starts, values, lengths = runs_of(letters)
+    for start, letter, length in zip(
+        starts.tolist(), values.tolist(), lengths.tolist(), strict=True
+    ):
+        for j in range(length):
+            nxt = rows[(state << bits) | letter]
+            if nxt >= live:
+                found.append(start + j)
+            elif nxt == state:
+                break  # a loop on this letter: no verdict in the rest of the run
+            state = nxt
     return found
+
+
+def runs_of(letters: Sequence[int]) -> tuple[Any, Any, Any]:
+    """Run-length form of the letters: the start, letter and length of each run (arrays)."""
+    arr = np.asarray(letters, dtype=np.int64)
+    if not len(arr):
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty, empty
+    starts = np.concatenate(([0], np.flatnonzero(arr[1:] != arr[:-1]) + 1))
+    lengths = np.diff(np.concatenate((starts, [len(arr)])))
+    return starts, arr[starts], lengths
 
 
 def restore(
@@ -194,25 +220,11 @@ def _from_varints(data: bytes, n: int, what: str) -> list[int]:
     return out
 
 
-def _runs(letters: Sequence[int]) -> list[int]:
-    """Run-length form: letter, run length, letter, run length..."""
-    out: list[int] = []
-    prev, run = -1, 0
-    for letter in letters:
-        if letter == prev:
-            run += 1
-            continue
-        if run:
-            out += (prev, run)
-        prev, run = letter, 1
-    if run:
-        out += (prev, run)
-    return out
-
-
 def encode(snap: Snapshot) -> bytes:
-    runs = _runs(snap.letters)
-    letters = zlib.compress(_varints(runs), 9)
+    _, run_letters, run_lengths = runs_of(snap.letters)
+    letters = zlib.compress(
+        run_letters.astype("<u2").tobytes() + run_lengths.astype("<u4").tobytes(), 9
+    )
     pairs: list[int] = []
     last_i = last_s = 0
     for i in sorted(snap.stamps):
@@ -234,7 +246,7 @@ def encode(snap: Snapshot) -> bytes:
             "late": snap.late_events,
             "bits": snap.bits,
             "n": len(snap.letters),
-            "runs": len(runs) // 2,
+            "runs": len(run_lengths),
             "stamps": len(snap.stamps),
             "lettersLen": len(letters),
         },
@@ -299,16 +311,16 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
         if not (0 <= runs <= n and 0 <= kept <= n):
             raise HandoffError("run or stamp count out of range")
         body = data[_FRAME.size + hlen :]
-        flat = _from_varints(_inflate(body[:llen], 20 * runs), 2 * runs, "letters")
-        letters: list[int] = []
-        for letter, run in zip(flat[::2], flat[1::2], strict=True):
-            if not 0 <= letter < 1 << bits or run < 1:
-                raise HandoffError("a letter or run length is out of range")
-            letters += [letter] * run
-            if len(letters) > n:
-                break
-        if len(letters) != n:
+        packed = _inflate(body[:llen], 6 * runs)
+        if len(packed) != 6 * runs:
+            raise HandoffError("letters do not have the announced size")
+        run_letters = np.frombuffer(packed, dtype="<u2", count=runs)
+        run_lengths = np.frombuffer(packed, dtype="<u4", offset=2 * runs, count=runs)
+        if runs and (int(run_letters.max()) >= 1 << bits or int(run_lengths.min()) < 1):
+            raise HandoffError("a letter or run length is out of range")
+        if int(run_lengths.sum(dtype=np.int64)) != n:
             raise HandoffError("letters do not have the announced count")
+        letters = np.repeat(run_letters, run_lengths).tolist()
         pairs = _from_varints(_inflate(body[llen:], 20 * kept), 2 * kept, "stamps")
         stamps: dict[int, int] = {}
         i = stamp = 0

@@ -74,6 +74,16 @@ class MonitorRuntime:
     floor: int = -(2**63)  # events stamped at or below it were evaluated elsewhere: ignore
     late_events: int = 0  # events released after a newer one (beyond the sort window)
     last_released: int | None = None
+    # Compressing ahead: while the events of the sort buffer arrive in stamp order (the
+    # common case), each is compressed on arrival into ahead_letters, so that the sort
+    # at sortThreshold has nothing left to do. ``ahead`` events (the first of ``events``)
+    # are compressed so; ``base`` is the signal state from before the first of them, to
+    # start again from when one arrives out of order.
+    ahead: int = 0
+    speculate: bool = True  # off only to test that it changes nothing
+    ahead_letters: array = field(init=False)  # type: ignore[type-arg]
+    ahead_stamps: array = field(init=False)  # type: ignore[type-arg]
+    base: tuple[list[Any], int, int] = field(init=False)
 
     def __post_init__(self) -> None:
         spec = self.monitor.spec
@@ -81,6 +91,9 @@ class MonitorRuntime:
         self.threshold = spec.sort_threshold
         self.letters = array(letter_typecode(self.monitor.table.bits))
         self.stamps = array("q")
+        self.ahead_letters = array(self.letters.typecode)
+        self.ahead_stamps = array("q")
+        self.base = ([], 0, 0)
         self.values = [
             _UNSET if spec.signals[n].initial is None else spec.signals[n].initial
             for n in self.monitor.signal_names
@@ -118,12 +131,33 @@ class MonitorRuntime:
             if self.last_released is not None and stamp < self.last_released:
                 self.late_events += 1
             self.last_released = stamp
-            self._compress_one(stamp, updates)
+            self._compress_one(stamp, updates, self.letters, self.stamps)
             return not self.missing
-        self.events.append((stamp, seq, updates))
-        if len(self.events) >= self.threshold:
+        events = self.events
+        events.append((stamp, seq, updates))
+        ahead = self.ahead
+        if ahead == len(events) - 1 and self.speculate:  # every earlier one is compressed
+            if not ahead:
+                self.base = (list(self.values), self.valuation, self.missing)
+                self._compress_one(stamp, updates, self.ahead_letters, self.ahead_stamps)
+                self.ahead = 1
+            elif stamp >= events[-2][0]:  # in order (a tie keeps arrival order, as the sort)
+                self._compress_one(stamp, updates, self.ahead_letters, self.ahead_stamps)
+                self.ahead = ahead + 1
+            else:
+                self.unspeculate()  # out of order: the sort at the threshold does it all
+        if len(events) >= self.threshold:
             return self.flush()
         return False
+
+    def unspeculate(self) -> None:
+        """Forget what was compressed ahead: back to the state before the sort buffer."""
+        if self.ahead:
+            values, self.valuation, self.missing = self.base
+            self.values[:] = values
+            self.ahead = 0
+            del self.ahead_letters[:]
+            del self.ahead_stamps[:]
 
     def flush(self) -> bool:
         """Sort and compress whatever the event buffer holds now."""
@@ -133,16 +167,25 @@ class MonitorRuntime:
         """Sort and compress the ``count`` oldest arrivals of the event buffer."""
         if not self.events or count <= 0:
             return False
-        if count >= len(self.events):
+        count = min(count, len(self.events))
+        if count == len(self.events):
             batch, self.events = self.events, []
         else:
             batch, self.events = self.events[:count], self.events[count:]
-        batch.sort(key=_STAMP)  # stable: equal timestamps keep their arrival order
+        if self.ahead == count:  # all in order and compressed already: the sort is a no-op
+            self.letters.extend(self.ahead_letters)
+            self.stamps.extend(self.ahead_stamps)
+            self.ahead = 0
+            del self.ahead_letters[:]
+            del self.ahead_stamps[:]
+        else:
+            self.unspeculate()
+            batch.sort(key=_STAMP)  # stable: equal timestamps keep their arrival order
+            self._compress(batch)
         last = self.last_released
         if last is not None and batch[0][0] < last:  # rare: count what came too late
             self.late_events += bisect_left(batch, last, key=_STAMP)
         self.last_released = batch[-1][0]
-        self._compress(batch)
         return len(self.letters) > 0
 
     def _full_valuation(self) -> int:
@@ -156,8 +199,9 @@ class MonitorRuntime:
         if len(batch) >= COLUMNS_FROM:
             self._compress_columns(batch)
             return
+        letters, stamps = self.letters, self.stamps
         for stamp, _seq, updates in batch:
-            self._compress_one(stamp, updates)
+            self._compress_one(stamp, updates, letters, stamps)
 
     def _compress_columns(self, batch: Sequence[tuple[int, int, Sequence[Update]]]) -> None:
         """What :meth:`_compress_one` does event by event, for a whole sorted batch at once.
@@ -211,7 +255,13 @@ class MonitorRuntime:
         self.letters.frombytes(letters.astype(_LETTER_DTYPE[self.letters.typecode]).tobytes())
         self.stamps.frombytes(stamps[first:].tobytes())
 
-    def _compress_one(self, stamp: int, updates: Sequence[Update]) -> None:
+    def _compress_one(
+        self,
+        stamp: int,
+        updates: Sequence[Update],
+        letters: array,  # type: ignore[type-arg]
+        stamps: array,  # type: ignore[type-arg]
+    ) -> None:
         """Apply one event to the signal values; append its letter once all have a value."""
         values = self.values
         if self.missing:
@@ -233,8 +283,8 @@ class MonitorRuntime:
                     else:
                         bits &= ~(1 << atom)
         self.valuation = bits
-        self.letters.append(bits)
-        self.stamps.append(stamp)
+        letters.append(bits)
+        stamps.append(stamp)
 
     def evaluate(self) -> list[Verdict]:
         """Consume every compressed letter; return the verdicts they decided."""
@@ -261,6 +311,7 @@ class MonitorRuntime:
         del letters[:]
         del self.stamps[:]
         if self.halted:
+            self.unspeculate()
             self.events.clear()
         return verdicts
 

@@ -186,6 +186,7 @@ def migrate(
             )
             if status == 200:
                 break
+            mark("release (waiting for events past the cut)")
             if time.monotonic() > deadline:
                 raise MigrationFailed("the sender did not release the monitors in time")
             time.sleep(0.005)
