@@ -18,6 +18,7 @@ import sys
 import time
 import urllib.parse
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -164,10 +165,17 @@ def migrate(
         steps[name] = time.monotonic() - started
 
     try:
-        step(source, "hold")  # 2a first, as in the paper
-        mark("hold")
-        step(destination, "receive")
-        mark("receive")
+        # 2a and 2b at once: the receiver's subscription (and its DDS matching) need not
+        # wait for the sender's answer. The order does not matter for the cut: the
+        # sender raises it to what it evaluated before it held (docs/protocol.md).
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            receiving = pool.submit(step, destination, "receive")
+            try:
+                step(source, "hold")
+                mark("hold")
+            finally:
+                receiving.result()  # re-raises its error after the hold's
+            mark("receive")
         while True:
             cuts = json.loads(step(destination, "cut")[1])["cuts"]
             waiting = sorted(n for n, c in cuts.items() if c is None)
