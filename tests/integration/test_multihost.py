@@ -189,7 +189,7 @@ def crash_mid_handoff(tmp_path: Path, lab: Lab, domain: int, crash: str) -> None
         cloud.stop()
     offline = offline_verdicts(monitors, trace)
     if crash == "cloud":
-        assert outcome.startswith("failed") and "the sender resumed them" in outcome, outcome
+        assert outcome.startswith("failed") and "the sender resumed those" in outcome, outcome
         assert live_verdicts(edge) == offline  # all of them, on the edge: nothing lost
         assert not cloud.verdicts()
     else:

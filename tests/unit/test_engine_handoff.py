@@ -201,3 +201,28 @@ def test_after_the_release_the_sender_keeps_what_it_needs_to_resume() -> None:
     assert e.abort("m", 1) == "active"
     with pytest.raises(HandoffError, match="is over"):
         e.commit("m", 1)
+
+
+def test_a_batch_is_adopted_all_or_nothing() -> None:
+    def two() -> Engine:
+        e = Engine("h", flush_after=1e9)
+        for name in ("a", "b"):
+            e.put(compiled("always (a -> x < 5)", {"a": "bool", "x": "float"}, name=name), True)
+        return e
+
+    h1, h2 = two(), two()
+    for name in ("a", "b"):
+        h2.set_active(name, False)
+        h1.hold(name, 3)
+        h2.receive(name, 3)
+    h1.ingest([(1, "/a", [True]), (2, "/x", [1.0])])
+    h2.ingest([(1, "/a", [True]), (2, "/x", [1.0])])
+    good = h1.release("a", 3, cut=2, grace=0.0, now=0.0)
+    assert good is not None
+    with pytest.raises(HandoffError, match="b: too short for a snapshot"):
+        h2.adopt_many(3, [("a", good), ("b", b"garbage")])
+    assert [h2.slots[n].handoff for n in ("a", "b")] == ["receiving", "receiving"]
+    assert not h2.slots["a"].active  # nothing of the batch was adopted
+    h2.adopt_many(3, [("a", good)])
+    h2.adopt_many(3, [("a", good)])  # a repeated adoption is a no-op
+    assert h2.slots["a"].active and h2.abort("a", 3) == "active"

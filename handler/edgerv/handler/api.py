@@ -213,9 +213,7 @@ class ControlApi:
             if step == "adopt":
                 epoch = int(request.query["epoch"])
                 snaps = split_frames(await request.read())
-                with e.lock:  # once for the batch: the ingest thread would starve the calls
-                    for name, data in snaps:
-                        e.adopt(name, epoch, data)
+                e.adopt_many(epoch, snaps)  # all or nothing
                 self.on_routes()
                 return web.json_response({"active": [name for name, _ in snaps]})
             body = await request.json()

@@ -462,15 +462,27 @@ class Engine:
 
     def adopt(self, name: str, epoch: int, data: bytes) -> None:
         """H2, step 6: take the snapshot, merge the held events after the cut, schedule."""
+        self.adopt_many(epoch, [(name, data)])
+
+    def adopt_many(self, epoch: int, snapshots: Sequence[tuple[str, bytes]]) -> None:
+        """:meth:`adopt` for a batch, all or nothing: every snapshot is checked and
+        restored before any monitor is scheduled. Repeating an adoption is a no-op."""
         with self.lock:
-            slot = self._slot(name)
-            if slot.handoff is None and slot.epoch == epoch and slot.runtime is not None:
-                return  # a repeated adoption (its answer was lost): already running
-            slot = self._handoff_slot(name, epoch, "receiving")
-            snap = decode(data)
-            if snap.epoch != epoch or snap.monitor != name:
-                raise HandoffError("the snapshot belongs to another handoff")
-            self._resume(slot, restore(slot.compiled, snap, self._held(slot)))
+            restored = []
+            for name, data in snapshots:
+                slot = self._slot(name)
+                if slot.handoff is None and slot.epoch == epoch and slot.runtime is not None:
+                    continue  # a repeated adoption (its answer was lost): already running
+                slot = self._handoff_slot(name, epoch, "receiving")
+                try:
+                    snap = decode(data)
+                    if snap.epoch != epoch or snap.monitor != name:
+                        raise HandoffError("the snapshot belongs to another handoff")
+                    restored.append((slot, restore(slot.compiled, snap, self._held(slot))))
+                except HandoffError as exc:
+                    raise HandoffError(f"{name}: {exc}") from None
+            for slot, rt in restored:
+                self._resume(slot, rt)
 
     def abort(self, name: str, epoch: int) -> str:
         """Undo a handoff on this side; what it did, as one word.

@@ -155,9 +155,8 @@ def migrate(
     names = list(monitors)
 
     def step(side: Handler, name: str, **body: Any) -> tuple[int, bytes]:
-        return side.call(
-            f"/v1/handoff/{name}", {"epoch": epoch, "monitors": names, **body}, check=True
-        )
+        body.setdefault("monitors", names)
+        return side.call(f"/v1/handoff/{name}", {"epoch": epoch, **body}, check=True)
 
     steps: dict[str, float] = {}
 
@@ -213,9 +212,7 @@ def migrate(
             lambda: destination.call(f"/v1/handoff/adopt?epoch={epoch}", raw=bundle, check=True),
         )
     except MigrationFailed as failed:
-        _settle(
-            lambda side, name: step(side, name), source, destination, deadline + timeout, failed
-        )
+        _settle(step, names, source, destination, deadline + timeout, failed)
     seconds = time.monotonic() - started
     mark("adopt")
     with contextlib.suppress(MigrationFailed):  # a source that crashed has let go too
@@ -228,7 +225,8 @@ def migrate(
 
 
 def _settle(
-    step: Callable[[Handler, str], tuple[int, bytes]],
+    step: Callable[..., tuple[int, bytes]],
+    names: Sequence[str],
     source: Handler,
     destination: Handler,
     deadline: float,
@@ -236,24 +234,34 @@ def _settle(
 ) -> None:
     """The adoption failed or its answer was lost: find out, then commit or resume.
 
-    Returns when every monitor runs on the destination after all; raises
-    MigrationFailed when (some) resumed on the source.
+    Per monitor: one the destination runs (it adopted; the answer was lost) is
+    committed on the source; every other one resumes on the source. Returns when
+    all run on the destination; raises MigrationFailed when some resumed.
     """
     try:
         outcomes = json.loads(_retry(deadline, lambda: step(destination, "abort"))[1])["outcomes"]
     except MigrationFailed:
-        outcomes = None  # unreachable: treated as crashed, whatever it held is gone
-    if outcomes and all(o == "active" for o in outcomes.values()):
-        return  # it adopted after all: the answer was lost
+        outcomes = {}  # unreachable: treated as crashed, whatever it held is gone
+    adopted = [n for n in names if outcomes.get(n) == "active"]
+    back = [n for n in names if n not in adopted]
+    if not back:
+        return  # it adopted them all after all
+    if adopted:
+        with contextlib.suppress(MigrationFailed):
+            _retry(deadline, lambda: step(source, "commit", monitors=adopted))
     try:
-        _retry(deadline, lambda: step(source, "abort"))
+        _retry(deadline, lambda: step(source, "abort", monitors=back))
     except MigrationFailed as exc:
         raise MigrationFailed(
             f"{failed}; and the sender could not resume them: {exc} "
             "(it keeps the snapshots: abort the handoff there once it is reachable)"
         ) from None
-    state = "unreachable" if outcomes is None else ", ".join(sorted(set(outcomes.values())))
-    raise MigrationFailed(f"{failed}; the destination was {state}, the sender resumed them")
+    state = (
+        "unreachable"
+        if not outcomes
+        else ", ".join(f"{n} {o}" for n, o in sorted(outcomes.items()) if n in back)
+    )
+    raise MigrationFailed(f"{failed}; the destination was {state}: the sender resumed those")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
