@@ -38,7 +38,7 @@ PRESSURE_SECONDS = 1.0
 # message would cost more than evaluating.
 SCHEDULE_SECONDS = 0.002
 WAKE_LETTERS = 512
-PREHOLD_PER_TICK = 8192  # events a scheduler tick compresses for monitors being handed off
+PREHOLD_PER_TICK = 2048  # events a scheduler round compresses for monitors being handed off
 
 
 class VerdictSink(Protocol):
@@ -277,12 +277,7 @@ class Engine:
         """Release event buffers that waited longer than ``flush_after``; update pressure."""
         now = time.monotonic() if now is None else now
         with self.lock:
-            budget = PREHOLD_PER_TICK  # a few ms at a time: ingestion must not wait long
-            for slot in self.in_handoff.values():
-                if budget <= 0:
-                    break
-                budget -= slot.prehold
-                self._compress_prehold(slot)
+            self._precompress()
             for slot in self.slots.values():
                 rt = slot.runtime
                 if rt is None:
@@ -334,6 +329,8 @@ class Engine:
             with self.lock:
                 self.ready.wait(timeout=SCHEDULE_SECONDS)
                 verdicts = self._evaluate()
+                if self.in_handoff:
+                    self._precompress()
             if time.monotonic() >= next_tick:
                 verdicts += self.tick()
                 next_tick = time.monotonic() + period
@@ -533,6 +530,15 @@ class Engine:
         slot.runtime, slot.released = None, None
         self._set_handoff(slot, None)
         self.routes_version += 1
+
+    def _precompress(self) -> None:
+        """Compress, a few ms at a time, what senders buffered before their hold."""
+        budget = PREHOLD_PER_TICK
+        for slot in self.in_handoff.values():
+            if budget <= 0:
+                break
+            budget -= slot.prehold
+            self._compress_prehold(slot)
 
     @staticmethod
     def _compress_prehold(slot: MonitorSlot) -> None:
