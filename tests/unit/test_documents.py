@@ -105,7 +105,11 @@ def test_placement() -> None:
         ),
         (
             ("  signals:", "  placement: {maxLatencyMs: -5}\n  signals:"),
-            "m.yaml:6:29: error: spec.placement.maxLatencyMs: must be above 0",
+            "m.yaml:6:29: error: spec.placement.maxLatencyMs: must be a number above 0",
+        ),
+        (
+            ("  signals:", "  placement: {maxLatencyMs: true}\n  signals:"),
+            "m.yaml:6:29: error: spec.placement.maxLatencyMs: must be a number above 0",
         ),
         (
             ("  signals:", "  placement: {teir: edge}\n  signals:"),

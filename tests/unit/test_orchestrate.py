@@ -5,8 +5,16 @@ from __future__ import annotations
 import pytest
 
 from edgerv.core.diagnostics import InputError
-from edgerv.core.placement import Placement
-from edgerv.handler.orchestrate import Counters, Target, build_reports, parse_handlers, parse_pairs
+from edgerv.core.placement import Placement, PolicyConfig
+from edgerv.handler.migrate import MigrationFailed
+from edgerv.handler.orchestrate import (
+    Counters,
+    Orchestrator,
+    Target,
+    build_reports,
+    parse_handlers,
+    parse_pairs,
+)
 
 
 def test_handlers_flag() -> None:
@@ -56,3 +64,33 @@ def test_rates_come_from_two_polls() -> None:
     assert r.cpu == pytest.approx(0.75)
     m = r.monitors["m"]
     assert (m.events_per_second, m.in_handoff, m.migration_wanted) == (500.0, True, True)
+
+
+class Reports:
+    """A handler's API as the orchestrator reads it: a load report, or silence."""
+
+    def __init__(self, load: dict[str, object] | None) -> None:
+        self.load, self.base, self.calls = load, "http://x", []
+
+    def get(self, path: str, timeout: float = 10.0) -> object:
+        if self.load is None:
+            raise MigrationFailed("unreachable")
+        return self.load
+
+    def call(self, path: str, **_: object) -> tuple[int, bytes]:
+        self.calls.append(path)
+        return 200, b"{}"
+
+
+def test_no_monitor_starts_while_a_handler_is_silent() -> None:
+    edge, cloud = Target("edge", "e:1"), Target("cloud", "c:1")
+    o = Orchestrator([edge, cloud], PolicyConfig(tiers=("edge", "cloud")), token=None)
+    idle = load(1.0, 0.0, 0, active=False)
+    idle["handler"] = "cloud-1"
+    silent, answering = Reports(None), Reports(idle)
+    o.clients = {edge: silent, cloud: answering}  # type: ignore[dict-item]
+    assert o.round() == []  # m may run on the silent edge: not started in the cloud
+    silent.load = load(1.0, 0.0, 0, active=False)
+    records = o.round()
+    assert [(r["monitors"], r["reason"], r["ok"]) for r in records] == [(["m"], "start", True)]
+    assert answering.calls == ["/v1/monitors/m/activate"]  # its placement.tier: cloud

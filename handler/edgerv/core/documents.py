@@ -333,11 +333,13 @@ def _parse_placement(doc: _Doc, node: yaml.Node) -> Placement:
     budget = None
     if "maxLatencyMs" in items:
         value = _parse_value(doc, items["maxLatencyMs"][1], f"{where}.maxLatencyMs", (int, float))
-        if isinstance(value, int | float) and not isinstance(value, bool):
-            if value > 0 and math.isfinite(value):
+        if isinstance(value, int | float):
+            if not isinstance(value, bool) and value > 0 and math.isfinite(value):
                 budget = float(value)
             else:
-                doc.error(items["maxLatencyMs"][1], f"{where}.maxLatencyMs", "must be above 0")
+                doc.error(
+                    items["maxLatencyMs"][1], f"{where}.maxLatencyMs", "must be a number above 0"
+                )
     return Placement(tier, cast(Literal["auto", "pinned"], migrate), budget)
 
 

@@ -6,7 +6,8 @@ counters into rates (:func:`build_reports`), asks the policy
 a monitor that runs nowhere, the other moves run the handoff of
 :mod:`edgerv.handler.migrate`. Each action is printed as one JSON line on stdout.
 A handler that does not answer is left out of that round (its monitors are not
-moved: it may only be slow). Authenticates with ``EDGERV_TOKEN`` like the handlers.
+moved: it may only be slow), and no monitor is started that round (it may run
+on the silent one). Authenticates with ``EDGERV_TOKEN`` like the handlers.
 """
 
 from __future__ import annotations
@@ -161,7 +162,8 @@ class Orchestrator:
 
     def round(self) -> list[dict[str, Any]]:
         """Poll, decide, act; return what was done, one record per action."""
-        reports, placements, where = build_reports(self.poll(), self.previous)
+        loads = self.poll()
+        reports, placements, where = build_reports(loads, self.previous)
         for m, p in placements.items():
             if p.tier is not None and p.tier not in self.config.tiers and m not in self.warned:
                 self.warned.add(m)
@@ -173,6 +175,10 @@ class Orchestrator:
                     ",".join(self.config.tiers),
                 )
         moves = plan(reports, placements, self.config, self.memory, time.monotonic())
+        if len(loads) < len(self.targets):
+            # A silent handler may run monitors the others only define: starting them
+            # elsewhere could make two active copies. Only moves between those that answered.
+            moves = [m for m in moves if m.source]
         done = []
         for start in (m for m in moves if not m.source):
             client = self.clients[where[start.destination]]
