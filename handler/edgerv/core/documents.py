@@ -8,6 +8,7 @@ errors are reported together.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import re
 from collections.abc import Callable, Iterator
@@ -100,7 +101,7 @@ class MonitorSpec:
     locate_assertion: Callable[[int, int], Location] = field(repr=False, compare=False)
     placement: Placement = field(default_factory=Placement)
 
-    @property
+    @functools.cached_property  # read per message during a handoff: computed once
     def topics(self) -> list[str]:
         """The topics this monitor reads, in order of first use by its signals."""
         return list(dict.fromkeys(s.topic for s in self.signals.values()))

@@ -256,9 +256,12 @@ def encode(snap: Snapshot) -> bytes:
     return _FRAME.pack(_MAGIC, len(header), len(body)) + header + body
 
 
-def header_size(frame: bytes) -> int:
-    """The bytes of a snapshot that do not grow with its events: frame and header."""
-    return _FRAME.size + int(_FRAME.unpack_from(frame)[1])
+def frame_sizes(frame: bytes) -> tuple[int, int]:
+    """A snapshot's constant part (frame and header, in bytes) and its letter count,
+    read from its header alone."""
+    hlen = int(_FRAME.unpack_from(frame)[1])
+    header = json.loads(frame[_FRAME.size : _FRAME.size + hlen])
+    return _FRAME.size + hlen, int(header["n"])
 
 
 def split_frames(data: bytes) -> list[tuple[str, bytes]]:

@@ -471,11 +471,13 @@ class Engine:
                 if slot.handoff is None and slot.epoch == epoch and slot.runtime is not None:
                     continue  # a repeated adoption (its answer was lost): already running
                 slot = self._handoff_slot(name, epoch, "receiving")
+                held = slot.runtime
+                assert held is not None  # a receiving slot holds what it received
                 try:
                     snap = decode(data)
                     if snap.epoch != epoch or snap.monitor != name:
                         raise HandoffError("the snapshot belongs to another handoff")
-                    restored.append((slot, restore(slot.compiled, snap, self._held(slot))))
+                    restored.append((slot, restore(slot.compiled, snap, held.events)))
                 except HandoffError as exc:
                     raise HandoffError(f"{name}: {exc}") from None
             for slot, rt in restored:
@@ -506,15 +508,10 @@ class Engine:
             if slot.handoff == "released":
                 assert slot.released is not None
                 snap = decode(slot.released)
-                self._resume(slot, restore(slot.compiled, snap, self._held(slot)))
+                self._resume(slot, restore(slot.compiled, snap, rt.events))
                 return "resumed"
             self._let_go(slot)
             return "dropped"
-
-    @staticmethod
-    def _held(slot: MonitorSlot) -> list[tuple[int, int, Any]]:
-        assert slot.runtime is not None
-        return slot.runtime.events
 
     def _resume(self, slot: MonitorSlot, rt: MonitorRuntime) -> None:
         self.router.remove(slot.name)

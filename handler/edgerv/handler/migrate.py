@@ -22,7 +22,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from edgerv.core.handoff import decode, header_size, split_frames
+from edgerv.core.handoff import frame_sizes, split_frames
 
 
 class MigrationFailed(Exception):
@@ -218,9 +218,8 @@ def migrate(
     with contextlib.suppress(MigrationFailed):  # a source that crashed has let go too
         _retry(deadline + timeout, lambda: step(source, "commit"))
     mark("commit")
-    frames = [decode(data) for _, data in split_frames(bundle)]
-    letters = sum(len(f.letters) for f in frames)
-    headers = sum(header_size(data) for _, data in split_frames(bundle))
+    sizes = [frame_sizes(data) for _, data in split_frames(bundle)]
+    headers, letters = sum(h for h, _ in sizes), sum(n for _, n in sizes)
     return Moved(seconds, len(bundle), letters, headers, steps)
 
 
