@@ -81,11 +81,11 @@ def monitors_yaml(n: int) -> str:
             "apiVersion: edgerv.io/v1alpha1\nkind: Monitor\n"
             f"metadata: {{name: m{i:03d}}}\n"
             "spec:\n"
-            '  assertion: "always (running -> speed < limit)"\n'
+            '  assertion: "always ((running & speed > cruise) -> speed < limit)"\n'
             "  signals:\n"
             "    running: {topic: /running, type: std_msgs/msg/Bool}\n"
             "    speed: {topic: /speed, type: std_msgs/msg/Float64}\n"
-            f"  parameters: {{limit: {100 + i % 5}}}\n"
+            f"  parameters: {{cruise: {60 + (i * 7) % 40}, limit: {100 + i % 5}}}\n"
             "  sortThreshold: 4000\n"
             "  bufferCapacity: 8192\n"
         )

@@ -15,7 +15,16 @@ import random
 
 import pytest
 
-from edgerv.core.handoff import HandoffError, cut_point, decode, encode, export_snapshot, restore
+from edgerv.core.handoff import (
+    HandoffError,
+    bundle,
+    cut_point,
+    decode,
+    encode,
+    export_snapshot,
+    restore,
+    unbundle,
+)
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import MonitorRuntime, Verdict
 from helpers import compiled
@@ -97,9 +106,10 @@ def with_handoffs(
         if cut is None:  # the run ended before H2 saw every topic: H1 keeps the monitor
             owner.holding = False
             break
-        wire = encode(export_snapshot(owner, cut, epoch))  # 5b
+        wire = bundle([encode(export_snapshot(owner, cut, epoch))])  # 5b
         sizes.append(len(wire))
-        owner = restore(m, decode(wire), held2)  # 6: H2 merges and schedules
+        (frame,) = unbundle(wire)
+        owner = restore(m, decode(frame), held2)  # 6: H2 merges and schedules
         out += owner.evaluate()
     owner.holding = False
     owner.flush()
@@ -150,10 +160,24 @@ def test_the_wire_form_round_trips_and_is_checked() -> None:
     for bad, reason in [
         (wire[:20], "length does not match"),
         (b"XXXX" + wire[4:], "not an edgerv"),
-        (wire[:-3] + b"\x00\x00\x00", "malformed|truncated|trailing|inflate"),
+        (wire[:-3] + b"\x00\x00\x00", "malformed|truncated|trailing|out of range"),
     ]:
         with pytest.raises(HandoffError, match=reason):
             decode(bad)
+    other = encode(export_snapshot(held_runtime(m, trace(random.Random(5), 10)), 10**9, 3))
+    wire2 = bundle([wire, other])
+    assert len(wire2) < (len(wire) + len(other)) // 2  # deflated together
+    assert unbundle(wire2) == [wire, other]
+    for bad, reason in [
+        (wire2[:30], "does not inflate"),
+        (wire2 + b"x", "does not inflate"),
+        (b"ERVB\x00\x00\x00\x05" + wire2[8:], "does not inflate to its announced size"),
+        (b"ERVB\xff\xff\xff\xff" + wire2[8:], "over the limit"),
+        (wire, "not an edgerv snapshot bundle"),
+        (bundle([wire[:-1]]), "ends inside a frame"),
+    ]:
+        with pytest.raises(HandoffError, match=reason):
+            unbundle(bad)
 
 
 def test_damaged_snapshots_raise_only_handoff_errors() -> None:
@@ -166,6 +190,14 @@ def test_damaged_snapshots_raise_only_handoff_errors() -> None:
             bad[rng.randrange(len(bad))] = rng.randrange(256)
         with contextlib.suppress(HandoffError):
             decode(bytes(bad))
+    packed = bundle([wire, wire])
+    for _ in range(500):
+        bad = bytearray(packed)
+        for _ in range(rng.randint(1, 4)):
+            bad[rng.randrange(len(bad))] = rng.randrange(256)
+        with contextlib.suppress(HandoffError):
+            for frame in unbundle(bytes(bad)):
+                decode(frame)
 
 
 def test_a_slowly_changing_trace_costs_under_a_bit_an_event_on_the_wire() -> None:
@@ -194,13 +226,13 @@ def test_a_slowly_changing_trace_costs_under_a_bit_an_event_on_the_wire() -> Non
         run.append((topic, stamp, value))
     rt = held_runtime(m, run)
     snap = export_snapshot(rt, cut=stamp, epoch=1)
-    wire = encode(snap)
-    assert decode(wire) == snap
+    wire = bundle([encode(snap)])
+    assert decode(unbundle(wire)[0]) == snap
     n = len(snap.letters)
     assert n > 19_000 and 10 <= len(snap.stamps) < 100
     assert len(wire) * 8 < n + 8 * 512, f"{len(wire) * 8 / n:.3f} bits an event"
     # and the stamps that a verdict can report survive the trip
-    back = restore(m, decode(wire), [])
+    back = restore(m, decode(unbundle(wire)[0]), [])
     reference = held_runtime(m, run)
     reference.holding = False
     reference.flush()

@@ -310,7 +310,8 @@ def test_compressing_ahead_of_the_sort_changes_nothing(seed: int) -> None:
     """Events of the sort buffer compressed on arrival while they come in order: the
     letters, stamps, late counts and signal values equal those of sorting at the
     threshold, with events out of order now and then, partial flushes (flushAfter,
-    a handoff's hold) and holds in between."""
+    a handoff's hold), holds and releases at a cut (:meth:`MonitorRuntime.cover`)
+    in between."""
     rng = random.Random(seed)
     assertion, kinds = COLUMN_CASES[seed % len(COLUMN_CASES)]
     m = compiled(
@@ -326,20 +327,22 @@ def test_compressing_ahead_of_the_sort_changes_nothing(seed: int) -> None:
     for seq in range(600):
         stamp += rng.choice([0, 1, 2, 5])
         late = stamp - rng.randint(1, 8) if rng.random() < 0.05 else stamp
-        sig = rng.randrange(len(names))
-        kind = kinds[names[sig]]
-        value: object = (
-            rng.random() < 0.5
-            if kind == "bool"
-            else rng.randint(0, 5)
-            if kind == "int"
-            else rng.choice(["go", "stop"])
-            if kind == "string"
-            else rng.choice([float("nan"), rng.uniform(0, 10)])
-        )
+        updates = []  # one signal, or now and then two (a message read for two fields)
+        for sig in rng.sample(range(len(names)), 2 if rng.random() < 0.2 else 1):
+            kind = kinds[names[sig]]
+            value: object = (
+                rng.random() < 0.5
+                if kind == "bool"
+                else rng.randint(0, 5)
+                if kind == "int"
+                else rng.choice(["go", "stop"])
+                if kind == "string"
+                else rng.choice([float("nan"), rng.uniform(0, 10)])
+            )
+            updates.append((sig, value))
         for rt in (fast, plain):
-            rt.offer(late, seq, [(sig, value)])
-        roll = rng.random()
+            rt.offer(late, seq, updates)
+        roll, roll_cut = rng.random(), rng.randint(0, 6)
         for rt in (fast, plain):
             if roll < 0.03:
                 rt.flush()
@@ -347,8 +350,14 @@ def test_compressing_ahead_of_the_sort_changes_nothing(seed: int) -> None:
                 rt.flush_prefix(len(rt.events) // 2)
             elif roll < 0.08:
                 rt.holding = not rt.holding
+            elif roll < 0.09:  # a handoff's release: what is at or before the cut, only
+                rt.cover(stamp - roll_cut)
         assert list(fast.letters) == list(plain.letters)
         assert list(fast.stamps) == list(plain.stamps)
+        assert fast.events == plain.events
+        if 0.08 <= roll < 0.09:  # the state as of the cut, as a snapshot takes it
+            assert [repr(v) for v in fast.values] == [repr(v) for v in plain.values]
+            assert (fast.valuation, fast.missing) == (plain.valuation, plain.missing)
     for rt in (fast, plain):
         rt.holding = False
         rt.flush()

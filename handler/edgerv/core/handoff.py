@@ -44,18 +44,23 @@ from __future__ import annotations
 import json
 import struct
 import zlib
+from array import array
+from bisect import bisect_right
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from edgerv.core.monitor import CompiledMonitor
-from edgerv.core.pipeline import _UNSET, MonitorRuntime, Update
+from edgerv.core.pipeline import _STAMP, _UNSET, Event, MonitorRuntime, letter_typecode
 
-WIRE_VERSION = 2
+WIRE_VERSION = 3
 _FRAME = struct.Struct("!4sII")  # magic, header length, body length
-_MAGIC = b"ERV2"
+_MAGIC = b"ERV3"
+_BUNDLE = struct.Struct("!4sI")  # magic, length of the frames once inflated
+_BUNDLE_MAGIC = b"ERVB"
+MAX_BUNDLE = 1 << 30  # inflated bytes a bundle may announce
 
 
 class HandoffError(Exception):
@@ -75,8 +80,10 @@ class Snapshot:
     last_released: int | None
     late_events: int
     bits: int
-    letters: tuple[int, ...]
+    letters: array  # type: ignore[type-arg]  # the letter typecode of ``bits``
     stamps: Mapping[int, int]  # letter index -> stamp, only where a verdict can be reported
+    # the letters' runs (runs_of), when the sender computed them already
+    runs: Any = field(default=None, compare=False, repr=False)
 
 
 def cut_point(first_stamps: Mapping[str, int], topics: Iterable[str]) -> int | None:
@@ -90,17 +97,13 @@ def cut_point(first_stamps: Mapping[str, int], topics: Iterable[str]) -> int | N
 
 
 def export_snapshot(rt: MonitorRuntime, cut: int, epoch: int) -> Snapshot:
-    """H1's side: compress the held events up to the cut, drop the rest, take the state.
+    """H1's side: compress the held events up to the cut, take the state.
 
-    Afterwards ``rt`` must not run any more: the monitor belongs to H2.
+    Afterwards ``rt`` holds only the events after the cut, raw; it must not run
+    any more: the monitor belongs to H2 (H1 keeps those events in case it resumes).
     """
-    rt.unspeculate()  # (the engine commits what came before the hold; see Engine.hold)
-    covered = [e for e in rt.events if e[0] <= cut]
-    rt.events = covered
-    rt.holding = False
-    if covered:
-        rt.flush()
-    stamps = rt.stamps
+    rt.cover(cut)
+    stamps, runs = rt.stamps, runs_of(rt.letters)
     return Snapshot(
         monitor=rt.name,
         epoch=epoch,
@@ -113,21 +116,23 @@ def export_snapshot(rt: MonitorRuntime, cut: int, epoch: int) -> Snapshot:
         last_released=rt.last_released,
         late_events=rt.late_events,
         bits=rt.monitor.table.bits,
-        letters=tuple(rt.letters),
-        stamps={i: stamps[i] for i in deciding_steps(rt.monitor, rt.state, rt.letters)},
+        letters=rt.letters[:],
+        stamps={i: stamps[i] for i in deciding_steps(rt.monitor, rt.state, runs)},
+        runs=runs,
     )
 
 
-def deciding_steps(monitor: CompiledMonitor, state: int, letters: Sequence[int]) -> list[int]:
+def deciding_steps(monitor: CompiledMonitor, state: int, runs: tuple[Any, Any, Any]) -> list[int]:
     """The indices of the letters that take the automaton to a verdict, from ``state``.
 
-    Walks run by run: within a run of one letter, once a step leaves a state that is
-    not a verdict unchanged, the rest of the run stays there.
+    Walks the letters' runs (:func:`runs_of`) run by run: within a run of one letter,
+    once a step leaves a state that is not a verdict unchanged, the rest of the run
+    stays there.
     """
     table = monitor.table
     rows, bits, live = table.table, table.bits, table.live
     found = []
-    starts, values, lengths = runs_of(letters)
+    starts, values, lengths = runs
     for start, letter, length in zip(
         starts.tolist(), values.tolist(), lengths.tolist(), strict=True
     ):
@@ -143,19 +148,20 @@ def deciding_steps(monitor: CompiledMonitor, state: int, letters: Sequence[int])
 
 def runs_of(letters: Sequence[int]) -> tuple[Any, Any, Any]:
     """Run-length form of the letters: the start, letter and length of each run (arrays)."""
-    arr = np.asarray(letters, dtype=np.int64)
-    if not len(arr):
-        empty = np.zeros(0, dtype=np.int64)
-        return empty, empty, empty
-    starts = np.concatenate(([0], np.flatnonzero(arr[1:] != arr[:-1]) + 1))
-    lengths = np.diff(np.concatenate((starts, [len(arr)])))
-    return starts, arr[starts], lengths
+    arr = (
+        np.frombuffer(letters, dtype=letters.typecode)
+        if isinstance(letters, array)
+        else np.asarray(letters, dtype=np.int64)
+    )
+    starts = np.flatnonzero(arr[1:] != arr[:-1]) + 1
+    if len(arr):
+        starts = np.concatenate((np.zeros(1, starts.dtype), starts))
+    return starts, arr[starts], np.diff(starts, append=len(arr))
 
 
-def restore(
-    monitor: CompiledMonitor, snap: Snapshot, held: Sequence[tuple[int, int, Sequence[Update]]]
-) -> MonitorRuntime:
-    """H2's side: the monitor as H1 left it, then H2's own held events after the cut."""
+def restore(monitor: CompiledMonitor, snap: Snapshot, held: list[Event]) -> MonitorRuntime:
+    """H2's side: the monitor as H1 left it, then H2's own held events after the cut
+    (``held``: a sort buffer, in stamp order)."""
     if snap.monitor != monitor.name:
         raise HandoffError(f"snapshot of '{snap.monitor}' given for '{monitor.name}'")
     table = monitor.table
@@ -179,7 +185,7 @@ def restore(
         rt.stamps[base + i] = stamp
     # Events up to the cut are H1's, also those H2 has not taken yet (still in its queues)
     rt.floor = snap.cut
-    rt.events = [e for e in held if e[0] > snap.cut]
+    rt.events = held[bisect_right(held, snap.cut, key=_STAMP) :]  # held is in stamp order
     if len(rt.events) >= rt.threshold:
         rt.flush()
     return rt
@@ -221,16 +227,14 @@ def _from_varints(data: bytes, n: int, what: str) -> list[int]:
 
 
 def encode(snap: Snapshot) -> bytes:
-    _, run_letters, run_lengths = runs_of(snap.letters)
-    letters = zlib.compress(
-        run_letters.astype("<u2").tobytes() + run_lengths.astype("<u4").tobytes(), 9
-    )
+    """One snapshot's frame (uncompressed: :func:`bundle` deflates frames together)."""
+    _, run_letters, run_lengths = snap.runs if snap.runs is not None else runs_of(snap.letters)
+    letters: bytes = run_letters.astype("<u2").tobytes() + run_lengths.astype("<u4").tobytes()
     pairs: list[int] = []
     last_i = last_s = 0
     for i in sorted(snap.stamps):
         pairs += (i - last_i, snap.stamps[i] - last_s)
         last_i, last_s = i, snap.stamps[i]
-    stamps = zlib.compress(_varints(pairs), 9)
     header = json.dumps(
         {
             "v": WIRE_VERSION,
@@ -248,54 +252,68 @@ def encode(snap: Snapshot) -> bytes:
             "n": len(snap.letters),
             "runs": len(run_lengths),
             "stamps": len(snap.stamps),
-            "lettersLen": len(letters),
         },
         separators=(",", ":"),
     ).encode()
-    body = letters + stamps
+    body = letters + _varints(pairs)
     return _FRAME.pack(_MAGIC, len(header), len(body)) + header + body
 
 
+def bundle(frames: Iterable[bytes]) -> bytes:
+    """Snapshot frames as they cross the wire: one deflate stream over all of them.
+
+    Deflating the batch at once shares what monitors have in common (their header
+    keys, similar letters): a monitor's header costs a few dozen bytes, not ~250.
+    """
+    raw = b"".join(frames)
+    return _BUNDLE.pack(_BUNDLE_MAGIC, len(raw)) + zlib.compress(raw, 6)
+
+
+def unbundle(data: bytes, limit: int = MAX_BUNDLE) -> list[bytes]:
+    """A bundle -> its snapshot frames, each to check with :func:`decode`."""
+    if len(data) < _BUNDLE.size or data[:4] != _BUNDLE_MAGIC:
+        raise HandoffError("not an edgerv snapshot bundle (or one of another wire version)")
+    size = int(_BUNDLE.unpack_from(data)[1])
+    if size > limit:
+        raise HandoffError(f"a bundle of {size} bytes is over the limit of {limit}")
+    try:
+        raw = _inflate(data[_BUNDLE.size :], size)
+    except zlib.error as exc:
+        raise HandoffError(f"a bundle does not inflate: {exc}") from None
+    frames, i = [], 0
+    while i < len(raw):
+        if len(raw) - i < _FRAME.size:
+            raise HandoffError("a bundle ends inside a frame")
+        magic, hlen, blen = _FRAME.unpack_from(raw, i)
+        if magic != _MAGIC:
+            raise HandoffError("not an edgerv snapshot (or one of another wire version)")
+        end = i + _FRAME.size + hlen + blen
+        if end > len(raw):
+            raise HandoffError("a bundle ends inside a frame")
+        frames.append(raw[i:end])
+        i = end
+    return frames
+
+
 def frame_sizes(frame: bytes) -> tuple[int, int]:
-    """A snapshot's constant part (frame and header, in bytes) and its letter count,
-    read from its header alone."""
+    """A snapshot's constant part (frame and header, in bytes, before the bundle's
+    compression) and its letter count, read from its header alone."""
     hlen = int(_FRAME.unpack_from(frame)[1])
     header = json.loads(frame[_FRAME.size : _FRAME.size + hlen])
     return _FRAME.size + hlen, int(header["n"])
 
 
-def split_frames(data: bytes) -> list[tuple[str, bytes]]:
-    """A bundle (snapshots one after another) -> (monitor, snapshot) pairs, unchecked inside."""
-    out, i = [], 0
-    while i < len(data):
-        if len(data) - i < _FRAME.size:
-            raise HandoffError("a bundle ends inside a frame")
-        magic, hlen, blen = _FRAME.unpack_from(data, i)
-        if magic != _MAGIC:
-            raise HandoffError("not an edgerv snapshot (or one of another wire version)")
-        end = i + _FRAME.size + hlen + blen
-        if end > len(data):
-            raise HandoffError("a bundle ends inside a frame")
-        try:
-            name = str(json.loads(data[i + _FRAME.size : i + _FRAME.size + hlen])["monitor"])
-        except (ValueError, KeyError, TypeError):
-            raise HandoffError("a snapshot's header is malformed") from None
-        out.append((name, data[i:end]))
-        i = end
-    return out
-
-
-def _inflate(data: bytes, limit: int) -> bytes:
-    """Decompress at most ``limit`` bytes: a hostile message cannot blow up memory."""
+def _inflate(data: bytes, size: int) -> bytes:
+    """Decompress exactly ``size`` bytes: a hostile message cannot blow up memory."""
     d = zlib.decompressobj()
-    out = d.decompress(data, limit + 1)
-    if len(out) > limit or d.unconsumed_tail or not d.eof:
-        raise HandoffError("a section does not inflate to its announced size")
+    out = d.decompress(data, size + 1)
+    if len(out) != size or d.unconsumed_tail or not d.eof or d.unused_data:
+        raise HandoffError("a bundle does not inflate to its announced size")
     return out
 
 
 def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
-    """Parse and check a snapshot from the wire; raise :class:`HandoffError` if it is bad."""
+    """Parse and check a snapshot frame; raise :class:`HandoffError` if it is bad."""
     if len(data) < _FRAME.size:
         raise HandoffError("too short for a snapshot")
     magic, hlen, blen = _FRAME.unpack_from(data)
@@ -307,24 +325,22 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
         h = json.loads(data[_FRAME.size : _FRAME.size + hlen])
         if h.get("v") != WIRE_VERSION:
             raise HandoffError(f"wire version {h.get('v')} is not {WIRE_VERSION}")
-        n, bits, llen = int(h["n"]), int(h["bits"]), int(h["lettersLen"])
+        n, bits = int(h["n"]), int(h["bits"])
         runs, kept = int(h["runs"]), int(h["stamps"])
-        if not (0 <= n <= max_letters and 0 <= bits <= 16 and 0 <= llen <= blen):
-            raise HandoffError("letter count, width or length out of range")
-        if not (0 <= runs <= n and 0 <= kept <= n):
+        if not (0 <= n <= max_letters and 0 <= bits <= 16):
+            raise HandoffError("letter count or width out of range")
+        if not (0 <= runs <= n and 0 <= kept <= n and 6 * runs <= blen):
             raise HandoffError("run or stamp count out of range")
         body = data[_FRAME.size + hlen :]
-        packed = _inflate(body[:llen], 6 * runs)
-        if len(packed) != 6 * runs:
-            raise HandoffError("letters do not have the announced size")
-        run_letters = np.frombuffer(packed, dtype="<u2", count=runs)
-        run_lengths = np.frombuffer(packed, dtype="<u4", offset=2 * runs, count=runs)
+        run_letters = np.frombuffer(body, dtype="<u2", count=runs)
+        run_lengths = np.frombuffer(body, dtype="<u4", offset=2 * runs, count=runs)
         if runs and (int(run_letters.max()) >= 1 << bits or int(run_lengths.min()) < 1):
             raise HandoffError("a letter or run length is out of range")
         if int(run_lengths.sum(dtype=np.int64)) != n:
             raise HandoffError("letters do not have the announced count")
-        letters = np.repeat(run_letters, run_lengths).tolist()
-        pairs = _from_varints(_inflate(body[llen:], 20 * kept), 2 * kept, "stamps")
+        letters = array(letter_typecode(bits))
+        letters.frombytes(np.repeat(run_letters.astype(letters.typecode), run_lengths).tobytes())
+        pairs = _from_varints(body[6 * runs :], 2 * kept, "stamps")
         stamps: dict[int, int] = {}
         i = stamp = 0
         for gap, delta in zip(pairs[::2], pairs[1::2], strict=True):
@@ -347,10 +363,10 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
             last_released=None if h["lastReleased"] is None else int(h["lastReleased"]),
             late_events=int(h["late"]),
             bits=bits,
-            letters=tuple(letters),
+            letters=letters,
             stamps=stamps,
         )
     except HandoffError:
         raise
-    except (ValueError, KeyError, TypeError, zlib.error) as exc:
+    except (ValueError, KeyError, TypeError) as exc:
         raise HandoffError(f"malformed snapshot: {exc}") from None

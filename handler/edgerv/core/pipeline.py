@@ -14,7 +14,7 @@ once per message and hands every monitor that reads the topic its updates.
 from __future__ import annotations
 
 from array import array
-from bisect import bisect_left
+from bisect import bisect_left, bisect_right
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from itertools import chain
@@ -30,12 +30,13 @@ from edgerv.core.msgtypes import ValueKind, make_getter
 VerdictKind = Literal["violated", "satisfied"]
 MonitorState = Literal["pending", "violated", "satisfied", "halted"]
 Update = tuple[int, Any]  # (signal index in the monitor, new value)
+Event = tuple[int, int, Sequence[Update]]  # (stamp ns, arrival sequence, updates)
 _UNSET = object()
 _STAMP = itemgetter(0)
 _UPDATES = itemgetter(2)
 _VALUE = itemgetter(1)
 _LETTER_DTYPE: dict[str, Any] = {"B": np.uint8, "H": np.uint16, "L": np.dtype("L")}  # typecode
-COLUMNS_FROM = 48  # batches this long are compressed column-wise (NumPy), shorter one by one
+COLUMNS_FROM = 128  # batches this long are compressed column-wise (NumPy), shorter one by one
 
 
 @dataclass(frozen=True)
@@ -61,7 +62,7 @@ class MonitorRuntime:
     monitor: CompiledMonitor
     name: str = field(init=False)
     threshold: int = field(init=False)  # sortThreshold
-    events: list[tuple[int, int, Sequence[Update]]] = field(default_factory=list)
+    events: list[Event] = field(default_factory=list)  # the sort buffer, kept in order
     letters: array = field(init=False)  # type: ignore[type-arg]
     stamps: array = field(init=False)  # type: ignore[type-arg]
     values: list[Any] = field(init=False)
@@ -70,17 +71,20 @@ class MonitorRuntime:
     state: int = 0  # the automaton state: the one integer a migration moves
     step: int = 0  # letters evaluated so far
     halted: bool = False
-    holding: bool = False  # during a handoff: buffer raw events, neither sort nor compress
+    holding: bool = False  # during a handoff: buffer events, never release them by count
     floor: int = -(2**63)  # events stamped at or below it were evaluated elsewhere: ignore
     late_events: int = 0  # events released after a newer one (beyond the sort window)
     last_released: int | None = None
-    # Compressing ahead: while the events of the sort buffer arrive in stamp order (the
-    # common case), each is compressed on arrival into ahead_letters, so that the sort
-    # at sortThreshold has nothing left to do. ``ahead`` events (the first of ``events``)
-    # are compressed so; ``base`` is the signal state from before the first of them, to
-    # start again from when one arrives out of order.
+    # Compressing ahead: each event of the sort buffer is compressed on arrival, into
+    # ahead_letters, so that the release at sortThreshold has nothing left to do. The
+    # buffer is kept in stamp order (an insertion, equal stamps in arrival order: what a
+    # stable sort gives); ``ahead`` events (its first) are compressed so, from ``base``,
+    # the signal state from before the first of them. An event arriving out of order
+    # cuts the compressed part back to where it goes; the rest is compressed again.
     ahead: int = 0
-    speculate: bool = True  # off only to test that it changes nothing
+    speculate: bool = True  # off only to test that it changes nothing (and on receivers)
+    redone: int = 0  # events compressed again since the last release
+    disordered: bool = False  # redone more than the buffer held: not worth it until empty
     ahead_letters: array = field(init=False)  # type: ignore[type-arg]
     ahead_stamps: array = field(init=False)  # type: ignore[type-arg]
     base: tuple[list[Any], int, int] = field(init=False)
@@ -122,33 +126,84 @@ class MonitorRuntime:
 
         Returns True when letters were produced and :meth:`evaluate` has work.
         """
+        return self.offer_event((stamp, seq, updates))
+
+    def offer_event(self, event: Event) -> bool:
+        """:meth:`offer` for an event tuple ``(stamp, seq, updates)``, kept as it is: the
+        router hands one tuple to every monitor with the same bindings (less to allocate
+        on arrival, and to free once the event is compressed)."""
+        stamp, _, updates = event
         if self.halted or stamp <= self.floor:
             return False
-        if self.holding:
-            self.events.append((stamp, seq, updates))
-            return False
-        if self.threshold == 1:  # nothing to sort: straight to the compressed buffer
+        if self.threshold == 1 and not self.holding:  # nothing to sort: straight to letters
             if self.last_released is not None and stamp < self.last_released:
                 self.late_events += 1
             self.last_released = stamp
             self._compress_one(stamp, updates, self.letters, self.stamps)
             return not self.missing
         events = self.events
-        events.append((stamp, seq, updates))
-        ahead = self.ahead
-        if ahead == len(events) - 1 and self.speculate:  # every earlier one is compressed
-            if not ahead:
-                self.base = (list(self.values), self.valuation, self.missing)
-                self._compress_one(stamp, updates, self.ahead_letters, self.ahead_stamps)
-                self.ahead = 1
-            elif stamp >= events[-2][0]:  # in order (a tie keeps arrival order, as the sort)
-                self._compress_one(stamp, updates, self.ahead_letters, self.ahead_stamps)
-                self.ahead = ahead + 1
-            else:
-                self.unspeculate()  # out of order: the sort at the threshold does it all
-        if len(events) >= self.threshold:
+        if not events or stamp >= events[-1][0]:
+            events.append(event)
+            if self.speculate and not self.disordered:
+                ahead = self.ahead
+                if ahead and ahead == len(events) - 1:  # the usual: only the new one to do
+                    self._compress_one(stamp, updates, self.ahead_letters, self.ahead_stamps)
+                    self.ahead = ahead + 1
+                else:
+                    self._compress_ahead()
+        else:  # out of order: where a stable sort puts it; compressed with the next in order
+            at = bisect_right(events, stamp, key=_STAMP)
+            events.insert(at, event)
+            if at < self.ahead:
+                self._cut_ahead(at)
+        if len(events) >= self.threshold and not self.holding:
             return self.flush()
         return False
+
+    def _compress_ahead(self) -> None:
+        """Compress the buffered events not compressed ahead yet: the new one, and those
+        from where an event out of order cut the compressed part back."""
+        events, ahead = self.events, self.ahead
+        self.redone += len(events) - ahead - 1
+        if self.redone > len(events):  # too disordered to be worth it (at most twice the work)
+            self.unspeculate()
+            self.disordered = True
+            return
+        if not ahead:
+            self.base = (list(self.values), self.valuation, self.missing)
+        letters, stamps = self.ahead_letters, self.ahead_stamps
+        for stamp, _, updates in events[ahead:]:
+            self._compress_one(stamp, updates, letters, stamps)
+        self.ahead = len(events)
+
+    def _cut_ahead(self, keep: int) -> None:
+        """Forget what was compressed ahead from the ``keep``-th buffered event on."""
+        made, (values, self.valuation, self.missing) = self._state_after(self.events[:keep])
+        self.values[:] = values
+        del self.ahead_letters[made:]
+        del self.ahead_stamps[made:]
+        self.ahead = keep
+
+    def _state_after(self, prefix: Sequence[Event]) -> tuple[int, tuple[list[Any], int, int]]:
+        """How many letters the first compressed-ahead events made, and the signal state
+        (values, valuation, missing) after them.
+
+        Once every signal has a value, each event makes one letter: the first
+        ``ahead - len(ahead_letters)`` events made none. The values after the prefix
+        are each signal's last update in it.
+        """
+        made = max(0, len(prefix) - (self.ahead - len(self.ahead_letters)))
+        values, valuation, _ = self.base
+        values, seen = list(values), set()
+        for _, _, updates in reversed(prefix):
+            for sig, value in reversed(updates):
+                if sig not in seen:
+                    seen.add(sig)
+                    values[sig] = value
+            if len(seen) == len(values):
+                break
+        missing = sum(v is _UNSET for v in values)
+        return made, (values, self.ahead_letters[made - 1] if made else valuation, missing)
 
     def unspeculate(self) -> None:
         """Forget what was compressed ahead: back to the state before the sort buffer."""
@@ -164,29 +219,48 @@ class MonitorRuntime:
         return self.flush_prefix(len(self.events))
 
     def flush_prefix(self, count: int) -> bool:
-        """Sort and compress the ``count`` oldest arrivals of the event buffer."""
+        """Compress the ``count`` oldest events (by stamp) of the sort buffer."""
         if not self.events or count <= 0:
             return False
         count = min(count, len(self.events))
         if count == len(self.events):
             batch, self.events = self.events, []
+            self.disordered = False
         else:
             batch, self.events = self.events[:count], self.events[count:]
-        if self.ahead == count:  # all in order and compressed already: the sort is a no-op
-            self.letters.extend(self.ahead_letters)
-            self.stamps.extend(self.ahead_stamps)
-            self.ahead = 0
-            del self.ahead_letters[:]
-            del self.ahead_stamps[:]
+        self.redone = 0
+        ahead = self.ahead
+        if count <= ahead:  # compressed already
+            self._commit_ahead(batch)
         else:
-            self.unspeculate()
-            batch.sort(key=_STAMP)  # stable: equal timestamps keep their arrival order
-            self._compress(batch)
+            if ahead:
+                self._commit_ahead(batch[:ahead])
+            self._compress(batch[ahead:])
         last = self.last_released
         if last is not None and batch[0][0] < last:  # rare: count what came too late
             self.late_events += bisect_left(batch, last, key=_STAMP)
         self.last_released = batch[-1][0]
         return len(self.letters) > 0
+
+    def _commit_ahead(self, batch: Sequence[Event]) -> None:
+        """Move the letters of ``batch`` (the first events compressed ahead) to the letters;
+        what stays ahead starts from the signal state after the batch."""
+        pending, stamps = self.ahead_letters, self.ahead_stamps
+        if len(batch) == self.ahead:
+            made = len(pending)
+        else:
+            made, self.base = self._state_after(batch)
+        self.letters.extend(pending[:made] if made < len(pending) else pending)
+        self.stamps.extend(stamps[:made] if made < len(stamps) else stamps)
+        del pending[:made]
+        del stamps[:made]
+        self.ahead -= len(batch)
+
+    def cover(self, cut: int) -> None:
+        """Compress the buffered events stamped at or before ``cut``; keep the later ones
+        in the buffer, with nothing compressed ahead (a handoff's release)."""
+        self.flush_prefix(bisect_right(self.events, cut, key=_STAMP))
+        self.unspeculate()
 
     def _full_valuation(self) -> int:
         bits = 0
@@ -195,7 +269,7 @@ class MonitorRuntime:
                 bits |= 1 << i
         return bits
 
-    def _compress(self, batch: Sequence[tuple[int, int, Sequence[Update]]]) -> None:
+    def _compress(self, batch: Sequence[Event]) -> None:
         if len(batch) >= COLUMNS_FROM:
             self._compress_columns(batch)
             return
@@ -203,7 +277,7 @@ class MonitorRuntime:
         for stamp, _seq, updates in batch:
             self._compress_one(stamp, updates, letters, stamps)
 
-    def _compress_columns(self, batch: Sequence[tuple[int, int, Sequence[Update]]]) -> None:
+    def _compress_columns(self, batch: Sequence[Event]) -> None:
         """What :meth:`_compress_one` does event by event, for a whole sorted batch at once.
 
         Each signal's value after each event becomes a column (forward-filled from
@@ -344,8 +418,10 @@ class TopicRoute:
     kinds: list[ValueKind] = field(default_factory=list)
     getters: list[Callable[[Any], Any]] = field(default_factory=list)
     checks: list[Callable[[Any], bool]] = field(default_factory=list)
-    # (runtime, [(signal index, field index)])
-    readers: list[tuple[MonitorRuntime, list[tuple[int, int]]]] = field(default_factory=list)
+    # the distinct bindings, each ((signal index, field index), ...): the monitors that
+    # share one get one event tuple per message
+    bindings: list[tuple[tuple[int, int], ...]] = field(default_factory=list)
+    readers: list[tuple[MonitorRuntime, int]] = field(default_factory=list)  # (rt, binding)
 
     def field_index(self, path: str, kind: ValueKind) -> int:
         if path not in self.fields:
@@ -387,18 +463,25 @@ class Router:
             route = self.routes.setdefault(sig.topic, TopicRoute(sig.topic, sig.msg_type, sig.qos))
             bindings.setdefault(sig.topic, []).append((i, route.field_index(sig.field, sig.kind)))
         for topic, pairs in bindings.items():
-            self.routes[topic].readers.append((runtime, pairs))
+            route, key = self.routes[topic], tuple(pairs)
+            if key not in route.bindings:
+                route.bindings.append(key)
+            route.readers.append((runtime, route.bindings.index(key)))
 
     def remove(self, name: str) -> MonitorRuntime | None:
-        runtime = self.runtimes.pop(name, None)
-        if runtime is None:
-            return None
-        for topic in list(self.routes):
+        return self.remove_many([name]).get(name)
+
+    def remove_many(self, names: Iterable[str]) -> dict[str, MonitorRuntime]:
+        """Stop routing to these monitors (one pass over each of their topics)."""
+        gone = {n: rt for n in names if (rt := self.runtimes.pop(n, None)) is not None}
+        ids = {id(rt) for rt in gone.values()}
+        topics = {t for rt in gone.values() for t in rt.monitor.spec.topics}
+        for topic in topics & self.routes.keys():
             route = self.routes[topic]
-            route.readers = [(rt, b) for rt, b in route.readers if rt is not runtime]
+            route.readers = [(rt, b) for rt, b in route.readers if id(rt) not in ids]
             if not route.readers:
                 del self.routes[topic]
-        return runtime
+        return gone
 
     def dispatch(self, topic: str, stamp: int, msg: Any) -> list[MonitorRuntime]:
         """Offer one message to its monitors; return those with letters to evaluate."""
@@ -417,11 +500,16 @@ class Router:
         """Offer a message's field values (in ``route.fields`` order) to the route's monitors
         (those ``admit`` accepts); return the monitors with letters to evaluate."""
         self.seq += 1
+        seq, bindings = self.seq, route.bindings
+        events: list[Event | None] = [None] * len(bindings)  # built on first use
         ready = []
-        for runtime, pairs in route.readers:
+        for runtime, b in route.readers:
             if admit is not None and not admit(runtime):
                 continue
-            if runtime.offer(stamp, self.seq, [(sig, values[f]) for sig, f in pairs]):
+            event = events[b]
+            if event is None:
+                event = events[b] = (stamp, seq, tuple([(s, values[f]) for s, f in bindings[b]]))
+            if runtime.offer_event(event):
                 ready.append(runtime)
         return ready
 

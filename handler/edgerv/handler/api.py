@@ -25,6 +25,7 @@ import asyncio
 import hmac
 import logging
 import threading
+import time
 from collections.abc import Awaitable, Callable
 from typing import Any
 
@@ -33,13 +34,16 @@ from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_l
 
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import MonitorSpec, parse_monitors_text
-from edgerv.core.handoff import HandoffError, split_frames
+from edgerv.core.handoff import HandoffError, bundle, unbundle
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.handler.engine import Engine
 
 log = logging.getLogger("edgerv.handler.api")
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
-MAX_BODY = 1 << 20
+MAX_BODY = 1 << 20  # Monitor documents
+MAX_HANDOFF_BODY = 64 << 20  # a bundle of snapshots (deflated)
+MAX_WAIT = 5.0  # seconds a release call may wait for events past the cut
+RELEASE_POLL = 0.002  # how often it looks again meanwhile
 
 
 def _errors(diagnostics: list[Diagnostic], status: int = 400) -> web.Response:
@@ -128,10 +132,14 @@ class ControlApi:
     async def _read_specs(
         self, request: web.Request
     ) -> tuple[list[CompiledMonitor], web.Response | None]:
+        too_big = _message(413, f"body larger than {MAX_BODY} bytes")
         if (request.content_length or 0) > MAX_BODY:
-            return [], _message(413, f"body larger than {MAX_BODY} bytes")
+            return [], too_big
+        raw = await request.read()  # chunked: bounded by the app's client_max_size
+        if len(raw) > MAX_BODY:
+            return [], too_big
         try:
-            text = await request.text()
+            text = raw.decode()
         except UnicodeDecodeError:
             return [], _message(400, "the body is not UTF-8 text")
         specs, diagnostics = parse_monitors_text("request", text)
@@ -212,10 +220,9 @@ class ControlApi:
         try:
             if step == "adopt":
                 epoch = int(request.query["epoch"])
-                snaps = split_frames(await request.read())
-                e.adopt_many(epoch, snaps)  # all or nothing
+                names = e.adopt_many(epoch, unbundle(await request.read()))  # all or nothing
                 self.on_routes()
-                return web.json_response({"active": [name for name, _ in snaps]})
+                return web.json_response({"active": names})
             body = await request.json()
             epoch = int(body["epoch"])
             names = [str(n) for n in body["monitors"]]
@@ -238,13 +245,19 @@ class ControlApi:
                 return web.json_response({"cuts": cuts})
             if step == "release":
                 cuts, grace = body["cuts"], float(body.get("grace", 1.0))
-                with e.lock:
-                    released = {n: e.release(n, epoch, int(cuts[n]), grace) for n in names}
-                waiting = [n for n, data in released.items() if data is None]
+                # up to ``wait`` seconds for events past the cut here: no round trip a try
+                until = time.monotonic() + min(MAX_WAIT, max(0.0, float(body.get("wait", 0))))
+                while True:
+                    with e.lock:
+                        released = {n: e.release(n, epoch, int(cuts[n]), grace) for n in names}
+                    waiting = [n for n, data in released.items() if data is None]
+                    if not waiting or time.monotonic() >= until:
+                        break
+                    await asyncio.sleep(RELEASE_POLL)
                 if waiting:
                     return web.json_response({"waiting": waiting}, status=202)
-                bundle = b"".join(data for data in released.values() if data is not None)
-                return web.Response(body=bundle, content_type="application/octet-stream")
+                frames = (data for data in released.values() if data is not None)
+                return web.Response(body=bundle(frames), content_type="application/octet-stream")
             if step in ("commit", "abort"):
                 act = e.commit if step == "commit" else e.abort
                 with e.lock:
@@ -266,7 +279,7 @@ class ControlApi:
     # -- serving ---------------------------------------------------------------------------
 
     def app(self) -> web.Application:
-        app = web.Application(middlewares=[self._auth], client_max_size=MAX_BODY)
+        app = web.Application(middlewares=[self._auth], client_max_size=MAX_HANDOFF_BODY)
         app.add_routes(
             [
                 web.get("/healthz", self.healthz),

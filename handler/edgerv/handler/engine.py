@@ -21,7 +21,15 @@ from typing import Any, Protocol
 
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import MonitorSpec
-from edgerv.core.handoff import HandoffError, cut_point, decode, encode, export_snapshot, restore
+from edgerv.core.handoff import (
+    HandoffError,
+    Snapshot,
+    cut_point,
+    decode,
+    encode,
+    export_snapshot,
+    restore,
+)
 from edgerv.core.monitor import CompiledMonitor, compile_monitor
 from edgerv.core.pipeline import MonitorRuntime, Router, TopicRoute, Verdict
 from edgerv.core.placement import placement_json
@@ -38,7 +46,7 @@ PRESSURE_SECONDS = 1.0
 # message would cost more than evaluating.
 SCHEDULE_SECONDS = 0.002
 WAKE_LETTERS = 512
-PREHOLD_PER_TICK = 2048  # events a scheduler round compresses for monitors being handed off
+PREHOLD_SECONDS = 0.002  # a scheduler round's time for the buffers of monitors being handed off
 
 
 class VerdictSink(Protocol):
@@ -64,9 +72,8 @@ class MonitorSlot:
     handoff: str | None = None
     released: bytes | None = None  # H1: the snapshot it sent, until the handoff commits
     first_stamps: dict[str, int] = field(default_factory=dict)  # H2: first stamp per topic
-    newest_stamps: dict[str, int] = field(default_factory=dict)  # H1: newest per topic
     cut_known: tuple[int, float] | None = None  # H1: the cut, and when it first heard of it
-    quiet_since: float = 0.0  # H1: when the last event of the monitor's topics came
+    held_at: float = 0.0  # H1: when it began to hold
     prehold: int = 0  # H1: events buffered before the hold, not yet compressed (see hold)
 
     @property
@@ -134,6 +141,9 @@ class Engine:
         self.router = Router()
         self.routes_version = 0  # bumped whenever topics or their fields change
         self.messages: dict[str, int] = {}  # topic -> messages ingested
+        # per topic: the newest stamp and when a message last came (a sender's release)
+        self.newest: dict[str, int] = {}
+        self.heard: dict[str, float] = {}
         self.ingest_lag = 0.0  # seconds between publication and ingestion, last batch
         self.waiting: dict[str, MonitorRuntime] = {}  # monitors with letters to evaluate
         self.in_handoff: dict[str, MonitorSlot] = {}  # so ingest need not scan every slot
@@ -236,29 +246,40 @@ class Engine:
                     slot.pending_since = now
                 return True
 
-            messages = self.messages
-            handing = self.in_handoff.values()
-            receiving = [s for s in handing if s.handoff == "receiving"]
-            sending = [s for s in handing if s.handoff == "sending"]
+            messages, newest, heard = self.messages, self.newest, self.heard
+            if self.in_handoff:
+                self._note_firsts(batch)
             for stamp, topic, values in batch:
                 route = routes.get(topic)
                 if route is None:
                     continue
                 messages[topic] = messages.get(topic, 0) + 1
-                for slot in receiving:  # H2 notes its first stamp on each topic (the cut)
-                    if topic not in slot.first_stamps and topic in slot.compiled.spec.topics:
-                        slot.first_stamps[topic] = stamp
-                for slot in sending:  # H1 notes how far each topic got (when to release)
-                    if topic in slot.compiled.spec.topics:
-                        slot.quiet_since = now
-                        if stamp > slot.newest_stamps.get(topic, stamp - 1):
-                            slot.newest_stamps[topic] = stamp
+                heard[topic] = now
+                if stamp > newest.get(topic, stamp - 1):
+                    newest[topic] = stamp
                 for runtime in self.router.offer_values(route, stamp, values, admit):
                     slots[runtime.name].pending_since = now if runtime.events else None
                     self.waiting[runtime.name] = runtime
                     woke = woke or len(runtime.letters) >= WAKE_LETTERS
             if woke:
                 self.ready.notify()
+
+    def taken(self, batch: Sequence[tuple[int, str, Sequence[Any]]]) -> None:
+        """Messages taken from their subscriptions, before they are merged in stamp order
+        (the ROS layer's reorder window): a receiver notes its first stamp on each topic
+        from them, a window earlier. Each is ingested after, in the same topic order."""
+        if batch and self.in_handoff:
+            with self.lock:
+                self._note_firsts(batch)
+
+    def _note_firsts(self, batch: Sequence[tuple[int, str, Sequence[Any]]]) -> None:
+        """H2 notes its first stamp on each topic of a receiving monitor (for the cut)."""
+        for slot in self.in_handoff.values():
+            firsts, topics = slot.first_stamps, slot.compiled.spec.topics
+            if slot.handoff == "receiving" and len(firsts) < len(topics):
+                for stamp, topic, _ in batch:
+                    if topic not in firsts and topic in topics:
+                        firsts[topic] = stamp
 
     def _evaluate(self) -> list[Verdict]:
         """Evaluate the letters of the monitors that have some (not all monitors: cheap)."""
@@ -366,7 +387,7 @@ class Engine:
                 raise HandoffError(f"monitor '{name}' is not running here")
             slot.epoch = epoch
             self._set_handoff(slot, "sending")
-            slot.newest_stamps, slot.cut_known, slot.quiet_since = {}, None, now
+            slot.cut_known, slot.held_at = None, now
             slot.runtime.holding = True
             # What the sort buffer holds now is all at or before any cut H2 can report
             # (H2 subscribes after this, and each topic is delivered in order): the
@@ -387,7 +408,8 @@ class Engine:
             self._set_handoff(slot, "receiving")
             self._activate(slot)
             assert slot.runtime is not None
-            slot.runtime.holding = True
+            # H2 holds its events raw: they are compressed after H1's, from H1's state
+            slot.runtime.holding, slot.runtime.speculate = True, False
             self.routes_version += 1
 
     def cut(self, name: str, epoch: int) -> int | None:
@@ -421,24 +443,27 @@ class Engine:
             slot = self._handoff_slot(name, epoch, "sending")
             rt = slot.runtime
             assert rt is not None
-            # Never below what H1 already released into the pipeline before it held: the
-            # snapshot carries the raised cut, so H2 filters with the very same one.
+            # Never below what H1 compressed: what it released into the pipeline before it
+            # held, and what its sort buffer held at the hold (compressed now, if the
+            # scheduler has not yet): the snapshot carries the raised cut, so H2 filters
+            # with the very same one.
+            self._compress_prehold(slot)
             if rt.last_released is not None:
                 cut = max(cut, rt.last_released)
             if slot.cut_known is None or slot.cut_known[0] != cut:
                 slot.cut_known = (cut, now)
-            newest = slot.newest_stamps
+            # (A topic is delivered in order: once an event past the cut came, every event
+            # at or before it did, also those that came before the hold.)
             topics = slot.compiled.spec.topics
+            newest = [self.newest.get(t, cut) for t in topics]
+            quiet_since = max([slot.held_at] + [self.heard.get(t, 0.0) for t in topics])
             if not (
-                all(newest.get(t, cut) > cut for t in topics)  # every topic is past the cut
-                or max(newest.values(), default=cut) - cut >= grace * 1e9  # the rest: quiet
-                or now - max(slot.cut_known[1], slot.quiet_since) >= grace  # nothing comes
+                all(n > cut for n in newest)  # every topic is past the cut
+                or max(newest) - cut >= grace * 1e9  # the others ran grace past it: quiet
+                or now - max(slot.cut_known[1], quiet_since) >= grace  # nothing comes
             ):
                 return None
-            self._compress_prehold(slot)
-            after = [e for e in rt.events if e[0] > cut]
-            data = encode(export_snapshot(rt, cut, epoch))
-            rt.events, rt.holding = after, True  # the rest, in case H1 must resume
+            data = encode(export_snapshot(rt, cut, epoch))  # rt keeps the events after it
             rt.letters, rt.stamps = rt.letters[:0], rt.stamps[:0]
             slot.released = data
             self._set_handoff(slot, "released")
@@ -459,14 +484,32 @@ class Engine:
 
     def adopt(self, name: str, epoch: int, data: bytes) -> None:
         """H2, step 6: take the snapshot, merge the held events after the cut, schedule."""
-        self.adopt_many(epoch, [(name, data)])
+        try:
+            snap = decode(data)
+        except HandoffError as exc:
+            raise HandoffError(f"{name}: {exc}") from None
+        if snap.monitor != name:
+            raise HandoffError(f"{name}: the snapshot is of '{snap.monitor}'")
+        self._adopt(epoch, [snap])
 
-    def adopt_many(self, epoch: int, snapshots: Sequence[tuple[str, bytes]]) -> None:
-        """:meth:`adopt` for a batch, all or nothing: every snapshot is checked and
-        restored before any monitor is scheduled. Repeating an adoption is a no-op."""
+    def adopt_many(self, epoch: int, frames: Sequence[bytes]) -> list[str]:
+        """:meth:`adopt` for a batch (snapshot frames), all or nothing: every snapshot is
+        checked and restored before any monitor is scheduled. Repeating an adoption is a
+        no-op. Returns the monitors' names."""
+        snaps = []
+        for i, data in enumerate(frames, 1):
+            try:
+                snaps.append(decode(data))  # outside the lock: the ingest goes on meanwhile
+            except HandoffError as exc:
+                raise HandoffError(f"snapshot {i} of {len(frames)}: {exc}") from None
+        self._adopt(epoch, snaps)
+        return [snap.monitor for snap in snaps]
+
+    def _adopt(self, epoch: int, snaps: Sequence[Snapshot]) -> None:
         with self.lock:
             restored = []
-            for name, data in snapshots:
+            for snap in snaps:
+                name = snap.monitor
                 slot = self._slot(name)
                 if slot.handoff is None and slot.epoch == epoch and slot.runtime is not None:
                     continue  # a repeated adoption (its answer was lost): already running
@@ -474,14 +517,12 @@ class Engine:
                 held = slot.runtime
                 assert held is not None  # a receiving slot holds what it received
                 try:
-                    snap = decode(data)
-                    if snap.epoch != epoch or snap.monitor != name:
+                    if snap.epoch != epoch:
                         raise HandoffError("the snapshot belongs to another handoff")
                     restored.append((slot, restore(slot.compiled, snap, held.events)))
                 except HandoffError as exc:
                     raise HandoffError(f"{name}: {exc}") from None
-            for slot, rt in restored:
-                self._resume(slot, rt)
+            self._resume(restored)
 
     def abort(self, name: str, epoch: int) -> str:
         """Undo a handoff on this side; what it did, as one word.
@@ -508,17 +549,19 @@ class Engine:
             if slot.handoff == "released":
                 assert slot.released is not None
                 snap = decode(slot.released)
-                self._resume(slot, restore(slot.compiled, snap, rt.events))
+                self._resume([(slot, restore(slot.compiled, snap, rt.events))])
                 return "resumed"
             self._let_go(slot)
             return "dropped"
 
-    def _resume(self, slot: MonitorSlot, rt: MonitorRuntime) -> None:
-        self.router.remove(slot.name)
-        slot.runtime, slot.released = rt, None
-        self._set_handoff(slot, None)
-        self.router.add(rt)
-        self.waiting[slot.name] = rt
+    def _resume(self, restored: Sequence[tuple[MonitorSlot, MonitorRuntime]]) -> None:
+        """Run restored runtimes in place of what their slots held."""
+        self.router.remove_many(slot.name for slot, _ in restored)
+        for slot, rt in restored:
+            slot.runtime, slot.released = rt, None
+            self._set_handoff(slot, None)
+            self.router.add(rt)
+            self.waiting[slot.name] = rt
         self.routes_version += 1
         self.ready.notify()
 
@@ -530,12 +573,12 @@ class Engine:
 
     def _precompress(self) -> None:
         """Compress, a few ms at a time, what senders buffered before their hold."""
-        budget = PREHOLD_PER_TICK
+        until = time.perf_counter() + PREHOLD_SECONDS
         for slot in self.in_handoff.values():
-            if budget <= 0:
-                break
-            budget -= slot.prehold
-            self._compress_prehold(slot)
+            if slot.prehold:
+                self._compress_prehold(slot)
+                if time.perf_counter() > until:
+                    break
 
     @staticmethod
     def _compress_prehold(slot: MonitorSlot) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import http.client
 import json
 import os
@@ -22,7 +23,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from edgerv.core.handoff import frame_sizes, split_frames
+from edgerv.core.handoff import frame_sizes, unbundle
 
 
 class MigrationFailed(Exception):
@@ -188,9 +189,10 @@ def migrate(
             time.sleep(0.005)
         mark("cut")
         while True:
-            status, bundle = _retry(
-                deadline, lambda: step(source, "release", cuts=cuts, grace=grace)
-            )
+            # the sender waits for events past the cut itself (a round trip saved a try)
+            wait = max(0.0, min(grace + 0.5, deadline - time.monotonic()))
+            release = functools.partial(step, source, "release", cuts=cuts, grace=grace, wait=wait)
+            status, bundle = _retry(deadline, release)
             if status == 200:
                 break
             mark("release (waiting for events past the cut)")
@@ -218,7 +220,7 @@ def migrate(
     with contextlib.suppress(MigrationFailed):  # a source that crashed has let go too
         _retry(deadline + timeout, lambda: step(source, "commit"))
     mark("commit")
-    sizes = [frame_sizes(data) for _, data in split_frames(bundle)]
+    sizes = [frame_sizes(frame) for frame in unbundle(bundle)]
     headers, letters = sum(h for h, _ in sizes), sum(n for _, n in sizes)
     return Moved(seconds, len(bundle), letters, headers, steps)
 

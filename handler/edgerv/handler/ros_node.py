@@ -293,7 +293,7 @@ class RosIngest:
         # The window outlives reconfigurations: draining it early would reorder.
         reorder = ReorderWindow(self.reorder_window) if self.reorder_window > 0 else None
         several = False  # one topic is delivered in order: only several need the window
-        ingest = self.engine.ingest
+        ingest, taken = self.engine.ingest, self.engine.taken
         try:
             while not self._stop.is_set():
                 if self._resubscribe and self._apply_resubscriptions():
@@ -326,6 +326,7 @@ class RosIngest:
                 batch = self._take_all(subs)
                 while batch:  # keep taking while messages keep coming, then wait again
                     if reorder is not None and (several or reorder.pending):
+                        taken(batch)  # a monitor being received learns its cut sooner
                         ingest(reorder.add(batch, time.monotonic()))
                     else:
                         ingest(batch)
