@@ -228,10 +228,14 @@ class ControlApi:
             names = [str(n) for n in body["monitors"]]
             if step in ("hold", "receive"):
                 done: list[str] = []
+                peer = body.get("peer")
                 with e.lock:
                     try:
                         for name in names:
-                            (e.hold if step == "hold" else e.receive)(name, epoch)
+                            if step == "hold":
+                                e.hold(name, epoch, peer=None if peer is None else str(peer))
+                            else:
+                                e.receive(name, epoch)
                             done.append(name)
                     except HandoffError as exc:
                         for name in done:
@@ -328,7 +332,9 @@ class ControlApi:
             raise failure[0]
 
     def stop(self) -> None:
-        if self._loop is not None:
-            self._loop.call_soon_threadsafe(self._loop.stop)
+        """Stop serving (once; later calls do nothing)."""
+        loop, self._loop = self._loop, None
+        if loop is not None:
+            loop.call_soon_threadsafe(loop.stop)
         if self._thread is not None:
             self._thread.join(timeout=10)

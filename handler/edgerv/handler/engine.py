@@ -46,6 +46,7 @@ PRESSURE_SECONDS = 1.0
 # message would cost more than evaluating.
 SCHEDULE_SECONDS = 0.002
 WAKE_LETTERS = 512
+HANDOFF_EXPIRES = 120.0  # seconds a handoff may wait for its next step before it is undone
 PREHOLD_SECONDS = 0.002  # a scheduler round's time for the buffers of monitors being handed off
 
 
@@ -74,6 +75,8 @@ class MonitorSlot:
     first_stamps: dict[str, int] = field(default_factory=dict)  # H2: first stamp per topic
     cut_known: tuple[int, float] | None = None  # H1: the cut, and when it first heard of it
     held_at: float = 0.0  # H1: when it began to hold
+    peer: str | None = None  # H1: the receiver, as the driver named it (to settle with)
+    handoff_since: float = 0.0  # when it entered its handoff state
     prehold: int = 0  # H1: events buffered before the hold, not yet compressed (see hold)
 
     @property
@@ -117,6 +120,7 @@ class MonitorSlot:
             "migrationWanted": self.migration_wanted,
             "handoff": self.handoff,
             "epoch": self.epoch,
+            "peer": self.peer if self.handoff else None,
             "placement": placement_json(spec.placement),
         }
 
@@ -299,6 +303,7 @@ class Engine:
         now = time.monotonic() if now is None else now
         with self.lock:
             self._precompress()
+            self._expire_handoffs(time.monotonic())
             for slot in self.slots.values():
                 rt = slot.runtime
                 if rt is None:
@@ -376,8 +381,12 @@ class Engine:
             raise HandoffError(f"no monitor '{name}' here")
         return slot
 
-    def hold(self, name: str, epoch: int, now: float | None = None) -> None:
-        """H1, step 2a: stop scheduling the monitor, keep buffering its events."""
+    def hold(
+        self, name: str, epoch: int, now: float | None = None, peer: str | None = None
+    ) -> None:
+        """H1, step 2a: stop scheduling the monitor, keep buffering its events.
+
+        ``peer`` names the receiver: whoever settles an interrupted handoff asks it."""
         now = time.monotonic() if now is None else now
         with self.lock:
             slot = self._slot(name)
@@ -387,7 +396,7 @@ class Engine:
                 raise HandoffError(f"monitor '{name}' is not running here")
             slot.epoch = epoch
             self._set_handoff(slot, "sending")
-            slot.cut_known, slot.held_at = None, now
+            slot.cut_known, slot.held_at, slot.peer = None, now, peer
             slot.runtime.holding = True
             # What the sort buffer holds now is all at or before any cut H2 can report
             # (H2 subscribes after this, and each topic is delivered in order): the
@@ -571,6 +580,23 @@ class Engine:
         self._set_handoff(slot, None)
         self.routes_version += 1
 
+    def _expire_handoffs(self, now: float) -> None:
+        """Undo handoffs no driver finished: a sender that released nothing resumes, a
+        receiver that adopted nothing lets go (both safe: a late step is fenced). A
+        released one waits to be settled: the receiver may have adopted it."""
+        for slot in list(self.in_handoff.values()):
+            if slot.handoff in ("sending", "receiving") and now - slot.handoff_since > (
+                HANDOFF_EXPIRES
+            ):
+                log.warning(
+                    "monitor %s: handoff %d %s for %.0f s with no next step: %s",
+                    slot.name,
+                    slot.epoch,
+                    slot.handoff,
+                    now - slot.handoff_since,
+                    self.abort(slot.name, slot.epoch),
+                )
+
     def _precompress(self) -> None:
         """Compress, a few ms at a time, what senders buffered before their hold."""
         until = time.perf_counter() + PREHOLD_SECONDS
@@ -588,7 +614,7 @@ class Engine:
         slot.prehold = 0
 
     def _set_handoff(self, slot: MonitorSlot, role: str | None) -> None:
-        slot.handoff = role
+        slot.handoff, slot.handoff_since = role, time.monotonic()
         if role is None:
             self.in_handoff.pop(slot.name, None)
         else:
@@ -612,6 +638,8 @@ class Engine:
                     slot.name: {
                         "active": slot.active,
                         "handoff": slot.handoff,
+                        "epoch": slot.epoch,
+                        "peer": slot.peer if slot.handoff else None,
                         "events": slot.events,
                         "migrationWanted": slot.migration_wanted,
                         "placement": placement_json(slot.compiled.spec.placement),

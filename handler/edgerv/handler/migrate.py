@@ -4,7 +4,9 @@ The steps of docs/protocol.md, driven from outside: the receiver subscribes and
 holds, the sender holds, the receiver reports the cut, the sender releases the
 snapshot, the receiver adopts it. Any failure before the adoption aborts both
 sides: the monitor resumes on the sender with nothing lost. Exit 0 once the
-monitor runs on the receiver, 1 with the reason otherwise, 2 on bad arguments.
+monitor runs on the receiver, 1 with the reason otherwise (it runs on the
+sender), 2 on bad arguments, 3 when the receiver did not say whether it adopted
+it: the sender holds it, active nowhere, until the same command is run again.
 """
 
 from __future__ import annotations
@@ -32,6 +34,16 @@ class MigrationFailed(Exception):
 
 class Unreachable(MigrationFailed):
     """The handler did not answer (refused, reset, timed out)."""
+
+
+class Refused(Unreachable):
+    """Nothing listens at the handler's address: it is down, and runs no monitor."""
+
+
+class Unsettled(MigrationFailed):
+    """After the release, the destination did not say whether it adopted: the source
+    holds the monitors (active nowhere) until it does. Running the same migration
+    again settles them (:func:`settle`)."""
 
 
 T = TypeVar("T")
@@ -94,7 +106,8 @@ class Handler:
                 self.close()
                 if attempt == 1 and reused and not isinstance(exc, TimeoutError):
                     continue  # the kept-alive connection had been closed: once more
-                raise Unreachable(f"{self.base} is unreachable: {exc}") from None
+                kind = Refused if isinstance(exc, ConnectionRefusedError) else Unreachable
+                raise kind(f"{self.base} is unreachable: {exc}") from None
         if check and status >= 400:
             try:
                 reason = json.loads(answer)["errors"][0]["message"]
@@ -150,14 +163,52 @@ def migrate(
     snapshot and the events it kept. (``after_release`` is a seam for tests
     that break things at that moment.)
     """
+    started = time.monotonic()
+    try:
+        return _migrate(source, destination, list(monitors), timeout, grace, after_release)
+    except Held as held:
+        # Some of them are still held from an interrupted handoff: settle that one, then
+        # move what came back to the source.
+        moved = settle(source, held.names, started + timeout)
+        here = moved.get(destination.base, [])
+        elsewhere = {p: n for p, n in moved.items() if p != destination.base}
+        if elsewhere:
+            where = "; ".join(f"{', '.join(n)} on {p}" for p, n in elsewhere.items())
+            raise MigrationFailed(f"an earlier handoff had moved them: {where}") from None
+        rest = [n for n in monitors if n not in here]
+        if not rest:
+            seconds = time.monotonic() - started
+            return Moved(seconds, 0, 0, 0, {"settle": seconds})
+        return _migrate(source, destination, rest, timeout, grace, after_release)
+
+
+class Held(MigrationFailed):
+    """The source holds some of the monitors for an earlier, interrupted handoff."""
+
+    def __init__(self, message: str, names: list[str]) -> None:
+        super().__init__(message)
+        self.names = names
+
+
+def _migrate(
+    source: Handler,
+    destination: Handler,
+    names: list[str],
+    timeout: float,
+    grace: float,
+    after_release: Callable[[], None] | None,
+) -> Moved:
     epoch = time.time_ns()
     started = time.monotonic()
     deadline = started + timeout
-    names = list(monitors)
+    per_call = min(10.0, timeout)
 
     def step(side: Handler, name: str, **body: Any) -> tuple[int, bytes]:
         body.setdefault("monitors", names)
-        return side.call(f"/v1/handoff/{name}", {"epoch": epoch, **body}, check=True)
+        wait = float(body.get("wait", 0.0))
+        return side.call(
+            f"/v1/handoff/{name}", {"epoch": epoch, **body}, check=True, timeout=per_call + wait
+        )
 
     steps: dict[str, float] = {}
 
@@ -171,7 +222,7 @@ def migrate(
         with ThreadPoolExecutor(max_workers=1) as pool:
             receiving = pool.submit(step, destination, "receive")
             try:
-                step(source, "hold")
+                step(source, "hold", peer=destination.base)
                 mark("hold")
             finally:
                 receiving.result()  # re-raises its error after the hold's
@@ -200,10 +251,14 @@ def migrate(
                 raise MigrationFailed("the sender did not release the monitors in time")
             time.sleep(0.005)
         mark("release")
-    except MigrationFailed:
+    except MigrationFailed as failed:
         for side in (source, destination):
             with contextlib.suppress(MigrationFailed):  # best effort: report the first error
                 step(side, "abort")
+        if "hold" not in steps:
+            held = _held(source, names)
+            if held:
+                raise Held(str(failed), held) from None
         raise
     if after_release is not None:
         after_release()
@@ -211,10 +266,12 @@ def migrate(
     try:
         _retry(
             deadline,
-            lambda: destination.call(f"/v1/handoff/adopt?epoch={epoch}", raw=bundle, check=True),
+            lambda: destination.call(
+                f"/v1/handoff/adopt?epoch={epoch}", raw=bundle, check=True, timeout=per_call
+            ),
         )
     except MigrationFailed as failed:
-        _settle(step, names, source, destination, deadline + timeout, failed)
+        _settle(epoch, names, source, destination, deadline + timeout, failed)
     seconds = time.monotonic() - started
     mark("adopt")
     with contextlib.suppress(MigrationFailed):  # a source that crashed has let go too
@@ -225,8 +282,50 @@ def migrate(
     return Moved(seconds, len(bundle), letters, headers, steps)
 
 
+def _decide(
+    source: Handler, receiver: Handler, epoch: int, names: Sequence[str], deadline: float
+) -> dict[str, str]:
+    """After a release: ask the receiver to abort, which answers per monitor whether it
+    adopted it (``active``) or now never will; commit the adopted ones on the source and
+    resume the others there. Returns the receiver's answers (none when it is down).
+
+    Raises Unsettled while the receiver does not answer: it may have adopted them, so
+    the source goes on holding them (at most one active copy, tested).
+    """
+
+    def call(side: Handler, step: str, monitors: Sequence[str]) -> tuple[int, bytes]:
+        body = {"epoch": epoch, "monitors": list(monitors)}
+        return side.call(f"/v1/handoff/{step}", body, check=True, timeout=_left(deadline))
+
+    try:
+        outcomes = json.loads(_retry(deadline, lambda: call(receiver, "abort", names))[1])
+        answers: dict[str, str] = outcomes["outcomes"]
+    except Refused:
+        answers = {}  # nothing listens there: it is down, and runs none of them
+    except MigrationFailed as exc:  # no answer, or an error: whether it adopted is unknown
+        raise Unsettled(
+            f"{receiver.base} did not say whether it adopted them ({exc}): "
+            f"{', '.join(names)} stay held on {source.base}, active nowhere, until it "
+            "does; run the same migration again to settle them"
+        ) from None
+    adopted = [n for n in names if answers.get(n) == "active"]
+    back = [n for n in names if n not in adopted]
+    if adopted:
+        with contextlib.suppress(MigrationFailed):  # a source that crashed has let go too
+            _retry(deadline, lambda: call(source, "commit", adopted))
+    if back:
+        try:
+            _retry(deadline, lambda: call(source, "abort", back))
+        except MigrationFailed as exc:
+            raise MigrationFailed(
+                f"the sender could not resume {', '.join(back)}: {exc} "
+                "(it keeps the snapshots: run the same migration again once it is reachable)"
+            ) from None
+    return answers
+
+
 def _settle(
-    step: Callable[..., tuple[int, bytes]],
+    epoch: int,
     names: Sequence[str],
     source: Handler,
     destination: Handler,
@@ -235,34 +334,71 @@ def _settle(
 ) -> None:
     """The adoption failed or its answer was lost: find out, then commit or resume.
 
-    Per monitor: one the destination runs (it adopted; the answer was lost) is
-    committed on the source; every other one resumes on the source. Returns when
-    all run on the destination; raises MigrationFailed when some resumed.
+    Returns when the destination runs them all; raises MigrationFailed when some
+    resumed on the source, Unsettled while the destination does not answer.
     """
+    answers = _decide(source, destination, epoch, names, deadline)
+    back = [n for n in names if answers.get(n) != "active"]
+    if back:
+        state = ", ".join(f"{n} {answers.get(n, 'down')}" for n in sorted(back))
+        raise MigrationFailed(f"{failed}; the destination had {state}: the sender resumed those")
+
+
+def _left(deadline: float) -> float:
+    """A call's timeout: what is left until the deadline, within 0.5 to 10 seconds."""
+    return max(0.5, min(10.0, deadline - time.monotonic()))
+
+
+def _held(source: Handler, names: Sequence[str]) -> list[str]:
+    """Those of ``names`` the source holds for a handoff (none if it does not answer)."""
     try:
-        outcomes = json.loads(_retry(deadline, lambda: step(destination, "abort"))[1])["outcomes"]
+        listing = source.get("/v1/monitors", timeout=5.0)["monitors"]
     except MigrationFailed:
-        outcomes = {}  # unreachable: treated as crashed, whatever it held is gone
-    adopted = [n for n in names if outcomes.get(n) == "active"]
-    back = [n for n in names if n not in adopted]
-    if not back:
-        return  # it adopted them all after all
-    if adopted:
-        with contextlib.suppress(MigrationFailed):
-            _retry(deadline, lambda: step(source, "commit", monitors=adopted))
-    try:
-        _retry(deadline, lambda: step(source, "abort", monitors=back))
-    except MigrationFailed as exc:
-        raise MigrationFailed(
-            f"{failed}; and the sender could not resume them: {exc} "
-            "(it keeps the snapshots: abort the handoff there once it is reachable)"
-        ) from None
-    state = (
-        "unreachable"
-        if not outcomes
-        else ", ".join(f"{n} {o}" for n, o in sorted(outcomes.items()) if n in back)
-    )
-    raise MigrationFailed(f"{failed}; the destination was {state}: the sender resumed those")
+        return []
+    return [m["name"] for m in listing if m["name"] in names and m.get("handoff")]
+
+
+def settle(source: Handler, names: Sequence[str], deadline: float) -> dict[str, list[str]]:
+    """Settle the handoffs ``source`` still holds some of ``names`` for (its driver died or
+    the receiver did not answer): those that sent nothing yet resume on the source (and
+    the receiver lets go); of those released, the receiver it recorded says which it
+    adopted: those commit, the others resume. Returns receiver -> monitors it runs now.
+    Raises Unsettled while such a receiver does not answer.
+    """
+    listing = source.get("/v1/monitors", timeout=_left(deadline))["monitors"]
+    groups: dict[tuple[int, str | None, str], list[str]] = {}
+    for m in listing:
+        if m["name"] in names and m.get("handoff") in ("sending", "released"):
+            key = (int(m["epoch"]), m.get("peer"), str(m["handoff"]))
+            groups.setdefault(key, []).append(str(m["name"]))
+    moved: dict[str, list[str]] = {}
+    for (epoch, peer, state), group in groups.items():
+        receiver = Handler(peer, source.token) if peer else None
+        if state == "sending":  # nothing left the source: it resumes; the receiver drops
+            if receiver is not None:
+                with contextlib.suppress(MigrationFailed):
+                    receiver.call(
+                        "/v1/handoff/abort",
+                        {"epoch": epoch, "monitors": group},
+                        timeout=_left(deadline),
+                    )
+            source.call(
+                "/v1/handoff/abort",
+                {"epoch": epoch, "monitors": group},
+                check=True,
+                timeout=_left(deadline),
+            )
+            continue
+        if receiver is None:
+            raise Unsettled(
+                f"{', '.join(group)} were released by {source.base} to a receiver it does "
+                "not know: abort the handoff there once you know the receiver does not run them"
+            )
+        answers = _decide(source, receiver, epoch, group, deadline)
+        adopted = [n for n in group if answers.get(n) == "active"]
+        if adopted:
+            moved.setdefault(receiver.base, []).extend(adopted)
+    return moved
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -305,6 +441,9 @@ def run(args: argparse.Namespace) -> int:
             args.timeout,
             args.grace,
         )
+    except Unsettled as exc:
+        print(f"edgerv migrate: {what}: unsettled: {exc}", file=sys.stderr)
+        return 3
     except MigrationFailed as exc:
         print(f"edgerv migrate: {what} stays on {args.source}: {exc}", file=sys.stderr)
         return 1

@@ -34,7 +34,7 @@ from edgerv.core.placement import (
     placement_from_json,
     plan,
 )
-from edgerv.handler.migrate import Handler, MigrationFailed, migrate
+from edgerv.handler.migrate import Handler, MigrationFailed, migrate, settle
 
 log = logging.getLogger("edgerv.orchestrate")
 
@@ -163,6 +163,7 @@ class Orchestrator:
     def round(self) -> list[dict[str, Any]]:
         """Poll, decide, act; return what was done, one record per action."""
         loads = self.poll()
+        done = self._settle(loads)
         reports, placements, where = build_reports(loads, self.previous)
         for m, p in placements.items():
             if p.tier is not None and p.tier not in self.config.tiers and m not in self.warned:
@@ -179,7 +180,6 @@ class Orchestrator:
             # A silent handler may run monitors the others only define: starting them
             # elsewhere could make two active copies. Only moves between those that answered.
             moves = [m for m in moves if m.source]
-        done = []
         for start in (m for m in moves if not m.source):
             client = self.clients[where[start.destination]]
             started = time.monotonic()
@@ -211,6 +211,24 @@ class Orchestrator:
             except MigrationFailed as exc:
                 record["ok"], record["error"] = False, str(exc)
             record["ms"] = round((time.monotonic() - started) * 1000, 1)
+            done.append(record)
+        return done
+
+    def _settle(self, loads: Mapping[Target, Mapping[str, Any]]) -> list[dict[str, Any]]:
+        """Monitors a handler still holds released for an interrupted handoff (a driver
+        that died, a receiver that did not answer): ask their receiver, commit or resume.
+        Until then they stay in the handoff, and the policy leaves them alone."""
+        done = []
+        for target, load in loads.items():
+            names = [m for m, d in load["monitors"].items() if d.get("handoff") == "released"]
+            if not names:
+                continue
+            client = self.clients[target]
+            record: dict[str, Any] = {"monitors": names, "from": client.base, "settle": True}
+            try:
+                record.update(ok=True, moved=settle(client, names, time.monotonic() + self.timeout))
+            except MigrationFailed as exc:
+                record["ok"], record["error"] = False, str(exc)
             done.append(record)
         return done
 

@@ -1,0 +1,174 @@
+"""`edgerv migrate` over real HTTP between two handlers' APIs (engines fed directly, no ROS),
+with a TCP gate in front of the receiver that can cut the link: the failures after the
+release, where the driver cannot know whether the receiver adopted.
+
+The invariant: at most one active copy of a monitor, whatever is lost; and running the
+same migration again settles what a lost answer left held.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import pytest
+from prometheus_client import CollectorRegistry
+
+from edgerv.handler.api import ControlApi
+from edgerv.handler.engine import HANDOFF_EXPIRES, Engine
+from edgerv.handler.migrate import Handler, MigrationFailed, Unsettled, migrate
+from helpers import compiled
+
+TOKEN = "test-token"
+
+
+class Gate:
+    """A TCP forwarder to ``port`` on loopback. ``mode``: ``pass``; ``mute`` (requests
+    go through, answers are dropped: the receiver acts, the driver never hears);
+    ``black`` (nothing goes through)."""
+
+    def __init__(self, port: int) -> None:
+        self.target = port
+        self.mode = "pass"
+        self.server = socket.create_server(("127.0.0.1", 0))
+        self.port = self.server.getsockname()[1]
+        self.sockets: list[socket.socket] = []
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, _ = self.server.accept()
+            except OSError:
+                return
+            upstream = socket.create_connection(("127.0.0.1", self.target))
+            self.sockets += [client, upstream]
+            threading.Thread(
+                target=self._pump, args=(client, upstream, "request"), daemon=True
+            ).start()
+            threading.Thread(
+                target=self._pump, args=(upstream, client, "answer"), daemon=True
+            ).start()
+
+    def _pump(self, src: socket.socket, dst: socket.socket, what: str) -> None:
+        with contextlib.suppress(OSError):
+            while data := src.recv(65536):
+                if self.mode == "pass" or (self.mode == "mute" and what == "request"):
+                    dst.sendall(data)
+
+    def close(self) -> None:
+        self.server.close()
+        for s in self.sockets:
+            with contextlib.suppress(OSError):
+                s.close()
+
+
+@dataclass
+class Pair:
+    edge: Engine
+    cloud: Engine
+    apis: list[ControlApi]
+    gate: Gate
+
+    def source(self) -> Handler:
+        return Handler(f"127.0.0.1:{self.apis[0].port}", TOKEN)
+
+    def destination(self) -> Handler:  # through the gate
+        return Handler(f"127.0.0.1:{self.gate.port}", TOKEN)
+
+    def active(self) -> list[str]:
+        return [e.name for e in (self.edge, self.cloud) if e.slots["m"].active]
+
+
+@pytest.fixture
+def pair() -> Iterator[Pair]:
+    edge, cloud = Engine("edge", flush_after=1e9), Engine("cloud", flush_after=1e9)
+    monitor = compiled("always (a -> x < 5)", {"a": "bool", "x": "float"})
+    edge.put(monitor, active=True)
+    cloud.put(monitor, active=False)
+    apis = []
+    for e in (edge, cloud):
+        api = ControlApi(e, CollectorRegistry(), TOKEN, on_change=lambda: None)
+        api.start("127.0.0.1", 0)
+        apis.append(api)
+    gate = Gate(apis[1].port)
+    stop = threading.Event()
+
+    def publish() -> None:  # both hosts hear the robot's two topics
+        stamp = 0
+        while not stop.is_set():
+            stamp += 1_000_000
+            batch = [(stamp, "/a", [True]), (stamp + 500_000, "/x", [float(stamp % 7)])]
+            for e in (edge, cloud):
+                e.ingest(batch)
+            time.sleep(0.002)
+
+    feeder = threading.Thread(target=publish, daemon=True)
+    feeder.start()
+    yield Pair(edge, cloud, apis, gate)
+    stop.set()
+    feeder.join()
+    gate.close()
+    for api in apis:
+        api.stop()
+
+
+def test_an_adoption_whose_answer_is_lost_leaves_one_copy_and_settles(pair: Pair) -> None:
+    def partition() -> None:
+        pair.gate.mode = "mute"  # the adoption reaches the cloud; its answer does not come
+
+    with pytest.raises(Unsettled, match="did not say whether it adopted them"):
+        migrate(pair.source(), pair.destination(), ["m"], 1.0, 0.5, after_release=partition)
+    assert pair.active() == ["cloud"]  # it adopted; the edge did not resume: one copy
+    assert pair.edge.slots["m"].handoff == "released"
+    pair.gate.mode = "pass"
+    moved = migrate(pair.source(), pair.destination(), ["m"], 5.0, 0.5)  # the same command
+    assert "settle" in moved.steps and pair.active() == ["cloud"]
+    assert pair.edge.slots["m"].handoff is None and pair.edge.slots["m"].runtime is None
+
+
+def test_an_adoption_that_never_arrived_leaves_none_and_settles(pair: Pair) -> None:
+    def partition() -> None:
+        pair.gate.mode = "black"
+
+    with pytest.raises(Unsettled):
+        migrate(pair.source(), pair.destination(), ["m"], 1.0, 0.5, after_release=partition)
+    assert pair.active() == []  # held on the edge, received on the cloud: active nowhere
+    pair.gate.mode = "pass"
+    moved = migrate(pair.source(), pair.destination(), ["m"], 5.0, 0.5)
+    assert "settle" not in moved.steps and moved.letters > 0  # resumed, then moved afresh
+    assert pair.active() == ["cloud"]
+
+
+def test_a_receiver_that_is_down_after_the_release_lets_the_sender_resume(pair: Pair) -> None:
+    destination = Handler(f"127.0.0.1:{pair.apis[1].port}", TOKEN)  # no gate: refused
+
+    with pytest.raises(MigrationFailed, match="down: the sender resumed") as failed:
+        migrate(pair.source(), destination, ["m"], 1.0, 0.5, after_release=pair.apis[1].stop)
+    assert not isinstance(failed.value, Unsettled)
+    assert pair.active() == ["edge"] and pair.edge.slots["m"].handoff is None
+
+
+def test_a_handoff_no_driver_finishes_is_undone_where_that_is_safe() -> None:
+    edge, cloud = Engine("edge"), Engine("cloud")
+    monitor = compiled("always (a -> x < 5)", {"a": "bool", "x": "float"})
+    edge.put(monitor, active=True)
+    cloud.put(monitor, active=False)
+    edge.hold("m", 1)
+    cloud.receive("m", 1)
+    for e in (edge, cloud):
+        e.slots["m"].handoff_since -= HANDOFF_EXPIRES + 1  # its driver died long ago
+        e.tick()
+    assert edge.slots["m"].active and edge.slots["m"].handoff is None  # resumed
+    assert cloud.slots["m"].runtime is None and cloud.slots["m"].handoff is None  # dropped
+    edge.hold("m", 2)
+    cloud.receive("m", 2)
+    edge.ingest([(1, "/a", [True]), (2, "/x", [1.0])])
+    assert edge.release("m", 2, cut=0, grace=0.0, now=0.0) is not None
+    edge.slots["m"].handoff_since -= HANDOFF_EXPIRES + 1
+    edge.tick()
+    assert edge.slots["m"].handoff == "released"  # the cloud may have adopted: not undone
