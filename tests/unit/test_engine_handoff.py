@@ -241,3 +241,18 @@ def test_a_batch_is_adopted_all_or_nothing() -> None:
     assert h2.slots["a"].active and h2.abort("a", 3) == "active"
     with pytest.raises(HandoffError, match="a: the snapshot is of 'b'"):
         h2.adopt("a", 3, good_b)
+
+
+def test_a_receiver_takes_its_first_stamps_from_what_it_took() -> None:
+    """The ROS layer reports what it took before its reorder window holds it: the cut is
+    known a window earlier, and stays what it was once every topic has a first stamp."""
+    e = Engine("h2", flush_after=1e9)
+    e.put(monitor(), active=False)
+    e.taken([(5, "/a", [True])])  # not receiving yet: nothing noted
+    e.receive("m", 1)
+    e.taken([(6, "/a", [True])])
+    assert e.cut("m", 1) is None  # /x not heard yet
+    e.taken([(7, "/x", [1.0]), (9, "/a", [False])])
+    assert e.cut("m", 1) == 7
+    e.ingest([(6, "/a", [True]), (7, "/x", [1.0]), (9, "/a", [False])])  # the same, later
+    assert e.cut("m", 1) == 7 and len(e.slots["m"].runtime.events) == 3  # type: ignore[union-attr]

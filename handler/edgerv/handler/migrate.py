@@ -157,11 +157,12 @@ def migrate(
 
     Up to the release, any failure aborts both sides: the monitors resume on the
     source. After it, the destination's adoption decides who owns each monitor
-    (docs/protocol.md, "Failures"): adopted -> the source commits (lets go);
-    not adopted, or the destination stays unreachable until the deadline (it
-    crashed) -> the destination is fenced and the source resumes from the
-    snapshot and the events it kept. (``after_release`` is a seam for tests
-    that break things at that moment.)
+    (docs/protocol.md, "Failures"): adopted -> the source commits (lets go); not
+    adopted, or the destination down (its port refuses) -> the destination is
+    fenced and the source resumes from the snapshot and the events it kept; no
+    answer -> Unsettled: the source keeps holding them. Monitors the source still
+    holds from such an interrupted handoff are settled first, then moved.
+    (``after_release`` is a seam for tests that break things at that moment.)
     """
     started = time.monotonic()
     try:
@@ -317,9 +318,9 @@ def _decide(
         try:
             _retry(deadline, lambda: call(source, "abort", back))
         except MigrationFailed as exc:
-            raise MigrationFailed(
-                f"the sender could not resume {', '.join(back)}: {exc} "
-                "(it keeps the snapshots: run the same migration again once it is reachable)"
+            raise Unsettled(
+                f"the sender could not resume {', '.join(back)}: {exc} (it keeps their "
+                "snapshots: run the same migration again once it is reachable)"
             ) from None
     return answers
 
