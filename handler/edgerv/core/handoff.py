@@ -3,8 +3,10 @@
 The protocol (the paper's section V, Fig. 3; docs/protocol.md) hands a monitor
 from H1 to H2. This module is its data side:
 
-* While the handoff runs, both handlers *hold* the monitor: they buffer its raw
-  events without compressing or evaluating them (``MonitorRuntime.holding``).
+* While the handoff runs, both handlers *hold* the monitor: they buffer its
+  events and evaluate none (``MonitorRuntime.holding``). H1 still compresses
+  each on arrival, ahead (``MonitorRuntime.ahead``): at the cut, the letters up
+  to it are ready (:meth:`MonitorRuntime.cover`).
 * **The cut.** H2 reports, per topic of the monitor, the stamp of the first
   event it received. The cut ``T`` is the largest of them (:func:`cut_point`).
   H1 covers every event stamped ``<= T``; H2 drops its own events stamped
@@ -31,12 +33,13 @@ from H1 to H2. This module is its data side:
   as well, on its own snapshot, to resume when the handoff is undone after it
   released (docs/protocol.md).
 
-:func:`encode` and :func:`decode` give the snapshot's wire form (``ERV2``): a
-frame, a JSON header, then the letters run-length encoded (each run's letter as
-16 bits, then each run's length as 32 bits) and the kept stamps as varint (index
-gap, stamp delta) pairs, each section deflated.
-A trace whose letters change every few dozen events costs well under a bit an
-event. :func:`decode` checks everything and raises :class:`HandoffError`.
+:func:`encode` and :func:`decode` give a snapshot's frame (``ERV3``): a JSON
+header, then the letters run-length encoded (each run's letter as 16 bits, then
+each run's length as 32 bits) and the kept stamps as varint (index gap, stamp
+delta) pairs. :func:`bundle` deflates a batch's frames as one stream (``ERVB``),
+:func:`unbundle` splits it again. A trace whose letters change every few dozen
+events costs well under a bit an event. :func:`decode` and :func:`unbundle`
+check everything and raise :class:`HandoffError`.
 """
 
 from __future__ import annotations
