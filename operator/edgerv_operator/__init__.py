@@ -1,5 +1,5 @@
 """The edgerv Kubernetes operator (Kopf). Never imports rclpy.
 
-Its handlers arrive with the operator issue; the package exists now so that the
-layering contract (`make lint`) already guards it.
+``monitors`` holds the pure parts (documents, placement, status), ``config`` the
+settings, ``handlers`` the Kopf glue.
 """

@@ -16,10 +16,14 @@ What ``up`` does, in order (each step is skipped when already done):
    reach each other over ``tests/netlab/linkdelay.py``, a user-space link that
    holds each packet ``EDGERV_LINK_DELAY_MS`` (20 ms) each way (no netem here).
    Pod networking is the CNI bridge plugin (a subnet per node, no routes
-   between nodes): edgerv's pods use the host network of their node;
+   between the pod subnets; pods reach other nodes' addresses masqueraded as
+   their node's): edgerv's handlers use the host network of their node. There is
+   no kube-proxy: one NAT rule per node gives pods the ``kubernetes`` Service
+   (10.96.0.1:443, the API server), which in-cluster clients (the operator) use;
 5. images: a Debian base made with debootstrap and ``docker import``, the
    project's images built FROM it by Docker (``images/``) and imported into
-   each node's containerd: ``edgerv/handler:dev``, and the pause image;
+   each node's containerd: ``edgerv/handler:dev``, ``edgerv/operator:dev``, and
+   the pause image;
 6. labels ``edgerv.io/tier=edge`` / ``cloud``; waits until both nodes are Ready.
 
 ``down`` stops everything ``up`` started (recorded in ``.cluster/pids``),
@@ -49,6 +53,7 @@ LINKDELAY = ROOT / "tests" / "netlab" / "linkdelay.py"
 DELAY_MS = float(os.environ.get("EDGERV_LINK_DELAY_MS", "20"))
 PAUSE_IMAGE = "registry.k8s.io/pause:3.10"
 HANDLER_IMAGE = "edgerv/handler:dev"
+OPERATOR_IMAGE = "edgerv/operator:dev"
 BASE_IMAGE = "edgerv/base:bookworm"
 SERVICE_CIDR = "10.96.0.0/16"
 API_PORT = 6443
@@ -328,6 +333,7 @@ def node_network() -> None:
             sh("ip", "link", "set", host_if, "up")
             sh("ip", "-n", ns, "addr", "add", f"10.79.{i}.2/30", "dev", node_if)
             sh("ip", "-n", ns, "link", "set", node_if, "up")
+            api_service(ns, f"10.79.{i}.1")
     if not alive("linkdelay"):
         start("linkdelay", [sys.executable, str(LINKDELAY), "ervkle", "ervklc", str(DELAY_MS)])
         wait(
@@ -341,6 +347,20 @@ def node_network() -> None:
             sh("ip", "link", "set", dev, "netns", ns)
             sh("ip", "-n", ns, "addr", "add", f"{NODES[node]['link']}/24", "dev", dev)
             sh("ip", "-n", ns, "link", "set", dev, "up", "multicast", "on")
+
+
+def api_service(ns: str, host: str) -> None:
+    """The one Service pods need without kube-proxy: ``kubernetes`` (10.96.0.1:443) to
+    the API server, for host-network pods (OUTPUT) and pod-network pods (PREROUTING);
+    and routes to the other nodes."""
+    sh("ip", "-n", ns, "route", "add", "10.96.0.1/32", "via", host)  # routed, then rewritten
+    # and the other nodes' addresses through this host (the management network; the
+    # robot's traffic between the nodes takes the delayed link)
+    sh("ip", "-n", ns, "route", "add", "10.79.0.0/16", "via", host)
+    for chain in ("OUTPUT", "PREROUTING"):
+        sh("ip", "netns", "exec", ns, "iptables", "-t", "nat", "-A", chain,
+           "-d", "10.96.0.1/32", "-p", "tcp", "--dport", "443",
+           "-j", "DNAT", "--to-destination", f"{host}:{API_PORT}")  # fmt: skip
 
 
 def node_dirs(node: str) -> Path:
@@ -393,7 +413,8 @@ def containerd(node: str) -> Path:
                         "type": "bridge",
                         "bridge": "cni0",
                         "isGateway": True,
-                        "ipMasq": False,
+                        "isDefaultGateway": True,
+                        "ipMasq": True,  # pods reach the other nodes as their node
                         "ipam": {
                             "type": "host-local",
                             "ranges": [[{"subnet": NODES[node]["pods"]}]],
@@ -504,8 +525,9 @@ def base_image() -> None:
     tar.wait()
 
 
-def handler_image() -> Path:
-    """Build edgerv/handler:dev from the working tree; return the saved image (a tar)."""
+def images() -> list[Path]:
+    """Build edgerv/handler:dev and edgerv/operator:dev from the working tree; return the
+    saved images (tars)."""
     context = CACHE / "image-context"
     wheels = context / "wheels"
     wheels.mkdir(parents=True, exist_ok=True)
@@ -521,20 +543,24 @@ def handler_image() -> Path:
             "--quiet",
             "--wheel-dir",
             str(wheels),
-            f"{ROOT}[ros]",
+            f"{ROOT}[ros,operator]",
         ],
         check=True,
     )
-    log(f"docker build {HANDLER_IMAGE}")
-    subprocess.run(
-        ["docker", "build", "--quiet", "--network", "host", "--build-arg", f"BASE={BASE_IMAGE}",
-         "-t", HANDLER_IMAGE, "-f", str(ROOT / "images" / "handler" / "Dockerfile"), str(context)],
-        check=True, stdout=subprocess.DEVNULL,
-    )  # fmt: skip
-    out = STATE / "images" / "handler.tar"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    subprocess.run(["docker", "save", "-o", str(out), HANDLER_IMAGE], check=True)
-    return out
+    tars = []
+    for image, kind in ((HANDLER_IMAGE, "handler"), (OPERATOR_IMAGE, "operator")):
+        log(f"docker build {image}")
+        subprocess.run(
+            ["docker", "build", "--quiet", "--network", "host", "--build-arg",
+             f"BASE={BASE_IMAGE}", "-t", image, "-f", str(ROOT / "images" / kind / "Dockerfile"),
+             str(context)],
+            check=True, stdout=subprocess.DEVNULL,
+        )  # fmt: skip
+        out = STATE / "images" / f"{kind}.tar"
+        out.parent.mkdir(parents=True, exist_ok=True)
+        subprocess.run(["docker", "save", "-o", str(out), image], check=True)
+        tars.append(out)
+    return tars
 
 
 def pause_image(bins: Path) -> Path:
@@ -639,7 +665,7 @@ def up() -> None:
     log("images")
     docker_ready()
     base_image()
-    tars = [pause_image(bins), handler_image()]
+    tars = [pause_image(bins), *images()]
     load_images(tars)
     for node in NODES:
         kubelet(node, bins)

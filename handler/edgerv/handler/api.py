@@ -46,6 +46,11 @@ MAX_WAIT = 5.0  # seconds a release call may wait for events past the cut
 RELEASE_POLL = 0.002  # how often it looks again meanwhile
 
 
+def _active(request: web.Request) -> bool:
+    """``?active=false``: define a monitor without running it here (it runs elsewhere)."""
+    return request.query.get("active", "true").lower() not in ("false", "0", "no")
+
+
 def _errors(diagnostics: list[Diagnostic], status: int = 400) -> web.Response:
     body = {
         "errors": [
@@ -172,10 +177,11 @@ class ControlApi:
             return _message(
                 409, f"monitor '{clash[0]}' exists; PUT /v1/monitors/{clash[0]} replaces it"
             )
+        active = _active(request)
         for c in compiled:
-            self.engine.put(c, active=True)
+            self.engine.put(c, active=active)
         self.on_change()
-        log.info("added %s", ", ".join(c.name for c in compiled))
+        log.info("added %s%s", ", ".join(c.name for c in compiled), "" if active else " (idle)")
         return web.json_response({"created": [c.name for c in compiled]}, status=201)
 
     async def put_monitor(self, request: web.Request) -> web.Response:
@@ -185,7 +191,7 @@ class ControlApi:
             return problem
         if [c.name for c in compiled] != [name]:
             return _message(400, f"the body must hold exactly one Monitor named '{name}'")
-        created = self.engine.put(compiled[0], active=True)
+        created = self.engine.put(compiled[0], active=_active(request))
         self.on_change()
         log.info("%s %s", "added" if created else "replaced", name)
         return web.json_response({"name": name, "created": created}, status=201 if created else 200)

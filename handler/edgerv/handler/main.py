@@ -66,9 +66,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--name", required=True, help="this handler's name (e.g. the machine's)")
     p.add_argument(
         "--monitors",
-        required=True,
         metavar="FILE_OR_DIR",
-        help="Monitor YAML documents: a file or a directory of .yaml files",
+        help="Monitor YAML documents: a file or a directory of .yaml files (without it, "
+        "the handler starts with none: they come through the API, e.g. from the operator)",
     )
     p.add_argument(
         "--active",
@@ -129,9 +129,16 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_INPUT
-    specs, diagnostics = read_monitors(args.monitors)
-    if not Path(args.monitors).exists():
+    specs, diagnostics = read_monitors(args.monitors) if args.monitors else ([], [])
+    if args.monitors and not Path(args.monitors).exists():
         print("\n".join(d.render() for d in diagnostics), file=sys.stderr)
+        return EXIT_INPUT
+    if not args.monitors and not args.listen:
+        print(
+            "edgerv handler: error: without --monitors the monitors come through the API: "
+            "give --listen HOST:PORT",
+            file=sys.stderr,
+        )
         return EXIT_INPUT
     names = {s.name for s in specs}
     if args.active in ("all", "none"):

@@ -98,7 +98,9 @@ class Handler:
             reused = self._conn is not None and self._conn.sock is not None
             conn = self._connection(timeout)
             try:
-                conn.request(method, path, body=data if method == "POST" else None, headers=headers)
+                conn.request(
+                    method, path, body=data if method in ("POST", "PUT") else None, headers=headers
+                )
                 resp = conn.getresponse()
                 status, answer = resp.status, resp.read()
                 break
