@@ -19,7 +19,7 @@ from typing import Any
 import kopf
 import kubernetes
 
-from edgerv.handler.migrate import Handler, MigrationFailed
+from edgerv.handler.migrate import Handler, MigrationFailed, Rejected
 from edgerv_operator.config import ConfigError, OperatorConfig
 from edgerv_operator.monitors import (
     HandlerPod,
@@ -136,9 +136,11 @@ def place(cfg: OperatorConfig, namespace: str, name: str, spec: dict[str, Any]) 
         for p in sorted(pods, key=lambda p: p == target):  # idle everywhere first, then run
             define(cfg, p, hname, document, active=p == target)
         return status_of({p: report(cfg, p, hname) for p in pods})
-    except MigrationFailed as exc:
-        if "(HTTP 4" in str(exc):  # the handler refuses the definition: fix the resource
+    except Rejected as exc:
+        if exc.status < 500:  # the handler refuses the definition: fix the resource
             raise kopf.PermanentError(str(exc)) from None
+        raise kopf.TemporaryError(str(exc), delay=10) from None
+    except MigrationFailed as exc:  # unreachable for now
         raise kopf.TemporaryError(str(exc), delay=10) from None
 
 

@@ -171,6 +171,8 @@ def test_missing_files_and_bad_arguments(monitors: Path, tmp_path: Path) -> None
     proc = edgerv("check", monitors)
     assert proc.returncode == 2 and "the following arguments are required: trace" in proc.stderr
     assert edgerv("--version").stdout.strip() == "edgerv 0.1.0"
+    proc = edgerv("handler", "--name", "h")  # no monitors and no API to receive them by
+    assert proc.returncode == 2 and "give --listen HOST:PORT" in proc.stderr
 
 
 def test_warnings_do_not_fail_the_check(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -36,6 +36,14 @@ class Unreachable(MigrationFailed):
     """The handler did not answer (refused, reset, timed out)."""
 
 
+class Rejected(MigrationFailed):
+    """The handler answered with an HTTP error."""
+
+    def __init__(self, message: str, status: int) -> None:
+        super().__init__(message)
+        self.status = status
+
+
 class Refused(Unreachable):
     """Nothing listens at the handler's address: it is down, and runs no monitor."""
 
@@ -115,7 +123,7 @@ class Handler:
                 reason = json.loads(answer)["errors"][0]["message"]
             except (ValueError, KeyError, IndexError, TypeError):
                 reason = answer[:200].decode(errors="replace")
-            raise MigrationFailed(f"{self.base}{path}: {reason} (HTTP {status})")
+            raise Rejected(f"{self.base}{path}: {reason} (HTTP {status})", status)
         return status, answer
 
     def get(self, path: str, timeout: float = 10.0) -> Any:
