@@ -21,6 +21,7 @@ class OperatorConfig:
     port: int  # the handlers' control API port (host networking: on each node's address)
     token: str  # the handlers' EDGERV_TOKEN
     tiers: tuple[str, ...]  # lowest first: a monitor without placement.tier starts on the first
+    placement_seconds: float = 5.0  # between rounds of the placement policy; 0: none
 
     @classmethod
     def from_env(cls, env: Mapping[str, str] | None = None) -> OperatorConfig:
@@ -44,10 +45,21 @@ class OperatorConfig:
         text = env.get("EDGERV_HANDLER_PORT", "8470")
         if not text.isdigit() or not 1 <= int(text) <= 65535:
             raise ConfigError(f"EDGERV_HANDLER_PORT: '{text}' is not a port number (1-65535)")
+        every = env.get("EDGERV_PLACEMENT_SECONDS", "5")
+        try:
+            placement_seconds = float(every)
+        except ValueError:
+            placement_seconds = -1.0
+        if not 0 <= placement_seconds <= 3600:
+            raise ConfigError(
+                f"EDGERV_PLACEMENT_SECONDS: '{every}' is not a number of seconds from 0 "
+                "(no placement rounds) to 3600"
+            )
         return cls(
             namespace=namespace,
             selector=env.get("EDGERV_HANDLER_SELECTOR", DEFAULT_SELECTOR),
             port=int(text),
             token=token,
             tiers=tiers,
+            placement_seconds=placement_seconds,
         )

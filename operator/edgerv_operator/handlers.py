@@ -14,12 +14,15 @@ import contextlib
 import json
 import logging
 import os
+import threading
 from typing import Any
 
 import kopf
 import kubernetes
 
+from edgerv.core.placement import PolicyConfig
 from edgerv.handler.migrate import Handler, MigrationFailed, Rejected
+from edgerv.handler.orchestrate import Orchestrator, Target
 from edgerv_operator.config import ConfigError, OperatorConfig
 from edgerv_operator.monitors import (
     HandlerPod,
@@ -36,6 +39,9 @@ STATUS_SECONDS = 5.0
 _config: OperatorConfig | None = None
 
 
+_stop = threading.Event()
+
+
 @kopf.on.startup()
 def startup(settings: kopf.OperatorSettings, **_: Any) -> None:
     global _config
@@ -48,6 +54,31 @@ def startup(settings: kopf.OperatorSettings, **_: Any) -> None:
         kubernetes.config.load_incluster_config()
     except kubernetes.config.ConfigException:  # outside a cluster: $KUBECONFIG, as read now
         kubernetes.config.load_kube_config(config_file=os.environ.get("KUBECONFIG"))
+    if _config.placement_seconds > 0:
+        _stop.clear()
+        threading.Thread(
+            target=placement_rounds, args=(_config,), name="edgerv-placement", daemon=True
+        ).start()
+
+
+@kopf.on.cleanup()
+def cleanup(**_: Any) -> None:
+    _stop.set()
+
+
+def placement_rounds(cfg: OperatorConfig) -> None:
+    """The placement policy over the cluster's handlers (docs/protocol.md): monitors move
+    up a tier when a handler is under pressure and back down when it is calm, by the
+    handoff. Starting monitors stays the resources' handlers' job."""
+    policy = Orchestrator([], PolicyConfig(tiers=cfg.tiers), cfg.token, starts=False)
+    while not _stop.wait(cfg.placement_seconds):
+        try:
+            pods = handler_pods(cfg)
+            policy.set_targets([Target(p.tier, p.address) for p in pods if p.tier in cfg.tiers])
+            for record in policy.round():
+                log.info("placement: %s", json.dumps(record))
+        except Exception:  # a failed round must not end the rounds
+            log.exception("placement round failed")
 
 
 SERVICE_ACCOUNT = "/var/run/secrets/kubernetes.io/serviceaccount/token"

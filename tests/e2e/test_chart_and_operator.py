@@ -87,7 +87,14 @@ def namespace(cluster: Cluster) -> Iterator[str]:
     """A namespace with the chart installed (handlers only: the test runs the operator)."""
     ns = f"edgerv-e2e-{uuid.uuid4().hex[:6]}"
     try:
-        install(cluster, RELEASE, ns, "operator.enabled=false", f"token.value={TOKEN}")
+        install(
+            cluster,
+            RELEASE,
+            ns,
+            "operator.enabled=false",
+            f"token.value={TOKEN}",
+            "handler.extraArgs={--flush-after,3600}",  # a long sort window stays full
+        )
         yield ns
     finally:
         unfinalize(cluster)
@@ -213,6 +220,30 @@ def test_a_monitor_applied_runs_on_the_edge_and_reports_its_verdicts(
         "the edge handler to forget it",
         lambda: handler_get(cluster, namespace, "edge", path) == 404,
     )
+
+
+def test_a_monitor_under_pressure_moves_up_to_the_cloud(
+    cluster: Cluster, namespace: str, operator: KopfRunner
+) -> None:
+    """Its 1,000-event sort window fills at 50 messages/s and stays over half full (the
+    handlers release partial windows after an hour only): the edge handler wants it
+    moved, and the operator's placement rounds hand it off to the cloud's handler."""
+    apply(cluster, namespace, talker_pod(cluster))
+    pressured = monitor(
+        "pressured", "always (speed < limit)", sortThreshold=1000, bufferCapacity=1000
+    )
+    apply(cluster, namespace, pressured)
+    got = until(
+        "the monitor to run in the cloud",
+        lambda: (
+            (s := status(cluster, namespace, "pressured")).get("tier") == "cloud"
+            and s.get("phase") == "Running"
+            and s
+        ),
+        timeout=150,
+    )
+    assert got["handler"] and got["events"] > 0, got
+    cluster.run("delete", "monitor", "pressured", "-n", namespace, "--timeout=60s")
 
 
 def test_a_bad_assertion_is_reported_in_the_status(

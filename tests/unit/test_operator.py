@@ -34,6 +34,7 @@ SPEC: dict[str, Any] = {
 def test_settings_and_their_errors_name_the_variable() -> None:
     cfg = OperatorConfig.from_env({**ENV, "EDGERV_TIERS": "edge, fog,cloud"})
     assert (cfg.port, cfg.tiers, cfg.namespace) == (8470, ("edge", "fog", "cloud"), "edgerv")
+    assert cfg.placement_seconds == 5.0
     assert OperatorConfig.from_env({"EDGERV_TOKEN": "t", "POD_NAMESPACE": "x"}).namespace == "x"
     for env, error in [
         ({"EDGERV_NAMESPACE": "x"}, "EDGERV_TOKEN: not set"),
@@ -42,6 +43,8 @@ def test_settings_and_their_errors_name_the_variable() -> None:
         ({**ENV, "EDGERV_HANDLER_PORT": "70000"}, "EDGERV_HANDLER_PORT: '70000'"),
         ({**ENV, "EDGERV_TIERS": "edge,,cloud"}, "EDGERV_TIERS: 'edge,,cloud' is not a list"),
         ({**ENV, "EDGERV_TIERS": "edge,edge"}, "EDGERV_TIERS"),
+        ({**ENV, "EDGERV_PLACEMENT_SECONDS": "soon"}, "EDGERV_PLACEMENT_SECONDS: 'soon'"),
+        ({**ENV, "EDGERV_PLACEMENT_SECONDS": "-1"}, "EDGERV_PLACEMENT_SECONDS: '-1'"),
     ]:
         with pytest.raises(ConfigError, match=error):
             OperatorConfig.from_env(env)

@@ -94,3 +94,19 @@ def test_no_monitor_starts_while_a_handler_is_silent() -> None:
     records = o.round()
     assert [(r["monitors"], r["reason"], r["ok"]) for r in records] == [(["m"], "start", True)]
     assert answering.calls == ["/v1/monitors/m/activate"]  # its placement.tier: cloud
+
+
+def test_without_starts_nothing_is_started_and_targets_follow_the_pods() -> None:
+    """The operator's rounds: starting is its resources' job, and the handlers come and go."""
+    edge, cloud = Target("edge", "e:1"), Target("cloud", "c:1")
+    o = Orchestrator([edge], PolicyConfig(tiers=("edge", "cloud")), token=None, starts=False)
+    idle = load(1.0, 0.0, 0, active=False)
+    idle["handler"] = "cloud-1"
+    edge_load = load(1.0, 0.0, 0, active=False)
+    o.set_targets([edge, cloud])
+    assert set(o.clients) == {edge, cloud}
+    kept = o.clients[edge]
+    o.clients = {edge: Reports(edge_load), cloud: Reports(idle)}  # type: ignore[dict-item]
+    assert o.round() == []  # m runs nowhere: the orchestrator would start it, this one not
+    o.set_targets([edge])
+    assert list(o.clients) == [edge] and list(o.previous) == [edge] and kept is not None

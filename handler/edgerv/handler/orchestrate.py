@@ -142,14 +142,24 @@ class Orchestrator:
         token: str | None,
         timeout: float = 30.0,
         grace: float = 1.0,
+        starts: bool = True,
     ) -> None:
-        self.targets = list(targets)
         self.config = config
-        self.clients = {t: Handler(t.address, token) for t in self.targets}
-        self.memory = PolicyMemory()
+        self.token = token
+        self.targets: list[Target] = []
+        self.clients: dict[Target, Handler] = {}
         self.previous: dict[Target, Counters] = {}
+        self.set_targets(targets)
+        self.starts = starts  # start monitors that run nowhere (off: someone else does)
+        self.memory = PolicyMemory()
         self.timeout, self.grace = timeout, grace
         self.warned: set[str] = set()
+
+    def set_targets(self, targets: Sequence[Target]) -> None:
+        """The handlers to poll from now on (the operator's change as pods come and go)."""
+        self.targets = list(targets)
+        self.clients = {t: self.clients.get(t) or Handler(t.address, self.token) for t in targets}
+        self.previous = {t: c for t, c in self.previous.items() if t in targets}
 
     def poll(self) -> dict[Target, Mapping[str, Any]]:
         loads = {}
@@ -176,9 +186,10 @@ class Orchestrator:
                     ",".join(self.config.tiers),
                 )
         moves = plan(reports, placements, self.config, self.memory, time.monotonic())
-        if len(loads) < len(self.targets):
+        if len(loads) < len(self.targets) or not self.starts:
             # A silent handler may run monitors the others only define: starting them
             # elsewhere could make two active copies. Only moves between those that answered.
+            # (And none when starting is someone else's job: the operator's.)
             moves = [m for m in moves if m.source]
         for start in (m for m in moves if not m.source):
             client = self.clients[where[start.destination]]
