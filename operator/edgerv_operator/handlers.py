@@ -37,9 +37,7 @@ log = logging.getLogger("edgerv.operator")
 MONITORS = ("edgerv.io", "v1alpha1", "monitors")
 STATUS_SECONDS = 5.0
 _config: OperatorConfig | None = None
-
-
-_stop = threading.Event()
+_stop = threading.Event()  # ends the placement rounds
 
 
 @kopf.on.startup()
@@ -142,8 +140,14 @@ def define(cfg: OperatorConfig, pod: HandlerPod, name: str, document: str, activ
     )
 
 
-def place(cfg: OperatorConfig, namespace: str, name: str, spec: dict[str, Any]) -> dict[str, Any]:
-    """Define the monitor on every handler, running on one; return its status."""
+def place(
+    cfg: OperatorConfig, namespace: str, name: str, spec: dict[str, Any], redefine: bool = True
+) -> dict[str, Any]:
+    """Define the monitor on every handler, running on one; return its status.
+
+    ``redefine``: give the definition to every handler (a new or changed spec: that
+    restarts the monitor). Without it (the operator restarted, a handler restarted
+    empty), only handlers lacking it get it, and a running monitor keeps its state."""
     document = monitor_document(namespace, name, spec)
     errors = problems(document)
     if errors:
@@ -165,7 +169,12 @@ def place(cfg: OperatorConfig, namespace: str, name: str, spec: dict[str, Any]) 
                 f"no handler runs on a node of the tiers {','.join(cfg.tiers)}", delay=30
             )
         for p in sorted(pods, key=lambda p: p == target):  # idle everywhere first, then run
-            define(cfg, p, hname, document, active=p == target)
+            if redefine or reports[p] is None:
+                define(cfg, p, hname, document, active=p == target)
+            elif p == target and not (reports[p] or {}).get("active"):
+                Handler(p.address, cfg.token).call(
+                    f"/v1/monitors/{hname}/activate", check=True, timeout=30.0
+                )
         return status_of({p: report(cfg, p, hname) for p in pods})
     except Rejected as exc:
         if exc.status < 500:  # the handler refuses the definition: fix the resource
@@ -177,12 +186,25 @@ def place(cfg: OperatorConfig, namespace: str, name: str, spec: dict[str, Any]) 
 
 @kopf.on.create(*MONITORS)
 @kopf.on.update(*MONITORS, field="spec")
-@kopf.on.resume(*MONITORS)
 def apply_fn(
     name: str, namespace: str | None, spec: kopf.Spec, patch: kopf.Patch, **_: Any
 ) -> None:
+    _apply(name, namespace, spec, patch, redefine=True)
+
+
+@kopf.on.resume(*MONITORS)
+def resume_fn(
+    name: str, namespace: str | None, spec: kopf.Spec, patch: kopf.Patch, **_: Any
+) -> None:
+    """The operator restarted: what runs goes on running (its state intact)."""
+    _apply(name, namespace, spec, patch, redefine=False)
+
+
+def _apply(
+    name: str, namespace: str | None, spec: kopf.Spec, patch: kopf.Patch, redefine: bool
+) -> None:
     try:
-        patch.status.update(place(config(), namespace or "", name, dict(spec)))
+        patch.status.update(place(config(), namespace or "", name, dict(spec), redefine))
     except kopf.PermanentError as exc:
         patch.status.update(phase="Error", message=str(exc))
         raise
@@ -227,6 +249,6 @@ def status_fn(
         any(r is None for r in reports.values())
         or not any(r and r.get("active") for r in reports.values())
     ):
-        patch.status.update(place(cfg, namespace, name, dict(spec)))
+        patch.status.update(place(cfg, namespace, name, dict(spec), redefine=False))
         return
     patch.status.update(status_of(reports))

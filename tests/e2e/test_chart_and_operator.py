@@ -282,6 +282,20 @@ def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None
             timeout=180,
         )
         assert got["phase"] == "Running" and got["tier"] == "edge", got
+        # a new operator pod resumes the Monitor without redefining it (that would restart it)
+        operator = "app.kubernetes.io/component=operator"
+        cluster.run("delete", "pod", "-n", ns, "-l", operator, "--timeout=60s")
+        until(
+            "the new operator to resume the Monitor",
+            lambda: (
+                "Resuming is processed: 1 succeeded"
+                in cluster.run("logs", "-n", ns, "-l", operator, "--tail=-1", check=False)
+            ),
+        )
+        handlers = cluster.run(
+            "logs", "-n", ns, "-l", "app.kubernetes.io/component=handler", "--tail=-1"
+        )
+        assert f"added {ns}.speed-limit" in handlers and "replaced" not in handlers, handlers
     finally:
         cluster.run("delete", "monitor", "--all", "-n", ns, "--timeout=60s", check=False)
         unfinalize(cluster)
