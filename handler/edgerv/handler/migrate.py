@@ -126,6 +126,23 @@ class Handler:
             raise Rejected(f"{self.base}{path}: {reason} (HTTP {status})", status)
         return status, answer
 
+    def handoff(
+        self,
+        step: str,
+        epoch: int,
+        monitors: Sequence[str],
+        timeout: float,
+        check: bool = True,
+        **body: Any,
+    ) -> tuple[int, bytes]:
+        """One step of a handoff (docs/protocol.md) for ``monitors`` under ``epoch``."""
+        return self.call(
+            f"/v1/handoff/{step}",
+            {"epoch": epoch, "monitors": list(monitors), **body},
+            check=check,
+            timeout=timeout,
+        )
+
     def get(self, path: str, timeout: float = 10.0) -> Any:
         """GET a JSON document (raises MigrationFailed on errors)."""
         answer = self.call(path, timeout=timeout, check=True, method="GET")[1]
@@ -215,11 +232,8 @@ def _migrate(
     per_call = min(10.0, timeout)
 
     def step(side: Handler, name: str, **body: Any) -> tuple[int, bytes]:
-        body.setdefault("monitors", names)
-        wait = float(body.get("wait", 0.0))
-        return side.call(
-            f"/v1/handoff/{name}", {"epoch": epoch, **body}, check=True, timeout=per_call + wait
-        )
+        timeout = per_call + float(body.get("wait", 0.0))
+        return side.handoff(name, epoch, body.pop("monitors", names), timeout, **body)
 
     steps: dict[str, float] = {}
 
@@ -304,12 +318,10 @@ def _decide(
     the source goes on holding them (at most one active copy, tested).
     """
 
-    def call(side: Handler, step: str, monitors: Sequence[str]) -> tuple[int, bytes]:
-        body = {"epoch": epoch, "monitors": list(monitors)}
-        return side.call(f"/v1/handoff/{step}", body, check=True, timeout=_left(deadline))
-
     try:
-        outcomes = json.loads(_retry(deadline, lambda: call(receiver, "abort", names))[1])
+        outcomes = json.loads(
+            _retry(deadline, lambda: receiver.handoff("abort", epoch, names, _left(deadline)))[1]
+        )
         answers: dict[str, str] = outcomes["outcomes"]
     except Refused:
         answers = {}  # nothing listens there: it is down, and runs none of them
@@ -323,10 +335,10 @@ def _decide(
     back = [n for n in names if n not in adopted]
     if adopted:
         with contextlib.suppress(MigrationFailed):  # a source that crashed has let go too
-            _retry(deadline, lambda: call(source, "commit", adopted))
+            _retry(deadline, lambda: source.handoff("commit", epoch, adopted, _left(deadline)))
     if back:
         try:
-            _retry(deadline, lambda: call(source, "abort", back))
+            _retry(deadline, lambda: source.handoff("abort", epoch, back, _left(deadline)))
         except MigrationFailed as exc:
             raise Unsettled(
                 f"the sender could not resume {', '.join(back)}: {exc} (it keeps their "
@@ -388,17 +400,8 @@ def settle(source: Handler, names: Sequence[str], deadline: float) -> dict[str, 
         if state == "sending":  # nothing left the source: it resumes; the receiver drops
             if receiver is not None:
                 with contextlib.suppress(MigrationFailed):
-                    receiver.call(
-                        "/v1/handoff/abort",
-                        {"epoch": epoch, "monitors": group},
-                        timeout=_left(deadline),
-                    )
-            source.call(
-                "/v1/handoff/abort",
-                {"epoch": epoch, "monitors": group},
-                check=True,
-                timeout=_left(deadline),
-            )
+                    receiver.handoff("abort", epoch, group, _left(deadline), check=False)
+            source.handoff("abort", epoch, group, _left(deadline))
             continue
         if receiver is None:
             raise Unsettled(
