@@ -363,9 +363,38 @@ def api_service(ns: str, host: str) -> None:
            "-j", "DNAT", "--to-destination", f"{host}:{API_PORT}")  # fmt: skip
 
 
+# Both nodes run on this one host, so every piece of host state a kubelet or a containerd
+# would take by default is either given to each node (below) or shared for a stated reason.
+# A kubelet removes what it believes is its own and does not know: the default pod log
+# directory /var/log/pods, shared, let one node's kubelet delete the other's pod logs
+# (its garbage collection removes every pod log directory of a pod it does not run).
+#
+# Each node's own (under .cluster/nodes/NODE): the kubelet's root dir, certificates, pod
+# log dir (podLogsDir) and volume plugin dir; containerd's root, state, sockets, opt dir
+# and runc root; the CNI configuration and IPAM data; the network namespace (so the
+# kubelet's ports, iptables rules and the pods' bridge cni0); the cgroup root.
+#
+# Shared, and why that is safe:
+# - /var/log/containers: the kubelet makes its container log symlinks there (a fixed path);
+#   each name holds the pod, namespace, container and its 64-hex container ID, so they
+#   never collide, and a kubelet removes only symlinks whose target is gone, that is
+#   once the owning node removed its own pod's logs;
+# - /var/lib/cni (the CNI plugins' result cache) and /run/netns (the pods' network
+#   namespaces): entries are named by network (edgerv-NODE) and container ID, or by
+#   random names;
+# - /run/containerd/s: the shims' sockets, named by a hash of their containerd's
+#   address and the container ID;
+# - /run/xtables.lock: iptables' lock serializes rule changes across namespaces, which is
+#   what it is for;
+# - /dev/kmsg and the host's memory, disk and cgroup statistics: read only (each kubelet
+#   watches OOM kills and its eviction thresholds; both see the same host).
+NODE_DIRS = ("containerd", "containerd-state", "containerd-opt", "runc", "kubelet", "cni",
+             "pod-logs", "volume-plugins")  # fmt: skip
+
+
 def node_dirs(node: str) -> Path:
     d = STATE / "nodes" / node
-    for sub in ("containerd", "containerd-state", "kubelet", "cni", "logs"):
+    for sub in NODE_DIRS:
         (d / sub).mkdir(parents=True, exist_ok=True)
     return d
 
@@ -386,6 +415,8 @@ def containerd(node: str) -> Path:
               address = "{d / "containerd-ttrpc.sock"}"
             [debug]
               address = "{d / "containerd-debug.sock"}"
+            [plugins."io.containerd.internal.v1.opt"]
+              path = "{d / "containerd-opt"}"
             [plugins."io.containerd.grpc.v1.cri"]
               sandbox_image = "{PAUSE_IMAGE}"
               # this machine denies CAP_SYS_RESOURCE: oom_score_adj may only go up
@@ -397,6 +428,7 @@ def containerd(node: str) -> Path:
                   runtime_type = "io.containerd.runc.v2"
                   [plugins."io.containerd.grpc.v1.cri".containerd.runtimes.runc.options]
                     SystemdCgroup = false
+                    Root = "{d / "runc"}"
               [plugins."io.containerd.grpc.v1.cri".cni]
                 bin_dir = "/usr/lib/cni"
                 conf_dir = "{d / "cni"}"
@@ -460,6 +492,8 @@ def kubelet(node: str, bins: Path) -> None:
                 "failSwapOn": False,
                 "failCgroupV1": False,
                 "containerRuntimeEndpoint": f"unix://{d / 'containerd.sock'}",
+                "podLogsDir": str(d / "pod-logs"),  # the default is shared: see NODE_DIRS
+                "volumePluginDir": str(d / "volume-plugins"),
                 "podCIDR": NODES[node]["pods"],
                 "resolvConf": "",
                 "clusterDomain": "cluster.local",
@@ -725,12 +759,11 @@ def down(quiet: bool = False) -> None:
         subprocess.run(
             ["pkill", "-9", "-f", f"containerd-shim.*{STATE / 'nodes' / node}"], capture_output=True
         )
-    runc_root = Path("/run/containerd/runc/k8s.io")  # the runc state of the nodes' containers
-    for state in runc_root.glob("*/state.json") if runc_root.exists() else []:
-        with contextlib.suppress(OSError, ValueError):
-            if str(STATE) in json.loads(state.read_text()).get("config", {}).get("rootfs", ""):
-                subprocess.run(["runc", "--root", str(runc_root), "delete", "--force",
-                                state.parent.name], capture_output=True)  # fmt: skip
+    for node in NODES:  # the runc state of the nodes' containers (each node its own root)
+        runc_root = STATE / "nodes" / node / "runc" / "k8s.io"
+        for state in runc_root.glob("*/state.json") if runc_root.exists() else []:
+            subprocess.run(["runc", "--root", str(runc_root), "delete", "--force",
+                            state.parent.name], capture_output=True)  # fmt: skip
     _unmount_under(STATE / "nodes")
     for node in NODES:
         subprocess.run(["ip", "netns", "del", netns(node)], capture_output=True)

@@ -121,3 +121,21 @@ def test_pods_on_two_nodes_exchange_a_ros_message_across_the_link(cluster: Clust
         assert cluster.run("logs", listener).startswith("hello from the edge")
     finally:
         cluster.run("delete", "pod", talker, listener, "--wait=false", check=False)
+
+
+def test_each_node_keeps_its_pods_logs_where_the_other_cannot_remove_them(
+    cluster: Cluster,
+) -> None:
+    """The project's cluster runs both kubelets on one host: each must have its own pod
+    log directory, since a kubelet's garbage collection removes the log directories of
+    every pod it does not run (the other node's pods' logs vanished before their
+    ``kubectl logs``). Read from the running kubelets' own configuration."""
+    if not cluster.link:
+        pytest.skip("a cluster of yours: its nodes are separate machines")
+    dirs = {}
+    for node in cluster.link:
+        configz = json.loads(cluster.run("get", "--raw", f"/api/v1/nodes/{node}/proxy/configz"))
+        config = configz["kubeletconfig"]
+        dirs[node] = (config["podLogsDir"], config["volumePluginDir"])
+        assert config["podLogsDir"] != "/var/log/pods", node
+    assert len(set(dirs.values())) == len(dirs), dirs
