@@ -52,9 +52,12 @@ def events(rows: Iterable[Sequence[Any]]) -> list[TraceEvent]:
 
 
 def run(monitors: Sequence[CompiledMonitor], evs: Iterable[TraceEvent]) -> list[MonitorResult]:
+    """A check over the events; its clock ends at their last stamp (any topic), as a
+    trace's does."""
+    evs = list(evs)
     check = CheckRun(monitors)
     check.feed(evs)
-    return check.finish()
+    return check.finish(max((e.stamp for e in evs), default=None))
 
 
 def verdicts(result: MonitorResult) -> list[tuple[str, int, int]]:

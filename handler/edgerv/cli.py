@@ -68,7 +68,7 @@ def cmd_check(args: argparse.Namespace) -> int:
         else:
             run.feed(trace.events(run.topics))
     except InputError as exc:
-        _emit(run.finish(), args.json)
+        _emit(run.finish(trace.end), args.json)
         _report(exc.diagnostics)
         print(
             "edgerv: the trace stopped at that error; the verdicts above cover the events "
@@ -76,7 +76,7 @@ def cmd_check(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_INPUT
-    results = run.finish()
+    results = run.finish(trace.end)
     _emit(results, args.json)
     return (
         EXIT_VIOLATED

@@ -295,3 +295,72 @@ def test_sigint_stops_too(tmp_path: Path, domain: int) -> None:
     handler = Handler(tmp_path, write(tmp_path, "m.yaml", SPEED), domain)
     assert handler.stop(signal.SIGINT) == 0
     assert "SIGINT: stopping" in handler.stderr
+
+
+DEADLINE = """\
+apiVersion: edgerv.io/v1alpha1
+kind: Monitor
+metadata: {name: cmd-deadline}
+spec:
+  assertion: "always (age(cmd) < 125ms)"
+  signals:
+    cmd: {topic: /cmd, type: geometry_msgs/msg/TwistStamped, field: twist.linear.x}
+"""
+
+# Publishes stamped commands every 20 ms and records each as a JSON Lines event, then
+# says "done" and waits to be killed: the recording is exactly what it published.
+COMMANDER = r"""
+import json, sys, time, rclpy
+from geometry_msgs.msg import TwistStamped
+rclpy.init()
+node = rclpy.create_node("commander")
+pub = node.create_publisher(TwistStamped, "/cmd", 100)
+deadline = time.monotonic() + 15
+while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+    time.sleep(0.05)
+time.sleep(0.3)
+with open(sys.argv[1], "w") as rec:
+    for i in range(40):
+        now = time.time_ns()
+        m = TwistStamped()
+        m.header.stamp.sec, m.header.stamp.nanosec = divmod(now, 10**9)
+        m.twist.linear.x = 0.5
+        pub.publish(m)
+        rec.write(json.dumps({"topic": "/cmd", "stamp": now, "msg": {"header": {"stamp":
+            {"sec": now // 10**9, "nanosec": now % 10**9}}, "twist": {"linear": {"x": 0.5}}}}))
+        rec.write("\n")
+        time.sleep(0.02)
+print("done", flush=True)
+time.sleep(600)
+"""
+
+
+def test_a_deadline_is_reported_live_when_the_publisher_is_killed(
+    tmp_path: Path, domain: int
+) -> None:
+    """No message comes after the kill: the handler's clock alone decides the violation,
+    at the instant it became certain, and `edgerv check` on the recorded commands (and
+    the time that passed after them) gives the same verdict, stamp and step."""
+    monitors = write(tmp_path, "deadline.yaml", DEADLINE)
+    recording = tmp_path / "cmd.jsonl"
+    handler = Handler(tmp_path, monitors, domain, "--flush-after", "0.2")
+    commander = subprocess.Popen(
+        [sys.executable, "-c", COMMANDER, str(recording)],
+        env=ros_env(domain),
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert commander.stdout is not None
+        assert commander.stdout.readline().strip() == "done"
+        commander.send_signal(signal.SIGKILL)
+        live = wait_for(handler.verdicts, timeout=30)
+    finally:
+        commander.kill()
+        commander.wait()
+        assert handler.stop() == 0, handler.stderr
+    last = json.loads(recording.read_text().splitlines()[-1])["stamp"]
+    assert [(v["verdict"], v["stamp"]) for v in live] == [("violated", last + 125_000_000)]
+    with recording.open("a") as rec:  # the time that passed after the last command
+        rec.write(json.dumps({"topic": "/clock", "stamp": last + 10**9, "msg": {}}) + "\n")
+    assert live_verdicts(handler) == offline_verdicts(monitors, recording)

@@ -34,6 +34,10 @@ ASSERTIONS = [
     "always (a -> (x < 8 until !a))",
     "eventually! (a & x > 9)",
     "always (x > 2 -> next (a | x < 4))",
+    # timed: handed off in the middle of pending deadlines (the stamps here are ns apart)
+    "always (a -> age(x) < 4ns)",
+    "always (age(a) <= 5ns | x > 8)",
+    "always (age(x) == 3ns -> a)",
 ]
 
 

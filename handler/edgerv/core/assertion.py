@@ -37,6 +37,7 @@ import operator
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from fractions import Fraction
 from functools import lru_cache
 from typing import Any, Literal, cast
 
@@ -99,6 +100,21 @@ _SPOT_WORDS = {"G", "F", "X", "U", "W", "R", "M", "xor", "true", "false"}
 _PSL_WORDS = {"always", "never", "eventually", "next", "next_e", "next_a", "until", "before"}
 _NUMBER = re.compile(r"(\d+\.?\d*(?:[eE][+-]?\d+)?|\.\d+(?:[eE][+-]?\d+)?)")
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+# Durations: a number and its unit, written together (500ms, 1.5s, 2min); nanoseconds.
+UNITS = {"ns": 1, "us": 1_000, "ms": 1_000_000, "s": 1_000_000_000, "min": 60_000_000_000}
+_UNIT_LIST = ", ".join(UNITS)
+_TIMED_BOUND = re.compile(r"\d\s*[A-Za-z]")  # an interval bound with a unit: [0..500ms]
+
+
+def duration_ns(text: str) -> int | None:
+    """The nanoseconds of a duration token (``1.5s``), or None if it is not a whole number
+    of nanoseconds or its unit is unknown."""
+    m = _NUMBER.match(text)
+    if m is None or text[m.end() :] not in UNITS:
+        return None
+    ns = Fraction(m.group()) * UNITS[text[m.end() :]]
+    return int(ns) if ns.denominator == 1 else None
+
 
 # PSL binary keyword operators: Spot text with L and R for the operands.
 _TEMPLATE_TOKENS = re.compile(r"\{[LR]\}|[()!&WURM]")
@@ -124,7 +140,7 @@ _PSL_BINARY = {  # {L} and {R} stand for the left and right operands
 
 @dataclass(frozen=True)
 class Token:
-    kind: Literal["ident", "number", "string", "bracket", "op"]
+    kind: Literal["ident", "number", "duration", "string", "bracket", "op"]
     text: str
     start: int
     end: int
@@ -132,13 +148,17 @@ class Token:
 
 @dataclass(frozen=True)
 class Operand:
-    """One side of a comparison: a signal (by name) or a constant."""
+    """One side of a comparison: a signal (by name), ``age(signal)``, or a constant (a
+    duration is a constant in integer nanoseconds)."""
 
     signal: str | None
     value: Value | None = None
+    age: bool = False  # age(signal): the time since the last message on its topic
 
     def describe(self) -> str:
-        return self.signal if self.signal is not None else repr(self.value)
+        if self.signal is not None:
+            return f"age({self.signal})" if self.age else self.signal
+        return repr(self.value)
 
 
 @dataclass(frozen=True)
@@ -152,11 +172,21 @@ class Atom:
 
     @property
     def signals(self) -> tuple[str, ...]:
-        return tuple(dict.fromkeys(o.signal for o in (self.lhs, self.rhs) if o.signal is not None))
+        """The signals whose values it reads (an age atom reads none: it reads the time)."""
+        return tuple(
+            dict.fromkeys(o.signal for o in (self.lhs, self.rhs) if o.signal and not o.age)
+        )
+
+    @property
+    def timed(self) -> bool:
+        """``age(x) OP duration``: its truth changes as time passes, without a message."""
+        return self.lhs.age
 
     def key(self) -> tuple[Any, ...]:
         def k(o: Operand) -> tuple[Any, ...]:
-            return ("s", o.signal) if o.signal is not None else ("c", type(o.value), o.value)
+            if o.signal is not None:
+                return ("a" if o.age else "s", o.signal)
+            return ("c", type(o.value), o.value)
 
         return (k(self.lhs), self.op, k(self.rhs))
 
@@ -207,8 +237,23 @@ def tokenize(text: str, fail: Callable[[int, int, str, str | None], None]) -> li
             continue
         m = _NUMBER.match(text, i)
         if m and (ch.isdigit() or ch == "."):
-            tokens.append(Token("number", m.group(), i, m.end()))
-            i = m.end()
+            unit = _IDENT.match(text, m.end())
+            if unit is None:
+                tokens.append(Token("number", m.group(), i, m.end()))
+                i = m.end()
+                continue
+            whole = text[i : unit.end()]
+            if unit.group() not in UNITS:
+                fail(
+                    unit.start(),
+                    unit.end() - unit.start(),
+                    f"unknown unit '{unit.group()}' in '{whole}'",
+                    f"a duration's unit is one of {_UNIT_LIST}, e.g. 500ms",
+                )
+            elif duration_ns(whole) is None:
+                fail(i, len(whole), f"'{whole}' is not a whole number of nanoseconds", None)
+            tokens.append(Token("duration", whole, i, unit.end()))  # also when bad: one error
+            i = unit.end()
             continue
         m = _IDENT.match(text, i)
         if m:
@@ -260,6 +305,15 @@ class _Parser:
             if nxt.kind == "number" and nxt.start == t.end:
                 sign = -1.0 if t.text == "-" else 1.0
                 t, used = nxt, 1
+            elif nxt.kind == "duration" and nxt.start == t.end and t.text == "-":
+                self.fail(
+                    t.start, nxt.end - t.start, f"a duration cannot be negative: '-{nxt.text}'"
+                )
+                return Operand(None, 0), "error", 2
+        if t.kind == "duration":
+            return Operand(None, duration_ns(t.text)), "duration", used + 1
+        if t.kind == "ident" and t.text == "age" and _is_call(toks, i):
+            return self._age(toks, i)
         if t.kind == "number":
             number: int | float = int(t.text) if t.text.isdigit() else float(t.text)
             return Operand(None, -number if sign < 0 else number), "number", used + 1
@@ -276,6 +330,34 @@ class _Parser:
                 k = "bool" if isinstance(v, bool) else "string" if isinstance(v, str) else "number"
                 return Operand(None, v), k, 1
         return None
+
+    def _age(self, toks: Sequence[Token], i: int) -> tuple[Operand, str, int]:
+        """``age(x)`` at toks[i] (``_is_call`` holds): the operand, or an error reported."""
+        arg, close = toks[i + 2], toks[i + 3]
+        if arg.kind != "ident" or close.text != ")":
+            self.fail(
+                toks[i].start, close.end - toks[i].start, "age() takes one signal, e.g. age(scan)"
+            )
+        elif arg.text in self.spec.signals:
+            return Operand(arg.text, age=True), "duration", 4
+        else:
+            what = "a parameter" if arg.text in self.spec.parameters else "not a signal"
+            self.fail(
+                arg.start,
+                arg.end - arg.start,
+                f"age() takes a signal: '{arg.text}' is {what}",
+                did_you_mean(arg.text, self.spec.signals) or "declare it under spec.signals",
+            )
+        return Operand(None, 0), "error", 4
+
+    def _timed_interval(self, start: int, length: int) -> None:
+        self.fail(
+            start,
+            length,
+            "time bounds on F, G, U and X are not supported yet: an interval counts steps",
+            "for a deadline counted from a message, compare its age: "
+            "G(go -> (age(go) < 500ms U done)); see docs/semantics.md, 'Time'",
+        )
 
     def _add_atom(self, atom: Atom) -> int:
         key = atom.key()
@@ -326,6 +408,17 @@ class _Parser:
         source = self.text[start:end]
         (lo, lkind, _), (ro, rkind, _) = left, right
         op: CmpOp = "==" if cmp_tok.text == "=" else cast(CmpOp, cmp_tok.text)
+        used = j + right[2] - i + 1
+        if "error" in (lkind, rkind):  # reported where it is
+            return "p", used
+        if (lo.age and ro.age) or (lkind == rkind == "duration" and not (lo.age or ro.age)):
+            self.fail(
+                start,
+                end - start,
+                f"'{source}' must compare one age(x) with a duration",
+                "e.g. age(scan) < 200ms",
+            )
+            return "p", used
         if lo.signal is None and ro.signal is None:
             self.fail(
                 start,
@@ -340,6 +433,9 @@ class _Parser:
                 end - start,
                 f"type mismatch in '{source}': {lo.describe()} is {_kind_name(lkind)}, "
                 f"{ro.describe()} is {_kind_name(rkind)}",
+                "a duration compares only with age(x), and takes a unit: age(scan) < 200ms"
+                if "duration" in (lkind, rkind)
+                else None,
             )
             return "p", j + right[2] + 1 - i
         if lkind in ("bool", "string") and op not in ("==", "!="):
@@ -360,7 +456,7 @@ class _Parser:
                 negate = not negate
             ro = Operand(None, True)
         index = self._add_atom(Atom(lo, op, ro, source))
-        return ("!" if negate else "") + f"p{index}", j + right[2] + 1 - i
+        return ("!" if negate else "") + f"p{index}", used
 
     # -- the whole assertion ---------------------------------------------------------------
 
@@ -425,7 +521,16 @@ class _Parser:
             elif t.kind == "string":
                 self.fail(t.start, t.end - t.start, f"string {t.text} outside a comparison")
             elif t.kind == "bracket":
+                if _TIMED_BOUND.search(t.text):
+                    self._timed_interval(t.start, t.end - t.start)
                 out.append(_Out(t.text, t.start, t.end, "unary" if t.text == "[]" else "other"))
+            elif t.kind == "duration":
+                self.fail(
+                    t.start,
+                    t.end - t.start,
+                    f"duration {t.text} outside a comparison",
+                    "compare it with age(x), e.g. age(scan) < 200ms",
+                )
             else:
                 role = (
                     "open"
@@ -461,6 +566,17 @@ class _Parser:
             "next_a!",
         )
         used = 2 if bracket is not None and takes_bracket else 1
+        if bracket is not None and takes_bracket and _TIMED_BOUND.search(bracket):
+            self._timed_interval(s, e - s + len(bracket))
+            return used
+        if w == "age" and nxt is not None and nxt.text == "(":
+            self.fail(
+                s,
+                e - s,
+                "age(x) is a duration, not a proposition",
+                "compare it with a duration, e.g. age(scan) < 200ms",
+            )
+            return 4  # age ( x )
         if w in self.spec.signals:
             sig = self.spec.signals[w]
             if sig.kind != "bool":
@@ -527,7 +643,18 @@ class _Parser:
 
 
 def _kind_name(kind: str) -> str:
-    return {"number": "a number", "bool": "a boolean", "string": "a string"}.get(kind, kind)
+    names = {"number": "a number", "bool": "a boolean", "string": "a string"}
+    return names.get(kind, "a duration" if kind == "duration" else kind)
+
+
+def _is_call(toks: Sequence[Token], i: int) -> bool:
+    """``name ( ... )`` at toks[i], the parenthesis right after the name."""
+    return (
+        i + 3 < len(toks)
+        and toks[i + 1].text == "("
+        and toks[i + 1].start == toks[i].end
+        and toks[i + 1].kind == "op"
+    )
 
 
 def _operand_end(out: list[_Out], i: int, step: int) -> int:
@@ -715,17 +842,22 @@ def feasible_letters(spec: MonitorSpec, atoms: Sequence[Atom]) -> Any:
     gives the exact verdicts of the assertion over signal values: a prefix is bad
     when no continuation of *possible* letters satisfies the formula.
     """
-    by_signal: dict[str, list[int]] = {}
+    by_signal: dict[tuple[str, bool], list[int]] = {}
     for i, a in enumerate(atoms):
         if a.rhs.signal is None and a.lhs.signal is not None:
-            by_signal.setdefault(a.lhs.signal, []).append(i)
+            by_signal.setdefault((a.lhs.signal, a.lhs.age), []).append(i)
     parts = []
-    for name, idxs in by_signal.items():
-        if len(idxs) < 2 and spec.signals[name].kind != "float":
+    for (name, age), idxs in by_signal.items():
+        if len(idxs) < 2 and (age or spec.signals[name].kind != "float"):
             continue
         consts = [atoms[i].rhs.value for i in idxs if atoms[i].rhs.value is not None]
+        if age:  # nanoseconds, never negative; infinite before the topic's first message
+            ints = _samples("int", consts)  # type: ignore[arg-type]
+            samples: list[Any] = [v for v in ints if isinstance(v, int) and v >= 0] + [math.inf]
+        else:
+            samples = _samples(spec.signals[name].kind, consts)  # type: ignore[arg-type]
         rows = set()
-        for v in _samples(spec.signals[name].kind, consts):  # type: ignore[arg-type]
+        for v in samples:
             rows.add(tuple(_compare(v, atoms[i].op, atoms[i].rhs.value) for i in idxs))
         if len(rows) == 2 ** len(idxs):
             continue
@@ -756,7 +888,7 @@ def compile_atom_columns(atom: Atom, index_of: dict[str, int]) -> Callable[[list
     NumPy object arrays, so each element is compared as the Python values it holds).
     """
     func = _CMP_FUNCS[atom.op]
-    if atom.lhs.signal is None:
+    if atom.lhs.signal is None or atom.timed:  # timed atoms are the clock's (pipeline.Clock)
         raise ValueError(atom)
     li = index_of[atom.lhs.signal]
     if atom.rhs.signal is not None:
@@ -769,7 +901,7 @@ def compile_atom_columns(atom: Atom, index_of: dict[str, int]) -> Callable[[list
 def compile_atom(atom: Atom, index_of: dict[str, int]) -> Callable[[list[Any]], bool]:
     """A function from the signal values (by index) to the atom's truth value."""
     func = _CMP_FUNCS[atom.op]
-    if atom.lhs.signal is None:  # never: constants are put on the right
+    if atom.lhs.signal is None or atom.timed:  # never: constants go right; timed: the clock's
         raise ValueError(atom)
     li = index_of[atom.lhs.signal]
     if atom.rhs.signal is not None:

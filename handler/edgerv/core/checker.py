@@ -69,10 +69,16 @@ class CheckRun:
             for runtime in ready:
                 self.results[runtime.name].verdicts += runtime.evaluate()
 
-    def finish(self) -> list[MonitorResult]:
-        """Flush the partial event buffers (the run is over) and report in input order."""
+    def finish(self, end: int | None = None) -> list[MonitorResult]:
+        """Flush the partial event buffers (the run is over) and report in input order.
+
+        ``end``: the latest time the trace shows as passed (:attr:`Trace.end`); monitors
+        with timed atoms take their clock steps up to it.
+        """
         for runtime in self.router.runtimes.values():
             runtime.flush()
+            if end is not None:
+                runtime.advance(end)
             self.results[runtime.name].verdicts += runtime.evaluate()
         out = []
         for m in self.monitors:

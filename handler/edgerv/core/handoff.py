@@ -85,6 +85,9 @@ class Snapshot:
     bits: int
     letters: array  # type: ignore[type-arg]  # the letter typecode of ``bits``
     stamps: Mapping[int, int]  # letter index -> stamp, only where a verdict can be reported
+    # a monitor with timed atoms: its clock (the time of its last step, and of the last
+    # message on each signal's topic); None for one without
+    clock: tuple[int | None, tuple[int | None, ...]] | None = None
     # the letters' runs (runs_of), when the sender computed them already
     runs: Any = field(default=None, compare=False, repr=False)
 
@@ -121,6 +124,7 @@ def export_snapshot(rt: MonitorRuntime, cut: int, epoch: int) -> Snapshot:
         bits=rt.monitor.table.bits,
         letters=rt.letters[:],
         stamps={i: stamps[i] for i in deciding_steps(rt.monitor, rt.state, runs)},
+        clock=None if rt.clock is None else rt.clock.snapshot(),
         runs=runs,
     )
 
@@ -175,7 +179,16 @@ def restore(monitor: CompiledMonitor, snap: Snapshot, held: list[Event]) -> Moni
         )
     if not 0 <= snap.state < table.states:
         raise HandoffError(f"automaton state {snap.state} out of range")
+    if (snap.clock is None) != (not monitor.timed) or (
+        snap.clock is not None and len(snap.clock[1]) != len(monitor.signal_names)
+    ):
+        raise HandoffError(
+            f"snapshot of '{snap.monitor}' does not fit this definition (timed atoms "
+            "differ): the handlers disagree on it"
+        )
     rt = MonitorRuntime(monitor)
+    if rt.clock is not None and snap.clock is not None:
+        rt.clock.restore(*snap.clock)
     rt.state, rt.step, rt.halted = snap.state, snap.step, snap.halted
     rt.values = [_UNSET if v is None else v for v in snap.values]
     rt.missing = sum(v is None for v in snap.values)
@@ -255,6 +268,7 @@ def encode(snap: Snapshot) -> bytes:
             "n": len(snap.letters),
             "runs": len(run_lengths),
             "stamps": len(snap.stamps),
+            "clock": None if snap.clock is None else [snap.clock[0], list(snap.clock[1])],
         },
         separators=(",", ":"),
     ).encode()
@@ -315,6 +329,10 @@ def _inflate(data: bytes, size: int) -> bytes:
     return out
 
 
+def _stamp_or_none(t: Any) -> bool:
+    return t is None or (isinstance(t, int) and not isinstance(t, bool) and -(2**63) <= t < 2**63)
+
+
 def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
     """Parse and check a snapshot frame; raise :class:`HandoffError` if it is bad."""
     if len(data) < _FRAME.size:
@@ -354,6 +372,12 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
         values = tuple(h["values"])
         if not all(v is None or isinstance(v, bool | int | float | str) for v in values):
             raise HandoffError("a signal value is not a plain value")
+        clock = h.get("clock")
+        if clock is not None:
+            now, last = clock
+            if not all(_stamp_or_none(t) for t in (now, *last)):
+                raise HandoffError("a clock time is not integer nanoseconds")
+            clock = (now, tuple(last))
         return Snapshot(
             monitor=str(h["monitor"]),
             epoch=int(h["epoch"]),
@@ -368,6 +392,7 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
             bits=bits,
             letters=letters,
             stamps=stamps,
+            clock=clock,
         )
     except HandoffError:
         raise

@@ -18,6 +18,21 @@ from edgerv.core.synthesis import MonitorTable, SynthesisError, synthesize
 
 
 @dataclass(frozen=True)
+class TimedAtom:
+    """``age(signal) OP duration``: placeholder ``bit``, true when ``compare(age, duration)``."""
+
+    bit: int
+    signal: int  # signal index: the age of the last message on its topic
+    op: str  # < <= > >= == (!= is the negation of ==)
+    duration: int  # nanoseconds
+
+
+def _by_the_clock(values: list[Any]) -> bool:
+    """The value function of a timed atom: never called; the clock sets its bit."""
+    raise AssertionError("a timed atom is evaluated by the clock")
+
+
+@dataclass(frozen=True)
 class CompiledMonitor:
     spec: MonitorSpec
     parsed: ParsedAssertion
@@ -26,10 +41,19 @@ class CompiledMonitor:
     atom_funcs: tuple[Callable[[list[Any]], bool], ...]  # placeholder i -> its truth value
     atoms_of_signal: tuple[tuple[int, ...], ...]  # signal index -> placeholders reading it
     atom_columns: tuple[Callable[[list[Any]], Any], ...]  # the same over columns of values
+    timed: tuple[TimedAtom, ...] = ()  # the atoms time changes: age(x) < 200ms
 
     @property
     def name(self) -> str:
         return self.spec.name
+
+    @property
+    def untimed_bits(self) -> int:
+        """The mask of the placeholders that signal values alone decide."""
+        mask = (1 << self.table.bits) - 1
+        for t in self.timed:
+            mask &= ~(1 << t.bit)
+        return mask
 
     @property
     def warnings(self) -> tuple[Diagnostic, ...]:
@@ -46,12 +70,16 @@ def compile_monitor(spec: MonitorSpec) -> CompiledMonitor:
         raise InputError([Diagnostic(loc, str(exc))]) from None
     names = tuple(spec.signals)
     index_of = {n: i for i, n in enumerate(names)}
-    funcs = tuple(compile_atom(a, index_of) for a in parsed.atoms)
-    readers = tuple(
-        tuple(i for i, a in enumerate(parsed.atoms) if name in a.signals) for name in names
+    atoms = parsed.atoms
+    funcs = tuple(_by_the_clock if a.timed else compile_atom(a, index_of) for a in atoms)
+    readers = tuple(tuple(i for i, a in enumerate(atoms) if name in a.signals) for name in names)
+    columns = tuple(_by_the_clock if a.timed else compile_atom_columns(a, index_of) for a in atoms)
+    timed = tuple(
+        TimedAtom(i, index_of[str(a.lhs.signal)], a.op, int(a.rhs.value))  # type: ignore[arg-type]
+        for i, a in enumerate(atoms)
+        if a.timed
     )
-    columns = tuple(compile_atom_columns(a, index_of) for a in parsed.atoms)
-    return CompiledMonitor(spec, parsed, table, names, funcs, readers, columns)
+    return CompiledMonitor(spec, parsed, table, names, funcs, readers, columns, timed)
 
 
 def compile_monitors(

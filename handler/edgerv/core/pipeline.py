@@ -24,7 +24,7 @@ from typing import Any, Literal
 import numpy as np
 
 from edgerv.core.documents import QosSpec
-from edgerv.core.monitor import CompiledMonitor
+from edgerv.core.monitor import CompiledMonitor, TimedAtom
 from edgerv.core.msgtypes import ValueKind, make_getter
 
 VerdictKind = Literal["violated", "satisfied"]
@@ -53,6 +53,73 @@ class Verdict:
 def letter_typecode(bits: int) -> str:
     """The narrowest array type holding ``bits`` placeholder bits per letter."""
     return "B" if bits <= 8 else "H" if bits <= 16 else "L"
+
+
+_AGE_CMP: dict[str, Callable[[int, int], bool]] = {
+    "<": lambda age, d: age < d,
+    "<=": lambda age, d: age <= d,
+    ">": lambda age, d: age > d,
+    ">=": lambda age, d: age >= d,
+    "==": lambda age, d: age == d,
+}
+# For each comparison of an age with d: the instants, after the message at ``last``,
+# at which its truth changes (age is d at last + d): ``age < d`` turns false at last + d.
+_EDGES: dict[str, tuple[int, ...]] = {"<": (0,), ">=": (0,), "<=": (1,), ">": (1,), "==": (0, 1)}
+
+
+@dataclass
+class Clock:
+    """The time of a monitor with timed atoms (``age(x) < 200ms``), in stamp nanoseconds.
+
+    ``now`` is the time of its last step, ``last[s]`` the time of the last message on
+    signal s's topic (None: none yet, an infinite age), and ``deadline`` the next
+    instant after ``now`` at which a timed atom changes its truth without any message:
+    there the monitor takes a clock step (docs/semantics.md, "Time").
+    """
+
+    atoms: tuple[TimedAtom, ...]
+    last: list[int | None]
+    now: int | None = None
+    deadline: int | None = None
+
+    @property
+    def mask(self) -> int:
+        return sum(1 << a.bit for a in self.atoms)
+
+    def bits(self) -> int:
+        """The timed atoms' placeholder bits at ``now``."""
+        out, now = 0, self.now
+        for a in self.atoms:
+            last = self.last[a.signal]
+            if last is None or now is None:
+                true = a.op in (">", ">=")  # an infinite age
+            else:
+                true = _AGE_CMP[a.op](now - last, a.duration)
+            if true:
+                out |= 1 << a.bit
+        return out
+
+    def next_deadline(self) -> int | None:
+        best = None
+        now = self.now
+        for a in self.atoms:
+            last = self.last[a.signal]
+            if last is None or now is None:
+                continue
+            for edge in _EDGES[a.op]:
+                at = last + a.duration + edge
+                if at > now:
+                    if best is None or at < best:
+                        best = at
+                    break
+        return best
+
+    def snapshot(self) -> tuple[int | None, tuple[int | None, ...]]:
+        return self.now, tuple(self.last)
+
+    def restore(self, now: int | None, last: Sequence[int | None]) -> None:
+        self.now, self.last = now, list(last)
+        self.deadline = self.next_deadline()
 
 
 @dataclass
@@ -88,10 +155,17 @@ class MonitorRuntime:
     ahead_letters: array = field(init=False)  # type: ignore[type-arg]
     ahead_stamps: array = field(init=False)  # type: ignore[type-arg]
     base: tuple[list[Any], int, int] = field(init=False)
+    # A monitor with timed atoms steps by the clock too (clock steps); None without any.
+    # Its events are compressed one by one, never ahead nor column-wise.
+    clock: Clock | None = field(init=False)
 
     def __post_init__(self) -> None:
         spec = self.monitor.spec
         self.name = spec.name
+        timed = self.monitor.timed
+        self.clock = Clock(timed, [None] * len(self.monitor.signal_names)) if timed else None
+        if timed:
+            self.speculate = False
         self.threshold = spec.sort_threshold
         self.letters = array(letter_typecode(self.monitor.table.bits))
         self.stamps = array("q")
@@ -261,16 +335,57 @@ class MonitorRuntime:
         in the buffer, with nothing compressed ahead (a handoff's release)."""
         self.flush_prefix(bisect_right(self.events, cut, key=_STAMP))
         self.unspeculate()
+        if self.clock is not None:  # and the clock steps up to it: the cut splits time too
+            self._clock_steps(cut, self.letters, self.stamps)
+
+    def advance(self, now: int) -> bool:
+        """Time has reached ``now``: no event stamped at or before it is still to come
+        (one that comes is late). Release the buffered events up to it and take the
+        clock steps up to it. Only a monitor with timed atoms has anything to do.
+
+        Returns True when letters were produced and :meth:`evaluate` has work.
+        """
+        clock = self.clock
+        if clock is None or self.halted or self.holding:
+            return False
+        if self.events and self.events[0][0] <= now:
+            self.flush_prefix(bisect_right(self.events, now, key=_STAMP))
+        if clock.deadline is not None and clock.deadline <= now:
+            self._clock_steps(now, self.letters, self.stamps)
+        return len(self.letters) > 0
+
+    def _clock_steps(
+        self,
+        until: int,
+        letters: array,  # type: ignore[type-arg]
+        stamps: array,  # type: ignore[type-arg]
+    ) -> None:
+        """The clock steps at the deadlines up to ``until``: a letter at each instant a
+        timed atom changes its truth (once every signal has a value)."""
+        clock = self.clock
+        assert clock is not None
+        keep = ~clock.mask
+        while clock.deadline is not None and clock.deadline <= until:
+            clock.now = clock.deadline
+            bits = (self.valuation & keep) | clock.bits()
+            clock.deadline = clock.next_deadline()
+            if not self.missing:
+                self.valuation = bits
+                letters.append(bits)
+                stamps.append(clock.now)
 
     def _full_valuation(self) -> int:
         bits = 0
+        clock = self.clock
         for i, fn in enumerate(self.monitor.atom_funcs):
+            if clock is not None and (clock.mask >> i) & 1:
+                continue
             if fn(self.values):
                 bits |= 1 << i
-        return bits
+        return bits if clock is None else bits | clock.bits()
 
     def _compress(self, batch: Sequence[Event]) -> None:
-        if len(batch) >= COLUMNS_FROM:
+        if len(batch) >= COLUMNS_FROM and self.clock is None:
             self._compress_columns(batch)
             return
         letters, stamps = self.letters, self.stamps
@@ -338,6 +453,16 @@ class MonitorRuntime:
     ) -> None:
         """Apply one event to the signal values; append its letter once all have a value."""
         values = self.values
+        clock = self.clock
+        if clock is not None:  # time passed up to the event: the clock steps before it
+            if clock.deadline is not None and clock.deadline < stamp:
+                self._clock_steps(stamp - 1, letters, stamps)
+            # a late event counts at the time of the step before it: time never goes back
+            now = stamp if clock.now is None or stamp > clock.now else clock.now
+            clock.now = now
+            for sig, _ in updates:
+                clock.last[sig] = now
+            clock.deadline = clock.next_deadline()
         if self.missing:
             for sig, value in updates:
                 if values[sig] is _UNSET:
@@ -356,6 +481,8 @@ class MonitorRuntime:
                         bits |= 1 << atom
                     else:
                         bits &= ~(1 << atom)
+            if clock is not None:
+                bits = (bits & ~clock.mask) | clock.bits()
         self.valuation = bits
         letters.append(bits)
         stamps.append(stamp)

@@ -39,6 +39,14 @@ class Trace:
         self.path = path
         self.is_bag = path.is_dir() or path.suffix in (".mcap", ".db3", ".bag")
         self.msgtypes: dict[str, str] = {}  # topic -> message type, for bags
+        # The latest time the trace shows as passed: the largest stamp of any of its
+        # events, read or not (a bag: also its last message's log time). Monitors with
+        # timed atoms take their clock steps up to it at the end of a check.
+        self.end: int | None = None
+
+    def _saw(self, stamp: int) -> None:
+        if self.end is None or stamp > self.end:
+            self.end = stamp
 
     def events(
         self, topics: Collection[str], progress: Progress | None = None
@@ -65,7 +73,7 @@ class Trace:
                     progress(len(raw))
                 if not raw.strip():
                     continue
-                event = _jsonl_event(path, lineno, raw, topics)
+                event = _jsonl_event(path, lineno, raw, topics, self._saw)
                 if event is not None:
                     yield event
 
@@ -91,6 +99,7 @@ class Trace:
                 ]
             ) from None
         try:
+            self._saw(reader.end_time - 1)  # rosbags: the instant after the last message
             conns = [c for c in reader.connections if c.topic in topics]
             index = 0
             messages = reader.messages(connections=conns)
@@ -114,10 +123,9 @@ class Trace:
                 index += 1
                 if progress:
                     progress(1)
-                stamp = header_stamp(msg)
-                yield TraceEvent(
-                    conn.topic, log_time if stamp is None else stamp, msg, Location(path, index)
-                )
+                stamp = log_time if (stamp := header_stamp(msg)) is None else stamp
+                self._saw(stamp)
+                yield TraceEvent(conn.topic, stamp, msg, Location(path, index))
         finally:
             reader.close()
 
@@ -152,7 +160,9 @@ class Trace:
         return self.path
 
 
-def _jsonl_event(path: str, lineno: int, raw: bytes, topics: Collection[str]) -> TraceEvent | None:
+def _jsonl_event(
+    path: str, lineno: int, raw: bytes, topics: Collection[str], saw: Callable[[int], None]
+) -> TraceEvent | None:
     text = raw.decode("utf-8", errors="replace").rstrip("\r\n")
 
     def fail(message: str, col: int | None = None) -> InputError:
@@ -168,7 +178,12 @@ def _jsonl_event(path: str, lineno: int, raw: bytes, topics: Collection[str]) ->
     topic = record.get("topic")
     if not isinstance(topic, str):
         raise fail("missing 'topic' (a string such as \"/speed\")")
-    if topic not in topics:
+    if topic not in topics:  # not read, but it shows that time passed
+        other = record.get("msg")
+        shown = header_stamp(other) if isinstance(other, dict) else None
+        shown = record.get("stamp") if shown is None else shown
+        if isinstance(shown, int) and not isinstance(shown, bool):
+            saw(shown)
         return None
     msg = record.get("msg")
     if not isinstance(msg, dict):
@@ -178,4 +193,5 @@ def _jsonl_event(path: str, lineno: int, raw: bytes, topics: Collection[str]) ->
         stamp = record.get("stamp")
         if isinstance(stamp, bool) or not isinstance(stamp, int):
             raise fail("missing 'stamp' (integer nanoseconds) and msg has no header.stamp")
+    saw(stamp)
     return TraceEvent(topic, stamp, msg, Location(path, lineno))

@@ -298,12 +298,26 @@ class Engine:
                 verdicts.append(v)
         return verdicts
 
+    def advance_clocks(self, wall_ns: int) -> None:
+        """Time passes for the monitors with timed atoms: each takes its clock steps up to
+        ``wall_ns - flush_after`` (this handler's clock; stamps are ROS time), the moment
+        before which it takes every event as in (docs/semantics.md, "Time")."""
+        until = wall_ns - int(self.flush_after * 1e9)
+        with self.lock:
+            for slot in self.slots.values():
+                rt = slot.runtime
+                if rt is not None and rt.clock is not None and slot.active and rt.advance(until):
+                    self.waiting[rt.name] = rt
+                    if not rt.events:
+                        slot.pending_since = None
+
     def tick(self, now: float | None = None) -> list[Verdict]:
         """Release event buffers that waited longer than ``flush_after``; update pressure."""
         now = time.monotonic() if now is None else now
         with self.lock:
             self._precompress()
             self._expire_handoffs(time.monotonic())
+            self.advance_clocks(time.time_ns())
             for slot in self.slots.values():
                 rt = slot.runtime
                 if rt is None:

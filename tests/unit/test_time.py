@@ -1,0 +1,233 @@
+"""Time in assertions: durations, age(x), clock steps (docs/semantics.md, "Time").
+
+The differential test computes the steps of a timed run by brute force, without
+edgerv's deadlines: every instant at which some atom could change (each message
+time, and each message time plus a duration, plus one nanosecond) is examined
+directly from the definition of age, a clock step is kept where the letter
+changes, and the letters go through the independent LTL3 reference
+(tests/reference.py) over the letters that values and ages can make.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import random
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import spot
+
+from edgerv.core.assertion import parse_assertion
+from edgerv.core.diagnostics import InputError
+from edgerv.core.monitor import CompiledMonitor
+from edgerv.core.pipeline import MonitorRuntime
+from helpers import compiled, events, run, spec_of, verdicts
+from reference import ReferenceMonitor
+
+MS = 1_000_000
+SIGNALS = {"a": "bool", "b": "bool", "speed": "float"}
+
+
+def error_of(assertion: str) -> str:
+    with pytest.raises(InputError) as info:
+        parse_assertion(spec_of(assertion, SIGNALS, parameters={"limit": 3}))
+    return str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("text", "ns"),
+    [("500ms", 500 * MS), ("1.5s", 1_500_000_000), ("2min", 120_000_000_000), ("3us", 3000),
+     ("7ns", 7), (".5s", 500 * MS), ("1e3ms", 10**9)],
+)  # fmt: skip
+def test_durations_carry_their_unit(text: str, ns: int) -> None:
+    m = compiled(f"always (age(a) < {text})", SIGNALS)
+    assert [(t.op, t.duration) for t in m.timed] == [("<", ns)]
+
+
+@pytest.mark.parametrize(
+    ("assertion", "expected"),
+    [
+        ("always (age(a) < 500sec)", "test.yaml:6:34: error: unknown unit 'sec' in '500sec'"),
+        ("always (age(a) < 125)", "type mismatch in 'age(a) < 125': age(a) is a duration, 125"),
+        ("always (speed < 5ms)", "speed is a number, 5000000 is a duration"),
+        ("always (age(c) < 1s)", "age() takes a signal: 'c' is not a signal"),
+        ("always (age(limit) < 1s)", "age() takes a signal: 'limit' is a parameter"),
+        ("always (age(a) > -1s)", "a duration cannot be negative: '-1s'"),
+        ("always (age(a) < 1.5ns)", "'1.5ns' is not a whole number of nanoseconds"),
+        ("always (a -> F[0..500ms] b)", "time bounds on F, G, U and X are not supported yet"),
+        ("always (a U[0..1s] b)", "time bounds on F, G, U and X are not supported yet"),
+        ("always (age(a) & b)", "age(x) is a duration, not a proposition"),
+        ("always (a -> 5ms)", "duration 5ms outside a comparison"),
+        ("always (age(a) < age(b))", "must compare one age(x) with a duration"),
+    ],
+)
+def test_bad_time_is_reported_at_its_place(assertion: str, expected: str) -> None:
+    message = error_of(assertion)
+    assert expected in message, message
+    assert "Traceback" not in message
+
+
+def test_a_duration_on_the_left_and_not_equal_mean_what_they_say() -> None:
+    m = compiled("always (200ms > age(a) & age(b) != 1s)", SIGNALS)
+    assert [(t.op, t.duration) for t in m.timed] == [("<", 200 * MS), ("==", 10**9)]
+    assert "!" in m.parsed.spot_text  # != is the negation of ==
+
+
+def test_a_deadline_is_reported_at_the_instant_it_passes_offline() -> None:
+    """cmd at 0, 100, 200 ms, then silence while another topic shows time passing."""
+    m = compiled("always (age(cmd) < 125ms)", {"cmd": "float"}, name="deadline")
+    trace = [("/cmd", t * MS, 1.0) for t in (0, 100, 200)] + [("/odom", 900 * MS, 0.0)]
+    (result,) = run([m], events(trace))  # the helper ends the check at the last event
+    assert verdicts(result) == [("violated", 4, 325 * MS)]  # 200 ms + 125 ms: a clock step
+
+
+def test_a_check_ends_its_clock_at_the_traces_last_stamp(tmp_path: Path) -> None:
+    """`edgerv check` on JSON Lines: lines of topics no monitor reads still show time."""
+    (tmp_path / "m.yaml").write_text(
+        "apiVersion: edgerv.io/v1alpha1\nkind: Monitor\nmetadata: {name: fresh}\nspec:\n"
+        '  assertion: "always (age(cmd) < 125ms)"\n'
+        "  signals: {cmd: {topic: /cmd, type: std_msgs/msg/Float64}}\n"
+    )
+    lines = [{"topic": "/cmd", "stamp": t * MS, "msg": {"data": 1.0}} for t in (0, 100)]
+    lines.append({"topic": "/other", "stamp": 400 * MS, "msg": {"data": 1}})
+    (tmp_path / "t.jsonl").write_text("".join(json.dumps(x) + "\n" for x in lines))
+    done = subprocess.run(
+        [sys.executable, "-m", "edgerv", "check", "m.yaml", "t.jsonl", "--json"],
+        cwd=tmp_path, capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert done.returncode == 1, done.stderr
+    (mon,) = json.loads(done.stdout)["monitors"]
+    assert mon["verdicts"] == [{"verdict": "violated", "stamp": 225 * MS, "step": 3}]
+
+
+def test_live_time_passing_gives_the_same_steps_as_a_trace() -> None:
+    """advance() (the handler's clock) and a later event give the same clock steps."""
+    m = compiled("always (age(a) < 10ns | b)", {"a": "bool", "b": "bool"})
+    by_event, by_clock = MonitorRuntime(m), MonitorRuntime(m)
+    for rt in (by_event, by_clock):
+        rt.offer(0, 0, [(0, True), (1, False)])  # a and b share no topic here: one event
+    by_event.offer(50, 1, [(1, False)])
+    assert by_clock.advance(49)
+    by_clock.offer(50, 1, [(1, False)])
+    got = [[(v.verdict, v.step, v.stamp) for v in rt.evaluate()] for rt in (by_event, by_clock)]
+    assert got[0] == got[1] == [("violated", 2, 10), ("violated", 3, 50)]
+
+
+def test_age_is_infinite_before_the_first_message() -> None:
+    m = compiled(
+        "always (age(b) > 1s)",
+        {"a": "bool", "b": {"topic": "/b", "type": "std_msgs/msg/Bool", "initial": False}},
+    )
+    (result,) = run(
+        [m], events([("/a", 0, True), ("/a", 5 * 10**9, True), ("/b", 6 * 10**9, True)])
+    )
+    assert verdicts(result) == [("violated", 3, 6 * 10**9)]  # only once /b has spoken
+
+
+# -- differential: brute-force steps and the independent LTL3 reference -------------------------
+
+TIMED_ATOMS = [
+    "age(a) < 30ms", "age(b) >= 20ms", "age(a) <= 45ms", "age(b) == 25ms", "age(a) > 10ms",
+]  # fmt: skip
+_CMP = {"<": int.__lt__, "<=": int.__le__, ">": int.__gt__, ">=": int.__ge__, "==": int.__eq__}
+
+
+def atom_value(text: str, now: int, last: dict[str, int | None], values: dict[str, bool]) -> bool:
+    """An atom's truth at ``now`` straight from its definition."""
+    if not text.startswith("age("):
+        return values[text]
+    name, op, d = text[4], text.split()[1], int(text.split()[2][:-2]) * MS
+    if last[name] is None:
+        return op in (">", ">=")  # never published: an infinite age
+    return bool(_CMP[op](now - last[name], d))
+
+
+def reference_steps(
+    texts: list[str], trace: list[tuple[str, int, bool]], end: int
+) -> list[tuple[int, int]]:
+    """(letter, stamp) of every step: each event, and each instant between events (up to
+    ``end``) at which the letter changes, found by trying every instant where it could."""
+    values = {"a": False, "b": False}  # both signals have initial: false
+    last: dict[str, int | None] = {"a": None, "b": None}
+    durations = {int(t.split()[2][:-2]) * MS for t in texts if t.startswith("age(")}
+
+    def letter(now: int) -> int:
+        return sum(1 << i for i, t in enumerate(texts) if atom_value(t, now, last, values))
+
+    steps: list[tuple[int, int]] = []
+    current = letter(0)
+    bounds = [stamp for _, stamp, _ in trace[1:]] + [end + 1]
+    for (topic, stamp, value), until in zip(trace, bounds, strict=True):
+        values[topic[1]], last[topic[1]] = value, stamp
+        current = letter(stamp)
+        steps.append((current, stamp))
+        candidates = sorted(
+            {m + d + k for m in last.values() if m is not None for d in durations for k in (0, 1)}
+        )
+        for t in candidates:
+            if stamp < t < until and letter(t) != current:
+                current = letter(t)
+                steps.append((current, t))
+    return steps
+
+
+def feasible(texts: list[str]) -> list[int]:
+    """The letters values and ages can make: every bool value and, per signal, every age
+    around the durations it is compared with (and infinite)."""
+    ages = sorted({0, *(int(t.split()[2][:-2]) * MS + k for t in texts if "age" in t
+                        for k in (-1, 0, 1))})  # fmt: skip
+    out = set()
+    for va, vb, age_a, age_b in itertools.product(
+        (False, True), (False, True), [*ages, math.inf], [*ages, math.inf]
+    ):
+        now = 10**12
+        last = {"a": None if age_a == math.inf else now - age_a,
+                "b": None if age_b == math.inf else now - age_b}  # fmt: skip
+        out.add(sum(1 << i for i, t in enumerate(texts)
+                    if atom_value(t, now, last, {"a": va, "b": vb})))  # fmt: skip
+    return sorted(out)
+
+
+def timed_formulas(count: int, seed: int) -> list[str]:
+    gen = spot.randltl(["a", "b", "t0", "t1"], seed=seed, tree_size=(4, 14), simplify=0)
+    rng = random.Random(seed)
+    out: list[str] = []
+    while len(out) < count:
+        f = str(next(gen))
+        if "t0" in f or "t1" in f:
+            pick = rng.sample(TIMED_ATOMS, 2)
+            out.append(f.replace("t0", f"({pick[0]})").replace("t1", f"({pick[1]})"))
+    return out
+
+
+def random_trace(rng: random.Random, n: int) -> list[tuple[str, int, bool]]:
+    stamp, out = 0, []
+    for _ in range(n):
+        stamp += rng.choice([0, 1, 5, 15, 20, 25, 30, 50]) * MS + rng.choice([0, 0, 1, -1])
+        stamp = max(stamp, out[-1][1] if out else 0)
+        out.append((rng.choice(["/a", "/b"]), stamp, rng.random() < 0.5))
+    return out
+
+
+@pytest.mark.parametrize(("seed", "formula"), list(enumerate(timed_formulas(30, seed=7))))
+def test_timed_verdicts_match_the_brute_force_reference(seed: int, formula: str) -> None:
+    signals = {n: {"topic": f"/{n}", "type": "std_msgs/msg/Bool", "initial": False} for n in "ab"}
+    m: CompiledMonitor = compiled(formula, signals)
+    texts = [atom.text for atom in m.parsed.atoms]  # bit i of a letter is this atom
+    names = [f"q{i}" for i in range(len(texts))]
+    spot_text = m.parsed.spot_text
+    for i in reversed(range(len(texts))):
+        spot_text = spot_text.replace(f"p{i}", names[i])
+    ref = ReferenceMonitor(spot.formula(spot_text), names, alphabet=feasible(texts))
+    rng = random.Random(seed)
+    for _ in range(6):
+        trace = random_trace(rng, 25)
+        end = trace[-1][1] + rng.choice([0, 10, 100]) * MS
+        steps = reference_steps(texts, trace, end)
+        expected = [(v, step, steps[step - 1][1]) for v, step in ref.run(s for s, _ in steps)]
+        check = run([m], events([*trace, ("/clock", end, 0)]))
+        assert verdicts(check[0]) == expected, (formula, trace, end)
