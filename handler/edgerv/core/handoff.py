@@ -179,9 +179,12 @@ def restore(monitor: CompiledMonitor, snap: Snapshot, held: list[Event]) -> Moni
         )
     if not 0 <= snap.state < table.states:
         raise HandoffError(f"automaton state {snap.state} out of range")
-    if (snap.clock is None) != (not monitor.timed) or (
-        snap.clock is not None and len(snap.clock[1]) != len(monitor.signal_names)
-    ):
+    clock_fits = (
+        not monitor.timed
+        if snap.clock is None
+        else bool(monitor.timed) and len(snap.clock[1]) == len(monitor.signal_names)
+    )
+    if not clock_fits:
         raise HandoffError(
             f"snapshot of '{snap.monitor}' does not fit this definition (timed atoms "
             "differ): the handlers disagree on it"

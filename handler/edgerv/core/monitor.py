@@ -48,14 +48,6 @@ class CompiledMonitor:
         return self.spec.name
 
     @property
-    def untimed_bits(self) -> int:
-        """The mask of the placeholders that signal values alone decide."""
-        mask = (1 << self.table.bits) - 1
-        for t in self.timed:
-            mask &= ~(1 << t.bit)
-        return mask
-
-    @property
     def warnings(self) -> tuple[Diagnostic, ...]:
         return self.parsed.warnings
 

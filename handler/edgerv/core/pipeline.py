@@ -81,21 +81,19 @@ class Clock:
     last: list[int | None]
     now: int | None = None
     deadline: int | None = None
+    mask: int = field(init=False)  # the timed atoms' placeholder bits
 
-    @property
-    def mask(self) -> int:
-        return sum(1 << a.bit for a in self.atoms)
+    def __post_init__(self) -> None:
+        self.mask = sum(1 << a.bit for a in self.atoms)
 
     def bits(self) -> int:
         """The timed atoms' placeholder bits at ``now``."""
         out, now = 0, self.now
         for a in self.atoms:
-            last = self.last[a.signal]
-            if last is None or now is None:
-                true = a.op in (">", ">=")  # an infinite age
-            else:
-                true = _AGE_CMP[a.op](now - last, a.duration)
-            if true:
+            last = self.last[a.signal]  # when set, now is too; unset: an infinite age
+            if (
+                a.op in (">", ">=") if last is None else _AGE_CMP[a.op](now - last, a.duration)  # type: ignore[operator]
+            ):
                 out |= 1 << a.bit
         return out
 
@@ -104,7 +102,7 @@ class Clock:
         now = self.now
         for a in self.atoms:
             last = self.last[a.signal]
-            if last is None or now is None:
+            if last is None or now is None:  # an infinite age stays infinite
                 continue
             for edge in _EDGES[a.op]:
                 at = last + a.duration + edge
