@@ -644,7 +644,7 @@ class _Parser:
 
 def _kind_name(kind: str) -> str:
     names = {"number": "a number", "bool": "a boolean", "string": "a string"}
-    return names.get(kind, "a duration" if kind == "duration" else kind)
+    return names.get(kind, f"a {kind}")  # a duration
 
 
 def _is_call(toks: Sequence[Token], i: int) -> bool:
