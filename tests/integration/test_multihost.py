@@ -310,3 +310,127 @@ def test_calls_without_the_token_change_nothing(tmp_path: Path, lab: Lab, domain
     finally:
         edge.stop()
         cloud.stop()
+
+
+SILENT = """\
+apiVersion: edgerv.io/v1alpha1
+kind: Monitor
+metadata: {name: estop-stops}
+spec:
+  assertion: "always (estop == 1 -> speed < 0.1)"
+  signals:
+    estop: {topic: /estop, type: sensor_msgs/msg/Joy, field: "buttons[0]", initial: 0}
+    speed: {topic: /speed, type: geometry_msgs/msg/TwistStamped, field: twist.linear.x}
+---
+apiVersion: edgerv.io/v1alpha1
+kind: Monitor
+metadata: {name: parked}
+spec:
+  assertion: "always (lift == 1 -> door == 0)"
+  signals:
+    lift: {topic: /lift, type: sensor_msgs/msg/Joy, field: "buttons[0]", initial: 0}
+    door: {topic: /door, type: sensor_msgs/msg/Joy, field: "buttons[0]", initial: 1}
+"""
+
+# The robot: /speed (stamped) every 10 ms; publishers of /estop and /lift that stay silent
+# but at the given instants (s after the start: the e-stop pressed, the lift raised); no
+# publisher of /door at all. Each message published is recorded as a JSON Lines event.
+ROBOT = r"""
+import json, sys, time, rclpy
+from geometry_msgs.msg import TwistStamped
+from sensor_msgs.msg import Joy
+rec_path, seconds, presses = sys.argv[1], float(sys.argv[2]), json.loads(sys.argv[3])
+rclpy.init()
+node = rclpy.create_node("robot")
+speed = node.create_publisher(TwistStamped, "/speed", 1000)
+buttons = {t: node.create_publisher(Joy, t, 100) for t in ("/estop", "/lift")}
+rec = open(rec_path, "w")
+def stamp():
+    now = time.time_ns()
+    return now, {"sec": now // 10**9, "nanosec": now % 10**9}
+def send(topic, msg, body):
+    now, st = stamp()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = st["sec"], st["nanosec"]
+    (speed if topic == "/speed" else buttons[topic]).publish(msg)
+    body = {"header": {"stamp": st}, **body}
+    rec.write(json.dumps({"topic": topic, "stamp": now, "msg": body}) + "\n")
+    rec.flush()
+deadline = time.monotonic() + 30  # the edge handler subscribed to every topic it reads
+while time.monotonic() < deadline and not all(
+    p.get_subscription_count() for p in (speed, *buttons.values())
+):
+    time.sleep(0.05)
+time.sleep(0.5)
+start = time.monotonic()
+i = 0
+while time.monotonic() - start < seconds:
+    t = time.monotonic() - start
+    for topic, at in list(presses):
+        if t >= at:
+            presses.remove([topic, at])
+            m = Joy(); m.buttons = [1]
+            send(topic, m, {"buttons": [1]})
+    m = TwistStamped(); v = 0.05 if i % 40 < 20 else 0.5; m.twist.linear.x = v
+    send("/speed", m, {"twist": {"linear": {"x": v}}})
+    i += 1
+    time.sleep(0.01)
+print("done", flush=True)
+time.sleep(600)
+"""
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_monitors_with_silent_topics_move_and_a_press_mid_move_counts_once(
+    tmp_path: Path, lab: Lab, domain: int, seed: int
+) -> None:
+    """One monitor with a silent and a busy topic, one whose topics are all silent (one
+    with no publisher at all): both move back and forth while the e-stop and the lift
+    are pressed at random moments, some during a move. The two handlers' verdicts
+    together equal `edgerv check` on what the robot published."""
+    rng = random.Random(seed)
+    monitors = write(tmp_path, "silent.yaml", SILENT)
+    recording = tmp_path / "robot.jsonl"
+    edge = Handler(tmp_path, monitors, domain, *WINDOW, lab=lab, name="edge")
+    cloud = Handler(tmp_path, monitors, domain, *CLOUD, lab=lab, name="cloud")
+    seconds = 6.0
+    presses = [[t, round(rng.uniform(1.0, seconds - 1.0), 3)] for t in ("/estop", "/lift")]
+    presses += [["/estop", round(rng.uniform(1.0, seconds - 1.0), 3)]]
+    robot = lab.popen(
+        "edge",
+        [sys.executable, "-c", ROBOT, str(recording), str(seconds), json.dumps(presses)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    names = "estop-stops,parked"
+    moves: list[str] = []
+    try:
+        assert wait_for(lambda: events_seen(edge, "estop-stops") > 20, timeout=60)
+        src, dst = edge, cloud
+        started = time.monotonic()
+        while time.monotonic() - started < seconds - 1.5:
+            time.sleep(rng.uniform(0.05, 0.4))
+            done = edgerv(
+                lab, "cloud", "migrate", "--from", addr(src), "--to", addr(dst),
+                "--monitor", names, "--timeout", "10",
+            )  # fmt: skip
+            assert done.returncode == 0, done.stderr
+            moves.append(done.stderr.strip())
+            src, dst = dst, src
+        assert robot.stdout is not None
+        assert robot.stdout.readline().strip() == "done", robot.stderr
+        time.sleep(1.0)  # the last messages reach the handlers
+        late = sum(
+            h.metric("edgerv_late_events", monitor="estop-stops") or 0 for h in (edge, cloud)
+        )
+    finally:
+        robot.kill()
+        robot.wait()
+        assert edge.stop() == 0, edge.stderr
+        assert cloud.stop() == 0, cloud.stderr
+    print("\n".join(moves))
+    assert len(moves) >= 4, moves
+    assert late == 0
+    offline = offline_verdicts(monitors, recording)
+    assert {name for name, _, _ in offline} == {"estop-stops", "parked"}  # presses counted
+    assert live_verdicts(edge, cloud) == offline

@@ -82,7 +82,8 @@ def test_handoff_between_engines(seed: int, threshold: int) -> None:
         if received and cut is None:
             cut = dst.cut("m", epoch)
         if held and cut is not None:
-            data = src.release("m", epoch, cut, grace=1e9)
+            # (wall=0: these stamps are a clock of their own, not the wall clock)
+            data = src.release("m", epoch, cut, grace=1e9, wall=0)
             if data is not None:
                 assert not src.slots["m"].active and not dst.slots["m"].active
                 fate = rng.random()
@@ -93,7 +94,7 @@ def test_handoff_between_engines(seed: int, threshold: int) -> None:
                         dst.adopt("m", epoch, data)  # a late adopt is fenced
                 else:
                     if fate < 0.5:  # the answers were lost: both calls come again
-                        assert src.release("m", epoch, cut, grace=1e9) == data
+                        assert src.release("m", epoch, cut, grace=1e9, wall=0) == data
                         dst.adopt("m", epoch, data)
                     dst.adopt("m", epoch, data)
                     assert dst.abort("m", epoch) == "active"  # too late to undo there
@@ -151,18 +152,21 @@ def test_the_sender_waits_for_every_topic_past_the_cut_or_the_grace() -> None:
     quiet.put(monitor(), active=True)
     quiet.hold("m", 1, now=90.0)
     quiet.ingest([(20, "/x", [2.0])], now=95.0)  # /a stays quiet
-    assert quiet.release("m", 1, cut=15, grace=5.0, now=100.0) is None
+    # (wall: the stamps' clock, not yet a reorder window past the cut)
+    assert quiet.release("m", 1, cut=15, grace=5.0, now=100.0, wall=20) is None
     quiet.ingest([(21, "/x", [2.0])], now=103.0)  # events come: a lagging sender waits
-    assert quiet.release("m", 1, cut=15, grace=5.0, now=105.0) is None
-    assert quiet.release("m", 1, cut=15, grace=5.0, now=108.0) is not None  # nothing for 5 s
-    # a quiet topic is let go once another one ran grace seconds of stamps past the cut
-    stream = Engine("s", flush_after=1e9)
-    stream.put(monitor(), active=True)
-    stream.hold("m", 1, now=0.0)
-    stream.ingest([(20, "/x", [2.0]), (10**9 + 14, "/x", [2.0])], now=0.0)
-    assert stream.release("m", 1, cut=15, grace=1.0, now=0.0) is None
-    stream.ingest([(10**9 + 15, "/x", [2.0])], now=0.0)
-    assert stream.release("m", 1, cut=15, grace=1.0, now=0.0) is not None
+    assert quiet.release("m", 1, cut=15, grace=5.0, now=105.0, wall=21) is None
+    assert quiet.release("m", 1, cut=15, grace=5.0, now=108.0, wall=22) is not None  # 5 s
+    # a quiet topic is let go once the stream ran the reorder window past the cut (or
+    # grace, when that is shorter): nothing at or before the cut is still on its way
+    for window, grace in ((1.0, 5.0), (5.0, 1.0)):
+        stream = Engine("s", flush_after=1e9, reorder_window=window)
+        stream.put(monitor(), active=True)
+        stream.hold("m", 1, now=0.0)
+        stream.ingest([(20, "/x", [2.0]), (10**9 + 14, "/x", [2.0])], now=0.0)
+        assert stream.release("m", 1, cut=15, grace=grace, now=0.0) is None
+        stream.ingest([(10**9 + 15, "/x", [2.0])], now=0.0)
+        assert stream.release("m", 1, cut=15, grace=grace, now=0.0) is not None
 
 
 def test_the_cut_is_never_below_what_the_sender_already_evaluated() -> None:
@@ -256,3 +260,43 @@ def test_a_receiver_takes_its_first_stamps_from_what_it_took() -> None:
     assert e.cut("m", 1) == 7
     e.ingest([(6, "/a", [True]), (7, "/x", [1.0]), (9, "/a", [False])])  # the same, later
     assert e.cut("m", 1) == 7 and len(e.slots["m"].runtime.events) == 3  # type: ignore[union-attr]
+
+
+def test_a_parked_robot_lets_the_sender_go_a_reorder_window_past_the_cut() -> None:
+    """Every topic silent: H1 took nothing for a reorder window and its clock is a window
+    past the cut: nothing at or before the cut can still come (docs/protocol.md)."""
+    ms = 1_000_000
+    e = Engine("h", flush_after=1e9, reorder_window=0.02)
+    e.put(monitor(), active=True)
+    e.ingest([(1 * ms, "/a", [True]), (2 * ms, "/x", [1.0])], now=10.0)
+    e.hold("m", 1, now=10.0)
+    cut = 100 * ms
+    assert e.release("m", 1, cut=cut, grace=5.0, now=10.5, wall=cut + 19 * ms) is None
+    assert e.release("m", 1, cut=cut, grace=5.0, now=10.005, wall=cut + 20 * ms) is None
+    snap = e.release("m", 1, cut=cut, grace=5.0, now=10.5, wall=cut + 20 * ms)
+    assert snap is not None
+
+
+def test_a_receiver_vouches_for_a_silent_topic_once_matched_a_window_long() -> None:
+    """H2 received nothing on /a: once its subscription has been matched with every
+    publisher of /a for a reorder window, that instant stands for /a's first stamp."""
+    ms = 1_000_000
+    matched = {"/a": False}
+    e = Engine("h2", flush_after=1e9, reorder_window=0.02, matched=lambda t: matched[t])
+    e.put(monitor(), active=False)
+    e.receive("m", 1)
+    e.ingest([(5 * ms, "/x", [1.0])], now=0.0)
+    e.taken([(5 * ms, "/x", [1.0])])
+    assert e.cut("m", 1, wall=10 * ms) is None  # not matched yet
+    matched["/a"] = True
+    assert e.cut("m", 1, wall=11 * ms) is None  # matched since 11 ms: not a window yet
+    assert e.cut("m", 1, wall=30 * ms) is None
+    assert e.cut("m", 1, wall=31 * ms) == 31 * ms  # the later of 11 + 20 ms and /x's 5 ms
+    matched["/a"] = False  # a new publisher of /a appears: matching starts over
+    assert e.cut("m", 1, wall=40 * ms) is None
+    matched["/a"] = True
+    assert e.cut("m", 1, wall=41 * ms) is None
+    assert e.cut("m", 1, wall=61 * ms) == 61 * ms
+    e.taken([(50 * ms, "/a", [True])])  # a message came: its stamp is exact
+    assert e.cut("m", 1, wall=62 * ms) == 50 * ms
+    assert Engine("no-ros").matched is None  # without a ROS layer a silent topic waits

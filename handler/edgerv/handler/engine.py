@@ -13,6 +13,7 @@ scheduled) only where it is placed (the paper's section III).
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -73,6 +74,9 @@ class MonitorSlot:
     handoff: str | None = None
     released: bytes | None = None  # H1: the snapshot it sent, until the handoff commits
     first_stamps: dict[str, int] = field(default_factory=dict)  # H2: first stamp per topic
+    # H2: per topic without a message yet, since when (wall ns) its subscription has been
+    # matched with every publisher of the topic (the cut's stamp for a silent topic)
+    vouched: dict[str, int] = field(default_factory=dict)
     cut_known: tuple[int, float] | None = None  # H1: the cut, and when it first heard of it
     held_at: float = 0.0  # H1: when it began to hold
     peer: str | None = None  # H1: the receiver, as the driver named it (to settle with)
@@ -134,11 +138,21 @@ class Engine:
         sinks: Iterable[VerdictSink] = (),
         flush_after: float = 0.5,
         type_check: Callable[[str], str | None] | None = None,
+        reorder_window: float = 0.02,
+        matched: Callable[[str], bool] | None = None,
     ) -> None:
         self.name = name
         self.sinks = list(sinks)
         self.flush_after = flush_after
         self.type_check = type_check  # message type -> error text if it cannot be subscribed
+        # The delivery skew the handler allows between topics (its reorder window): how
+        # long a silent topic's subscription must have been matched before H2 vouches for
+        # it, and twice it, how far past a cut H1's stream must run before it lets a topic
+        # that brought nothing past the cut go (docs/protocol.md, "Silent topics").
+        self.settle_ns = int(max(reorder_window, 0.01) * 1e9)
+        # topic -> its subscription here is matched with every publisher the ROS graph
+        # shows (the ROS layer's; None: no ROS, a silent topic never vouched for)
+        self.matched = matched
         self.lock = threading.RLock()
         self.ready = threading.Condition(self.lock)
         self.slots: dict[str, MonitorSlot] = {}
@@ -427,7 +441,7 @@ class Engine:
                 raise HandoffError(f"epoch {epoch} is not newer than {slot.epoch}")
             if slot.runtime is not None:
                 raise HandoffError(f"monitor '{name}' already runs here")
-            slot.epoch, slot.first_stamps = epoch, {}
+            slot.epoch, slot.first_stamps, slot.vouched = epoch, {}, {}
             self._set_handoff(slot, "receiving")
             self._activate(slot)
             assert slot.runtime is not None
@@ -435,14 +449,37 @@ class Engine:
             slot.runtime.holding, slot.runtime.speculate = True, False
             self.routes_version += 1
 
-    def cut(self, name: str, epoch: int) -> int | None:
-        """H2, step 4: the cut once every topic delivered an event, else None."""
+    def cut(self, name: str, epoch: int, wall: int | None = None) -> int | None:
+        """H2, step 4: the cut once every topic delivered an event or is vouched for,
+        else None.
+
+        A topic that brought nothing yet is vouched for from ``settle`` after the moment
+        its subscription was seen matched with every publisher of the topic (none at
+        all: from its subscription): from then on every message published on it
+        reaches H2, so that moment plus ``settle`` stands for its first stamp."""
+        wall = time.time_ns() if wall is None else wall
         with self.lock:
             slot = self._handoff_slot(name, epoch, "receiving")
-            return cut_point(slot.first_stamps, slot.compiled.spec.topics)
+            topics, firsts = slot.compiled.spec.topics, dict(slot.first_stamps)
+            for topic in topics:
+                if topic in firsts or self.matched is None:
+                    continue
+                if not self.matched(topic):  # a new publisher, or not subscribed yet
+                    slot.vouched.pop(topic, None)
+                    continue
+                since = slot.vouched.setdefault(topic, wall) + self.settle_ns
+                if wall >= since:
+                    firsts[topic] = since
+            return cut_point(firsts, topics)
 
     def release(
-        self, name: str, epoch: int, cut: int, grace: float, now: float | None = None
+        self,
+        name: str,
+        epoch: int,
+        cut: int,
+        grace: float,
+        now: float | None = None,
+        wall: int | None = None,
     ) -> bytes | None:
         """H1, step 5: the snapshot, else None while events up to the cut may still come.
 
@@ -452,6 +489,11 @@ class Engine:
         one has run ``grace`` seconds of stamps past the cut, or when nothing at all
         came for ``grace`` seconds since H1 learned the cut: stream time, not H1's
         clock, so that a lagging H1 does not give up on events still in its queues.
+        Sooner, a topic is let go once H1's stream (the newest stamp it took on any
+        topic) ran ``settle`` past the cut, or H1 took nothing at all for ``settle``
+        and its clock (``wall``) is that far past the cut (a parked robot): with the
+        topics' skew within the reorder window, nothing at or before the cut is still
+        on its way (docs/protocol.md, "Silent topics").
 
         Then the monitor stops running here, but H1 keeps the snapshot and goes on
         holding the events after the cut until the handoff commits (H2 adopted) or is
@@ -484,6 +526,7 @@ class Engine:
                 all(n > cut for n in newest)  # every topic is past the cut
                 or max(newest) - cut >= grace * 1e9  # the others ran grace past it: quiet
                 or now - max(slot.cut_known[1], quiet_since) >= grace  # nothing comes
+                or self._stream_past(cut + self.settle_ns, now, wall)
             ):
                 return None
             data = encode(export_snapshot(rt, cut, epoch))  # rt keeps the events after it
@@ -491,6 +534,15 @@ class Engine:
             slot.released = data
             self._set_handoff(slot, "released")
             return data
+
+    def _stream_past(self, stamp: int, now: float, wall: int | None) -> bool:
+        """H1 took everything stamped up to ``stamp``, on every topic: its stream (the
+        newest stamp it took on any topic) is past it; or it took nothing for ``settle``
+        while its clock is past it."""
+        if self.newest and max(self.newest.values()) >= stamp:
+            return True
+        idle = now - max(self.heard.values(), default=-math.inf) >= self.settle_ns / 1e9
+        return idle and (time.time_ns() if wall is None else wall) >= stamp
 
     def commit(self, name: str, epoch: int) -> str:
         """H1, after H2 adopted: let go of the snapshot and the held events."""

@@ -159,11 +159,17 @@ def run(args: argparse.Namespace) -> int:
     verdict_log = VerdictLog(args.verdict_log) if args.verdict_log else None
     if verdict_log:
         sinks.append(verdict_log)
+    window = max(0.0, args.reorder_window)
     engine = Engine(
-        args.name, sinks, flush_after=args.flush_after, type_check=ros_node.type_problem
+        args.name,
+        sinks,
+        flush_after=args.flush_after,
+        type_check=ros_node.type_problem,
+        reorder_window=window,
     )
-    ros = ros_node.RosIngest(engine, args.name, reorder_window=max(0.0, args.reorder_window))
+    ros = ros_node.RosIngest(engine, args.name, reorder_window=window)
     engine.sinks.append(ros)
+    engine.matched = ros.matched
     for spec in specs:
         try:
             engine.put(engine.compile(spec), active=spec.name in active)

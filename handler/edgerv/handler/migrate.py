@@ -259,8 +259,9 @@ def _migrate(
                 break
             if time.monotonic() > deadline:
                 raise MigrationFailed(
-                    f"{destination.base} received no message on some topic of "
-                    f"{', '.join(waiting)} within {timeout:g} s"
+                    f"{destination.base} could not take the cut of {', '.join(waiting)} "
+                    f"within {timeout:g} s: on some topic it neither received a message nor "
+                    "was matched with every publisher (docs/protocol.md, 'Silent topics')"
                 )
             time.sleep(0.005)
         mark("cut")

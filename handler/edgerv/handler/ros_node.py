@@ -25,6 +25,7 @@ from operator import itemgetter
 from typing import Any
 
 import rclpy
+from rclpy.exceptions import InvalidHandle
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
@@ -167,6 +168,19 @@ class RosIngest:
         return _Sub(
             route, tuple(route.fields), sub, compile_reader(route.msg_type, route.fields), qos, auto
         )
+
+    def matched(self, topic: str) -> bool:
+        """This handler's subscription to ``topic`` is matched with every publisher the
+        ROS graph shows for it (with none, trivially): a receiver vouches for a silent
+        topic by it (Engine.cut; docs/protocol.md, "Silent topics"). Called from the API's
+        threads: the graph calls and the subscription take rclpy's handle locks."""
+        sub = self.subs.get(topic)
+        if sub is None:  # not subscribed yet (the ROS thread reconfigures) or any more
+            return False
+        try:
+            return bool(sub.subscription.get_publisher_count() >= self.node.count_publishers(topic))
+        except InvalidHandle:  # destroyed meanwhile
+            return False
 
     def _reconfigure(self) -> None:
         version = self.engine.routes_version
