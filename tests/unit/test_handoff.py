@@ -38,6 +38,9 @@ ASSERTIONS = [
     "always (a -> age(x) < 4ns)",
     "always (age(a) <= 5ns | x > 8)",
     "always (age(x) == 3ns -> a)",
+    # past operators: their state moves too (a timed window partly filled at the cut)
+    "always (historically[1ns..6ns] (x < 8) | a)",
+    "always ((a since (x > 3)) -> prev !a)",
 ]
 
 

@@ -46,6 +46,7 @@ import spot
 from edgerv.core.diagnostics import Diagnostic, InputError, did_you_mean
 from edgerv.core.documents import MonitorSpec, Value
 from edgerv.core.msgtypes import ValueKind
+from edgerv.core.past import PastError, PastKind, PastOp, compile_boolean
 
 CmpOp = Literal["<", "<=", ">", ">=", "==", "!="]
 
@@ -98,6 +99,9 @@ _BOOL_BINOPS = {*_IMPLIES, "&&", "||", "&", "|", "^", "xor", ";", ":", ","}
 _TEMPORAL_BINOPS = {"U", "W", "R", "M"}
 _SPOT_WORDS = {"G", "F", "X", "U", "W", "R", "M", "xor", "true", "false"}
 _PSL_WORDS = {"always", "never", "eventually", "next", "next_e", "next_a", "until", "before"}
+_PAST_UNARY = {"once", "historically", "prev"}
+_TAKES_BRACKET = {"G", "F", "X", "next", "next!", "next_e", "next_e!", "next_a", "next_a!",
+                  "once", "historically", "since"}  # fmt: skip
 _NUMBER = re.compile(r"(\d+\.?\d*(?:[eE][+-]?\d+)?|\.\d+(?:[eE][+-]?\d+)?)")
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 # Durations: a number and its unit, written together (500ms, 1.5s, 2min); nanoseconds.
@@ -199,6 +203,12 @@ class ParsedAssertion:
     spot_text: str  # the text given to Spot's parser
     constraint: Any  # spot.formula: the letters that can occur (see feasible_letters)
     warnings: tuple[Diagnostic, ...]
+    past: tuple[PastOp, ...] = ()  # derived placeholders p<len(atoms)>..., inner first
+
+    @property
+    def bits(self) -> int:
+        """Placeholders in a letter: the atoms', then the past operators'."""
+        return len(self.atoms) + len(self.past)
 
 
 @dataclass
@@ -208,7 +218,8 @@ class _Out:
     text: str
     start: int
     end: int
-    role: str = "other"  # atom, unary, loose, tbin, bbin, pbin, open, close, other
+    role: str = "other"  # atom, unary, loose, tbin, bbin, pbin, past, open, close, other
+    window: tuple[int, int] | None = None  # a timed past operator's [lo, hi] in ns
 
 
 def tokenize(text: str, fail: Callable[[int, int, str, str | None], None]) -> list[Token]:
@@ -286,6 +297,7 @@ class _Parser:
         self.diagnostics: list[Diagnostic] = []
         self.atoms: list[Atom] = []
         self.atom_index: dict[tuple[Any, ...], int] = {}
+        self.past: list[PastOp] = []
 
     def fail(self, start: int, length: int, message: str, hint: str | None = None) -> None:
         loc = self.spec.locate_assertion(start, length)
@@ -349,6 +361,82 @@ class _Parser:
                 did_you_mean(arg.text, self.spec.signals) or "declare it under spec.signals",
             )
         return Operand(None, 0), "error", 4
+
+    def _past_window(self, bracket: str, at: int) -> tuple[int, int] | None:
+        """``[a..b]`` or ``[a:b]`` of a past operator: durations (a bare 0 is zero)."""
+        inner = bracket[1:-1]
+        parts = inner.split("..") if ".." in inner else inner.split(":")
+        bounds: list[int] = []
+        for part in (p.strip() for p in parts):
+            ns = 0 if part == "0" else duration_ns(part)
+            if ns is None:
+                break
+            bounds.append(ns)
+        if len(parts) != 2 or len(bounds) != 2:
+            unitless = all(_NUMBER.fullmatch(p.strip()) for p in parts)
+            self.fail(
+                at,
+                len(bracket),
+                "a past operator's interval counts time, not steps"
+                if unitless
+                else f"bad interval {bracket}: two durations, each with its unit",
+                "e.g. once[0..2s] f, historically[100ms:1s] f",
+            )
+            return None
+        if bounds[0] > bounds[1]:
+            self.fail(at, len(bracket), f"the interval {bracket} ends before it starts")
+            return None
+        return bounds[0], bounds[1]
+
+    def derive_past(self, out: list[_Out]) -> list[_Out]:
+        """Replace each past operator and its operands by a placeholder of its own, inner
+        ones first (module edgerv.core.past computes them)."""
+        while True:
+            found = _innermost_past(out)
+            if found is None:
+                return out
+            i, spans = found
+            op = out[i]
+            start, end = spans[0][0] if op.role == "pbin" else i, spans[-1][1]
+            operands = []
+            for a, b in spans:
+                operand = self._past_operand(op, out[a:b])
+                if operand is None:
+                    return out
+                operands.append(operand)
+            if op.text == "since" and op.window is not None:
+                self.fail(
+                    op.start,
+                    op.end - op.start,
+                    "since with a time bound is not supported yet",
+                    "once[a..b] and historically[a..b] take one",
+                )
+                return out
+            bit = len(self.atoms) + len(self.past)
+            kind: PastKind = cast(PastKind, op.text)
+            source = self.text[out[start].start : out[end - 1].end]
+            self.past.append(PastOp(kind, bit, tuple(operands), op.window, source))
+            out = [*out[:start], _Out(f"p{bit}", out[start].start, out[end - 1].end, "atom"),
+                   *out[end:]]  # fmt: skip
+
+    def _past_operand(self, op: _Out, tokens: list[_Out]) -> Any:
+        text = " ".join(o.text for o in tokens)
+        parsed = spot.parse_infix_psl(text) if text.strip() else None
+        stream = spot.ostringstream()
+        if parsed is None or parsed.format_errors(stream) or not parsed.f.is_boolean():
+            self.fail(
+                op.start,
+                op.end - op.start,
+                f"'{op.text}' needs a formula without future operators",
+                "past operators look back: their operands are atoms, boolean operators "
+                "and other past operators",
+            )
+            return None
+        try:
+            return compile_boolean(parsed.f)
+        except PastError as exc:
+            self.fail(op.start, op.end - op.start, str(exc))
+            return None
 
     def _timed_interval(self, start: int, length: int) -> None:
         self.fail(
@@ -554,18 +642,15 @@ class _Parser:
         """
         w, s, e = t.text, t.start, t.end
         bracket = nxt.text if nxt is not None and nxt.kind == "bracket" and nxt.start == e else None
-        takes_bracket = w in (
-            "G",
-            "F",
-            "X",
-            "next",
-            "next!",
-            "next_e",
-            "next_e!",
-            "next_a",
-            "next_a!",
-        )
+        takes_bracket = w in _TAKES_BRACKET and w not in self.spec.signals
         used = 2 if bracket is not None and takes_bracket else 1
+        if w in ("once", "historically", "since", "prev") and w not in self.spec.signals:
+            window = None
+            if bracket is not None and w != "prev":
+                window = self._past_window(bracket, e)
+            end = e + (len(bracket) if bracket is not None and takes_bracket else 0)
+            out.append(_Out(w, s, end, "pbin" if w == "since" else "past", window))
+            return used
         if bracket is not None and takes_bracket and _TIMED_BOUND.search(bracket):
             self._timed_interval(s, e - s + len(bracket))
             return used
@@ -645,6 +730,39 @@ class _Parser:
 def _kind_name(kind: str) -> str:
     names = {"number": "a number", "bool": "a boolean", "string": "a string"}
     return names.get(kind, f"a {kind}")  # a duration
+
+
+def _is_past(o: _Out) -> bool:
+    return o.role == "past" or (o.role == "pbin" and o.text == "since")
+
+
+def _prefix_operand_end(out: list[_Out], j: int) -> int:
+    """One past the operand starting at out[j] of a prefix operator: the unary operators
+    before it, then a bracketed group or one token."""
+    while j < len(out) and out[j].role in ("unary", "past"):
+        j += 1
+    if j < len(out) and out[j].role == "open":
+        depth = 0
+        for k in range(j, len(out)):
+            depth += {"open": 1, "close": -1}.get(out[k].role, 0)
+            if depth == 0:
+                return k + 1
+        return len(out)
+    return min(j + 1, len(out))
+
+
+def _innermost_past(out: list[_Out]) -> tuple[int, list[tuple[int, int]]] | None:
+    """A past operator whose operands hold no other: its index and operand spans."""
+    for i in reversed(range(len(out))):
+        if not _is_past(out[i]):
+            continue
+        if out[i].role == "past":
+            spans = [(i + 1, _prefix_operand_end(out, i + 1))]
+        else:
+            spans = [(_operand_end(out, i, -1) + 1, i), (i + 1, _operand_end(out, i, +1))]
+        if not any(_is_past(out[k]) for a, b in spans for k in range(a, b)):
+            return i, spans
+    return None
 
 
 def _is_call(toks: Sequence[Token], i: int) -> bool:
@@ -757,6 +875,9 @@ def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
     out = p.translate(tokens)
     if p.diagnostics:
         raise InputError(p.diagnostics)
+    out = p.derive_past(out)
+    if p.diagnostics:
+        raise InputError(p.diagnostics)
     out = _wrap_loose(_rewrite_psl_binary(out))
     pieces, offsets, pos = [], [], 0
     for o in out:
@@ -774,8 +895,8 @@ def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
     formula = spot.parse_infix_psl(text).f
     atoms = tuple(p.atoms)
     constraint = feasible_letters(spec, atoms)
-    warnings = _vacuity_warnings(spec, formula, constraint)
-    return ParsedAssertion(spec, formula, atoms, text, constraint, tuple(warnings))
+    warnings = _vacuity_warnings(spec, formula, constraint)  # past placeholders range free
+    return ParsedAssertion(spec, formula, atoms, text, constraint, tuple(warnings), tuple(p.past))
 
 
 @lru_cache(maxsize=4096)

@@ -88,6 +88,7 @@ class Snapshot:
     # a monitor with timed atoms: its clock (the time of its last step, and of the last
     # message on each signal's topic); None for one without
     clock: tuple[int | None, tuple[int | None, ...]] | None = None
+    past: Any = None  # its past operators' state (Past.save), None for a monitor without
     # the letters' runs (runs_of), when the sender computed them already
     runs: Any = field(default=None, compare=False, repr=False)
 
@@ -125,6 +126,7 @@ def export_snapshot(rt: MonitorRuntime, cut: int, epoch: int) -> Snapshot:
         letters=rt.letters[:],
         stamps={i: stamps[i] for i in deciding_steps(rt.monitor, rt.state, runs)},
         clock=None if rt.clock is None else rt.clock.snapshot(),
+        past=None if rt.past is None else rt.past.save(),
         runs=runs,
     )
 
@@ -180,16 +182,21 @@ def restore(monitor: CompiledMonitor, snap: Snapshot, held: list[Event]) -> Moni
     if not 0 <= snap.state < table.states:
         raise HandoffError(f"automaton state {snap.state} out of range")
     clock_fits = (
-        not monitor.timed
+        not monitor.clocked
         if snap.clock is None
-        else bool(monitor.timed) and len(snap.clock[1]) == len(monitor.signal_names)
+        else monitor.clocked and len(snap.clock[1]) == len(monitor.signal_names)
     )
-    if not clock_fits:
+    if not clock_fits or (snap.past is None) != (not monitor.past):
         raise HandoffError(
-            f"snapshot of '{snap.monitor}' does not fit this definition (timed atoms "
-            "differ): the handlers disagree on it"
+            f"snapshot of '{snap.monitor}' does not fit this definition (timed atoms or "
+            "past operators differ): the handlers disagree on it"
         )
     rt = MonitorRuntime(monitor)
+    if rt.past is not None:
+        try:
+            rt.past.load(snap.past)
+        except (ValueError, TypeError, KeyError) as exc:
+            raise HandoffError(f"snapshot of '{snap.monitor}': {exc}") from None
     if rt.clock is not None and snap.clock is not None:
         rt.clock.restore(*snap.clock)
     rt.state, rt.step, rt.halted = snap.state, snap.step, snap.halted
@@ -272,6 +279,7 @@ def encode(snap: Snapshot) -> bytes:
             "runs": len(run_lengths),
             "stamps": len(snap.stamps),
             "clock": None if snap.clock is None else [snap.clock[0], list(snap.clock[1])],
+            "past": snap.past,
         },
         separators=(",", ":"),
     ).encode()
@@ -396,6 +404,7 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
             letters=letters,
             stamps=stamps,
             clock=clock,
+            past=h.get("past"),
         )
     except HandoffError:
         raise

@@ -14,6 +14,7 @@ from edgerv.core.assertion import (
 )
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import MonitorSpec
+from edgerv.core.past import PastOp
 from edgerv.core.synthesis import MonitorTable, SynthesisError, synthesize
 
 
@@ -42,6 +43,17 @@ class CompiledMonitor:
     atoms_of_signal: tuple[tuple[int, ...], ...]  # signal index -> placeholders reading it
     atom_columns: tuple[Callable[[list[Any]], Any], ...]  # the same over columns of values
     timed: tuple[TimedAtom, ...] = ()  # the atoms time changes: age(x) < 200ms
+    past: tuple[PastOp, ...] = ()  # the past operators' placeholders, inner first
+
+    @property
+    def stateful(self) -> bool:
+        """Its letters need more than the signal values: time, or the past."""
+        return bool(self.timed or self.past)
+
+    @property
+    def clocked(self) -> bool:
+        """It takes clock steps: time alone changes a placeholder."""
+        return bool(self.timed) or any(op.window is not None for op in self.past)
 
     @property
     def name(self) -> str:
@@ -56,7 +68,7 @@ def compile_monitor(spec: MonitorSpec) -> CompiledMonitor:
     """Parse, check and synthesize one monitor; raise :class:`InputError` on bad input."""
     parsed = parse_assertion(spec)
     try:
-        table = synthesize(parsed.formula, parsed.constraint, len(parsed.atoms))
+        table = synthesize(parsed.formula, parsed.constraint, parsed.bits)
     except SynthesisError as exc:
         loc = spec.locate_assertion(0, len(spec.assertion))
         raise InputError([Diagnostic(loc, str(exc))]) from None
@@ -71,7 +83,7 @@ def compile_monitor(spec: MonitorSpec) -> CompiledMonitor:
         for i, a in enumerate(atoms)
         if a.timed
     )
-    return CompiledMonitor(spec, parsed, table, names, funcs, readers, columns, timed)
+    return CompiledMonitor(spec, parsed, table, names, funcs, readers, columns, timed, parsed.past)
 
 
 def compile_monitors(

@@ -26,6 +26,7 @@ import numpy as np
 from edgerv.core.documents import QosSpec
 from edgerv.core.monitor import CompiledMonitor, TimedAtom
 from edgerv.core.msgtypes import ValueKind, make_getter
+from edgerv.core.past import Past
 
 VerdictKind = Literal["violated", "satisfied"]
 MonitorState = Literal["pending", "violated", "satisfied", "halted"]
@@ -79,6 +80,7 @@ class Clock:
 
     atoms: tuple[TimedAtom, ...]
     last: list[int | None]
+    past: Past | None = None  # its timed past operators change with time too
     now: int | None = None
     deadline: int | None = None
     mask: int = field(init=False)  # the timed atoms' placeholder bits
@@ -110,6 +112,10 @@ class Clock:
                     if best is None or at < best:
                         best = at
                     break
+        if self.past is not None and now is not None:
+            later = self.past.next_change(now)
+            if later is not None and (best is None or later < best):
+                best = later
         return best
 
     def snapshot(self) -> tuple[int | None, tuple[int | None, ...]]:
@@ -153,16 +159,19 @@ class MonitorRuntime:
     ahead_letters: array = field(init=False)  # type: ignore[type-arg]
     ahead_stamps: array = field(init=False)  # type: ignore[type-arg]
     base: tuple[list[Any], int, int] = field(init=False)
-    # A monitor with timed atoms steps by the clock too (clock steps); None without any.
-    # Its events are compressed one by one, never ahead nor column-wise.
+    # A monitor whose placeholders time alone changes (timed atoms, timed past operators)
+    # steps by the clock too (clock steps); None without any.
     clock: Clock | None = field(init=False)
+    past: Past | None = field(init=False)  # its past operators' placeholders and state
+    # (a monitor with either compresses its events one by one, never ahead nor column-wise)
 
     def __post_init__(self) -> None:
         spec = self.monitor.spec
         self.name = spec.name
-        timed = self.monitor.timed
-        self.clock = Clock(timed, [None] * len(self.monitor.signal_names)) if timed else None
-        if timed:
+        m = self.monitor
+        self.past = Past(m.past) if m.past else None
+        self.clock = Clock(m.timed, [None] * len(m.signal_names), self.past) if m.clocked else None
+        if m.stateful:
             self.speculate = False
         self.threshold = spec.sort_threshold
         self.letters = array(letter_typecode(self.monitor.table.bits))
@@ -360,17 +369,25 @@ class MonitorRuntime:
     ) -> None:
         """The clock steps at the deadlines up to ``until``: a letter at each instant a
         timed atom changes its truth (once every signal has a value)."""
-        clock = self.clock
+        clock, past = self.clock, self.past
         assert clock is not None
         keep = ~clock.mask
         while clock.deadline is not None and clock.deadline <= until:
-            clock.now = clock.deadline
-            bits = (self.valuation & keep) | clock.bits()
-            clock.deadline = clock.next_deadline()
-            if not self.missing:
+            clock.now = now = clock.deadline
+            if self.missing:  # no letter before every signal has a value
+                clock.deadline = clock.next_deadline()
+                continue
+            aged = clock.bits()
+            if aged != self.valuation & clock.mask or (
+                past is not None and past.time_changes(now, self.valuation)
+            ):  # time alone changed a timed placeholder here: a step, all evaluated anew
+                bits = (self.valuation & keep) | aged
+                if past is not None:
+                    bits = past.step(now, bits)
                 self.valuation = bits
                 letters.append(bits)
-                stamps.append(clock.now)
+                stamps.append(now)
+            clock.deadline = clock.next_deadline()
 
     def _full_valuation(self) -> int:
         bits = 0
@@ -383,7 +400,7 @@ class MonitorRuntime:
         return bits if clock is None else bits | clock.bits()
 
     def _compress(self, batch: Sequence[Event]) -> None:
-        if len(batch) >= COLUMNS_FROM and self.clock is None:
+        if len(batch) >= COLUMNS_FROM and not self.monitor.stateful:
             self._compress_columns(batch)
             return
         letters, stamps = self.letters, self.stamps
@@ -460,14 +477,15 @@ class MonitorRuntime:
             clock.now = now
             for sig, _ in updates:
                 clock.last[sig] = now
-            clock.deadline = clock.next_deadline()
         if self.missing:
             for sig, value in updates:
                 if values[sig] is _UNSET:
                     self.missing -= 1
                 values[sig] = value
-            if self.missing:
-                return  # no letter until every signal has a value
+            if self.missing:  # no letter until every signal has a value
+                if clock is not None:
+                    clock.deadline = clock.next_deadline()
+                return
             bits = self._full_valuation()
         else:  # only the placeholders that read the updated signals change
             funcs, readers = self.monitor.atom_funcs, self.monitor.atoms_of_signal
@@ -481,6 +499,10 @@ class MonitorRuntime:
                         bits &= ~(1 << atom)
             if clock is not None:
                 bits = (bits & ~clock.mask) | clock.bits()
+        if self.past is not None:
+            bits = self.past.step(stamp if clock is None else clock.now, bits)  # type: ignore[arg-type]
+        if clock is not None:
+            clock.deadline = clock.next_deadline()
         self.valuation = bits
         letters.append(bits)
         stamps.append(stamp)

@@ -1,0 +1,201 @@
+"""Past-time operators as derived placeholders, computed step by step (Havelund and Rosu).
+
+Each application of a past operator in an assertion (``once f``, ``historically f``,
+``f since g``, ``prev f``, and ``once[a..b] f``, ``historically[a..b] f``) becomes a
+placeholder of its own, like an atom: Spot sees a proposition, and the pipeline
+computes its truth at every step from its operands' truth at that step and a little
+state (one bit for the untimed operators, the intervals in which the operand held
+for the timed ones). Operands are boolean formulas over the other placeholders,
+inner past operators first. docs/semantics.md ("Past") says what each one means.
+
+Timed ones change their truth as time passes: :meth:`Past.next_change` gives the
+next instant at which one does, and the monitor takes a clock step there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import spot
+
+PastKind = Literal["prev", "once", "historically", "since"]
+BitsFunction = Callable[[int], bool]
+
+
+class PastError(Exception):
+    """An operand that is not a boolean formula over the placeholders."""
+
+
+@dataclass(frozen=True)
+class PastOp:
+    """One past operator: placeholder ``bit`` over ``operands`` (``(f,)``, or ``(f, g)``
+    for ``f since g``), each a function of the letter's bits; ``window`` the closed
+    interval ``[lo, hi]`` in nanoseconds of a timed one."""
+
+    kind: PastKind
+    bit: int
+    operands: tuple[BitsFunction, ...]
+    window: tuple[int, int] | None = None
+    text: str = ""
+
+
+def compile_boolean(formula: Any) -> BitsFunction:
+    """A Spot boolean formula over placeholders ``p<i>`` as a function of the bits."""
+    if not formula.is_boolean():
+        raise PastError(f"'{formula}' is not a boolean formula")
+    source = _python(formula)
+    code = compile(f"lambda b: bool({source})", "<past operand>", "eval")
+    return eval(code, {"__builtins__": {"bool": bool}})  # type: ignore[no-any-return]
+
+
+def _python(f: Any) -> str:
+    k = f.kind()
+    if k == spot.op_tt:
+        return "True"
+    if k == spot.op_ff:
+        return "False"
+    if k == spot.op_ap:
+        name = f.ap_name()
+        if not (name.startswith("p") and name[1:].isdigit()):
+            raise PastError(f"unknown proposition '{name}'")
+        return f"(b >> {int(name[1:])} & 1)"
+    parts = [_python(g) for g in f]
+    if k == spot.op_Not:
+        return f"(not {parts[0]})"
+    if k == spot.op_And:
+        return "(" + " and ".join(parts) + ")"
+    if k == spot.op_Or:
+        return "(" + " or ".join(parts) + ")"
+    if k == spot.op_Xor:
+        return f"(bool({parts[0]}) != bool({parts[1]}))"
+    if k == spot.op_Implies:
+        return f"((not {parts[0]}) or {parts[1]})"
+    if k == spot.op_Equiv:
+        return f"(bool({parts[0]}) == bool({parts[1]}))"
+    raise PastError(f"'{f}' is not a boolean formula")
+
+
+@dataclass
+class _Runs:
+    """The time intervals ``[start, end)`` in which an operand held, oldest first; the
+    last one's end is None while it still holds. Those that can no longer matter to a
+    window reaching ``hi`` back are dropped."""
+
+    runs: list[list[int | None]] = field(default_factory=list)
+
+    def step(self, now: int, holds: bool) -> None:
+        runs = self.runs
+        ongoing = bool(runs) and runs[-1][1] is None
+        if holds and not ongoing:
+            runs.append([now, None])
+        elif not holds and ongoing:
+            runs[-1][1] = now
+
+    def prune(self, now: int, hi: int) -> None:
+        runs = self.runs
+        while runs and runs[0][1] is not None and runs[0][1] + hi <= now:
+            del runs[0]
+
+    def once(self, now: int, lo: int, hi: int) -> bool:
+        """Did it hold at some instant of ``[now - hi, now - lo]``? (after :meth:`prune`)"""
+        return any(start + lo <= now for start, _ in self.runs)  # type: ignore[operator]
+
+    def next_change(self, now: int, lo: int, hi: int) -> int | None:
+        """The first instant after ``now`` at which :meth:`once` may change its answer."""
+        best = None
+        for start, end in self.runs:
+            for at in (start + lo, None if end is None else end + hi):  # type: ignore[operator]
+                if at is not None and at > now and (best is None or at < best):
+                    best = at
+        return best
+
+
+class Past:
+    """The derived placeholders of one monitor and their state. Not thread-safe."""
+
+    def __init__(self, ops: Sequence[PastOp]) -> None:
+        self.ops = tuple(ops)
+        self.mask = sum(1 << op.bit for op in self.ops)
+        self.timed = any(op.window is not None for op in self.ops)
+        # per op: prev: [the operand at the last step]; untimed: [its value]; timed: runs
+        self.state: list[Any] = [self._initial(op) for op in self.ops]
+
+    @staticmethod
+    def _initial(op: PastOp) -> Any:
+        if op.window is not None:
+            return _Runs()
+        return [op.kind == "historically"]  # once, since, prev: False; historically: True
+
+    def step(self, now: int, bits: int) -> int:
+        """Take a step at ``now`` whose atoms are ``bits``: the letter with the derived
+        placeholders set, inner ones first (an outer one reads their new bits)."""
+        for op, state in zip(self.ops, self.state, strict=True):
+            f = op.operands[0](bits)
+            if op.window is not None:
+                lo, hi = op.window
+                value = self._timed(state, now, lo, hi, f if op.kind == "once" else not f)
+                if op.kind == "historically":
+                    value = not value
+            elif op.kind == "prev":  # the operand at the step before (none: false)
+                value, state[0] = state[0], f
+            elif op.kind == "once":
+                value = state[0] = state[0] or f
+            elif op.kind == "historically":
+                value = state[0] = state[0] and f
+            else:  # f since g: g now, or f now and (f since g) at the step before
+                g = op.operands[1](bits)
+                value = state[0] = g or (f and state[0])
+            bits = bits | (1 << op.bit) if value else bits & ~(1 << op.bit)
+        return bits
+
+    @staticmethod
+    def _timed(runs: _Runs, now: int, lo: int, hi: int, holds: bool) -> bool:
+        runs.step(now, holds)
+        runs.prune(now, hi)
+        return runs.once(now, lo, hi)
+
+    def time_changes(self, now: int, bits: int) -> bool:
+        """Does a timed one's truth at ``now`` differ from its bit in ``bits`` (the
+        last step's letter), every operand held since that step? Then time alone
+        changed it, and a clock step is due at ``now``."""
+        for op, state in zip(self.ops, self.state, strict=True):
+            if op.window is not None:
+                lo, hi = op.window
+                state.prune(now, hi)
+                value = state.once(now, lo, hi) != (op.kind == "historically")
+                if value != bool(bits >> op.bit & 1):
+                    return True
+        return False
+
+    def next_change(self, now: int) -> int | None:
+        """The first instant after ``now`` at which a timed one may change its truth
+        with no new step; None if none can."""
+        best = None
+        for op, state in zip(self.ops, self.state, strict=True):
+            if op.window is not None:
+                at = state.next_change(now, *op.window)
+                if at is not None and (best is None or at < best):
+                    best = at
+        return best
+
+    def save(self) -> Any:
+        """The state, as plain JSON values (a handoff snapshot carries it)."""
+        return [s.runs if isinstance(s, _Runs) else s for s in self.state]
+
+    def load(self, ops: Any) -> None:
+        """The state :meth:`save` gave (checked: raises ValueError if it does not fit)."""
+        if not isinstance(ops, list) or len(ops) != len(self.ops):
+            raise ValueError("the past operators' state does not fit")
+        state: list[Any] = []
+        for op, s in zip(self.ops, ops, strict=True):
+            if op.window is not None:
+                runs = [[int(a), None if b is None else int(b)] for a, b in s]
+                state.append(_Runs(runs))
+            else:
+                (value,) = s
+                if not isinstance(value, bool):
+                    raise ValueError("a past operator's value is not a bool")
+                state.append([value])
+        self.state = state
