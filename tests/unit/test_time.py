@@ -58,8 +58,13 @@ def test_durations_carry_their_unit(text: str, ns: int) -> None:
         ("always (age(limit) < 1s)", "age() takes a signal: 'limit' is a parameter"),
         ("always (age(a) > -1s)", "a duration cannot be negative: '-1s'"),
         ("always (age(a) < 1.5ns)", "'1.5ns' is not a whole number of nanoseconds"),
-        ("always (a -> F[0..500ms] b)", "time bounds on F, G, U and X are not supported yet"),
-        ("always (a U[0..1s] b)", "time bounds on F, G, U and X are not supported yet"),
+        ("always (a U[0..1s] b)", "a time bound here (on U, W, R, M or a SERE) is not supported"),
+        ("always (a -> X[2s] b)", "'X' counts steps: it takes no duration"),
+        ("a -> F[0..500ms] b", "a time-bounded F is supported as always (P -> F[a..b] Q)"),
+        ("always (F[0..1s] a -> b)", "a time-bounded F is supported as always (P -> F[a..b] Q)"),
+        ("always (a -> F[0..1s] G b)", "'F' needs a formula without future operators"),
+        ("always (a -> F[0..1s] b & G[0..1s] a)", "one time-bounded F or G an assertion"),
+        ("always (a -> F[2s..1s] b)", "the interval [2s..1s] ends before it starts"),
         ("always (age(a) & b)", "age(x) is a duration, not a proposition"),
         ("always (a -> 5ms)", "duration 5ms outside a comparison"),
         ("always (age(a) < age(b))", "must compare one age(x) with a duration"),
@@ -231,3 +236,84 @@ def test_timed_verdicts_match_the_brute_force_reference(seed: int, formula: str)
         expected = [(v, step, steps[step - 1][1]) for v, step in ref.run(s for s, _ in steps)]
         check = run([m], events([*trace, ("/clock", end, 0)]))
         assert verdicts(check[0]) == expected, (formula, trace, end)
+
+
+# -- time-bounded F and G: always (P -> F[a..b] Q), always (P -> G[a..b] Q) ------------------
+
+
+def held(run_: list[tuple[str, int, bool]], topic: str, u: int) -> bool | None:
+    """The value of the signal on ``topic`` at instant u (None before the run)."""
+    if u < run_[0][1]:
+        return None
+    value = False  # initial: false
+    for t, s, v in run_:
+        if s > u:
+            break
+        if t == topic:
+            value = v
+    return value
+
+
+def q_sometime(run_: list[tuple[str, int, bool]], lo: int, hi: int) -> bool:
+    """Q held at some instant of [lo, hi]: at lo, or at a message on /q within it."""
+    return bool(held(run_, "/q", lo)) or any(t == "/q" and v and lo < s <= hi for t, s, v in run_)
+
+
+def obligation_fails(
+    kind: str, lo: int, hi: int, run_: list[tuple[str, int, bool]], t: int
+) -> bool:
+    """Straight from the future form: at instant t, is some obligation certain to fail?
+    F: the obligation of P at t - hi saw no Q in [t - hi + lo, t]. G: Q fails at t
+    while P held at some instant of [t - hi, t - lo] (each looked up in the run)."""
+    if kind == "F":
+        tau = t - hi
+        return bool(held(run_, "/p", tau)) and not q_sometime(run_, tau + lo, tau + hi)
+    if held(run_, "/q", t):
+        return False
+    start = max(t - hi, run_[0][1])
+    return start <= t - lo and (
+        bool(held(run_, "/p", start))
+        or any(x == "/p" and v and start < s <= t - lo for x, s, v in run_)
+    )
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_bounded_future_deadlines_fail_exactly_when_certain(seed: int) -> None:
+    rng = random.Random(seed)
+    kind = rng.choice(["F", "G"])
+    lo = rng.choice([0, 0, 10, 20]) * MS
+    hi = lo + rng.choice([5, 20, 40]) * MS
+    signals = {n: {"topic": f"/{n}", "type": "std_msgs/msg/Bool", "initial": False} for n in "pq"}
+    m = compiled(f"always (p -> {kind}[{lo}ns..{hi}ns] q)", signals)
+    for _ in range(4):
+        run_, stamp = [], 0
+        for _ in range(30):
+            stamp += rng.choice([1, 3, 5, 10, 20, 30]) * MS + rng.choice([0, 1])
+            run_.append((rng.choice(["/p", "/q"]), stamp, rng.random() < 0.4))
+        end = stamp + rng.choice([0, 30, 80]) * MS
+        rt = MonitorRuntime(m)
+        for i, (topic, t, v) in enumerate(run_):
+            rt.offer(t, i, [(0 if topic == "/p" else 1, v)])
+        rt.advance(end)
+        steps = list(rt.stamps)
+        violated = {v.step for v in rt.evaluate() if v.verdict == "violated"}
+        got = [(t, i + 1 in violated) for i, t in enumerate(steps)]
+        assert got == [(t, obligation_fails(kind, lo, hi, run_, t)) for t in steps], (
+            kind, lo, hi, run_, end)  # fmt: skip
+        # every instant at which an obligation starts to fail is a step
+        tries = {s + d + k for _, s, _ in run_ for d in (0, lo, hi) for k in (0, 1)}
+        starts = [t for t in sorted(tries) if run_[0][1] < t <= end
+                  and obligation_fails(kind, lo, hi, run_, t)
+                  and not obligation_fails(kind, lo, hi, run_, t - 1)]  # fmt: skip
+        assert set(starts) <= set(steps), (kind, lo, hi, sorted(set(starts) - set(steps)))
+
+
+def test_the_issues_deadline_is_violated_where_it_became_certain() -> None:
+    m = compiled("always (go -> F[0..500ms] done)", {"go": "bool", "done": "bool"})
+    trace = [("/go", 0, True), ("/done", 0, False), ("/go", 100 * MS, False),
+             ("/done", 300 * MS, True), ("/done", 320 * MS, False),
+             ("/go", 1000 * MS, True), ("/go", 1100 * MS, False),
+             ("/odom", 3000 * MS, 0)]  # fmt: skip
+    (result,) = run([m], events(trace))
+    # go from 1000 ms on: no done within 500 ms, certain at 1500 ms (a clock step)
+    assert [(v, t) for v, _, t in verdicts(result)] == [("violated", 1500 * MS)]

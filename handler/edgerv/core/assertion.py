@@ -442,10 +442,67 @@ class _Parser:
         self.fail(
             start,
             length,
-            "time bounds on F, G, U and X are not supported yet: an interval counts steps",
-            "for a deadline counted from a message, compare its age: "
-            "G(go -> (age(go) < 500ms U done)); see docs/semantics.md, 'Time'",
+            "a time bound here (on U, W, R, M or a SERE) is not supported yet",
+            "write a deadline with F[a..b] or G[a..b] under always, or with age: "
+            "always (go -> (age(go) < 500ms until done)); see docs/semantics.md, 'Time'",
         )
+
+    def cut_future(self, out: list[_Out]) -> tuple[list[_Out], tuple[_Out, list[_Out]] | None]:
+        """Take the time-bounded F or G and its operand out of ``out``: they stand as the
+        proposition ``fut`` until :meth:`pastify_future` rewrites the whole formula."""
+        found = [i for i, o in enumerate(out) if o.role == "future"]
+        for extra in found[1:]:
+            o = out[extra]
+            self.fail(o.start, o.end - o.start,
+                      "one time-bounded F or G an assertion, for now",
+                      "split the assertion into several monitors")  # fmt: skip
+        if not found or len(found) > 1:
+            return out, None
+        i = found[0]
+        end = _prefix_operand_end(out, i + 1)
+        cut = (out[i], out[i + 1 : end])
+        return [*out[:i], _Out("fut", out[i].start, out[end - 1].end, "atom"), *out[end:]], cut
+
+    def pastify_future(self, formula: Any, cut: tuple[_Out, list[_Out]]) -> Any:
+        """``always (P -> F[a..b] Q)`` and ``always (P -> G[a..b] Q)`` as past formulas that
+        are false exactly when the obligation is certain to fail (docs/semantics.md,
+        "Time"): ``always (once[b..b] P -> once[0..b-a] Q)`` (Q did not come in time:
+        certain b after P) and ``always (once[a..b] P -> Q)`` (Q failed inside a window
+        opened by P: certain there). Returns the new formula, or None on an error."""
+        op, operand = cut
+        fut = spot.formula.ap("fut")
+        shape = None
+        if formula.kind() == spot.op_G:
+            body = formula[0]
+            if body == fut:
+                shape = spot.formula.tt()
+            elif body.kind() == spot.op_Implies and body[1] == fut:
+                shape = body[0]
+            elif body.kind() == spot.op_Or and fut in list(body):
+                shape = spot.formula.Not(spot.formula.Or([g for g in body if g != fut]))
+        if shape is None or not shape.is_boolean() or "fut" in str(shape):
+            self.fail(
+                op.start,
+                op.end - op.start,
+                f"a time-bounded {op.text} is supported as always (P -> {op.text}[a..b] Q)",
+                "P and Q without future operators; or write the deadline with age",
+            )
+            return None
+        q = self._past_operand(op, operand)
+        p = self._past_operand(op, [_Out(str(shape), op.start, op.end, "atom")])
+        if q is None or p is None or op.window is None:
+            return None
+        lo, hi = op.window
+        text = self.text[op.start : operand[-1].end]
+        bit = len(self.atoms) + len(self.past)
+        if op.text == "F":
+            self.past.append(PastOp("once", bit, (p,), (hi, hi), f"the antecedent of {text}"))
+            self.past.append(PastOp("once", bit + 1, (q,), (0, hi - lo), text))
+            then = spot.formula.ap(f"p{bit + 1}")
+        else:
+            self.past.append(PastOp("once", bit, (p,), (lo, hi), f"the antecedent of {text}"))
+            then = spot.parse_infix_psl(" ".join(o.text for o in operand)).f
+        return spot.formula.G(spot.formula.Implies(spot.formula.ap(f"p{bit}"), then))
 
     def _add_atom(self, atom: Atom) -> int:
         key = atom.key()
@@ -652,7 +709,14 @@ class _Parser:
             out.append(_Out(w, s, end, "pbin" if w == "since" else "past", window))
             return used
         if bracket is not None and takes_bracket and _TIMED_BOUND.search(bracket):
-            self._timed_interval(s, e - s + len(bracket))
+            end = e + len(bracket)
+            if w in ("X", "next", "next!"):
+                self.fail(s, end - s, f"'{w}' counts steps: it takes no duration",
+                          "for a time bound use F[0..500ms] f or G[0..2s] f")  # fmt: skip
+            else:  # F, G and PSL's next_e, next_a with a time bound: see pastify_future
+                window = self._past_window(bracket, e)
+                op = "F" if w == "F" or w.startswith("next_e") else "G"
+                out.append(_Out(op, s, end, "future", window))
             return used
         if w == "age" and nxt is not None and nxt.text == "(":
             self.fail(
@@ -739,7 +803,7 @@ def _is_past(o: _Out) -> bool:
 def _prefix_operand_end(out: list[_Out], j: int) -> int:
     """One past the operand starting at out[j] of a prefix operator: the unary operators
     before it, then a bracketed group or one token."""
-    while j < len(out) and out[j].role in ("unary", "past"):
+    while j < len(out) and out[j].role in ("unary", "past", "future"):
         j += 1
     if j < len(out) and out[j].role == "open":
         depth = 0
@@ -878,7 +942,9 @@ def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
     out = p.derive_past(out)
     if p.diagnostics:
         raise InputError(p.diagnostics)
-    out = _wrap_loose(_rewrite_psl_binary(out))
+    out, future = p.cut_future(_wrap_loose(_rewrite_psl_binary(out)))
+    if p.diagnostics:
+        raise InputError(p.diagnostics)
     pieces, offsets, pos = [], [], 0
     for o in out:
         offsets.append((pos, o))
@@ -893,6 +959,11 @@ def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
     if p.diagnostics:
         raise InputError(p.diagnostics)
     formula = spot.parse_infix_psl(text).f
+    if future is not None:
+        formula = p.pastify_future(formula, future)
+        if p.diagnostics:
+            raise InputError(p.diagnostics)
+        text = str(formula)
     atoms = tuple(p.atoms)
     constraint = feasible_letters(spec, atoms)
     warnings = _vacuity_warnings(spec, formula, constraint)  # past placeholders range free
