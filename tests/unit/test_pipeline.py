@@ -204,7 +204,7 @@ def test_reset_restarts_and_halt_stops() -> None:
 
 def test_events_on_other_topics_do_not_step() -> None:
     m = compiled("next a", {"a": "bool"})
-    other = compiled("always c", {"c": "bool"})
+    other = compiled("always c", {"c": "bool"}, name="other")
     result = run([m, other], events([("/a", 1, False), ("/c", 2, True), ("/a", 3, True)]))
     assert verdicts(result[0]) == [("satisfied", 2, 3)]
 

@@ -11,7 +11,6 @@ from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import MonitorRuntime, MonitorState, Router, ValueTypeError, Verdict
 from edgerv.core.traces import TraceEvent
 
-
 EVALUATE_BATCH = 1024  # letters a monitor collects before the check evaluates them
 
 
