@@ -45,7 +45,7 @@ def compile_boolean(formula: Any) -> BitsFunction:
     """A Spot boolean formula over placeholders ``p<i>`` as a function of the bits."""
     if not formula.is_boolean():
         raise PastError(f"'{formula}' is not a boolean formula")
-    source = _python(formula)
+    source = _python(formula)  # only bit tests and boolean operators, from Spot's tree
     code = compile(f"lambda b: bool({source})", "<past operand>", "eval")
     return eval(code, {"__builtins__": {"bool": bool}})  # type: ignore[no-any-return]
 
@@ -99,8 +99,9 @@ class _Runs:
             del runs[0]
 
     def once(self, now: int, lo: int, hi: int) -> bool:
-        """Did it hold at some instant of ``[now - hi, now - lo]``? (after :meth:`prune`)"""
-        return any(start + lo <= now for start, _ in self.runs)  # type: ignore[operator]
+        """Did it hold at some instant of ``[now - hi, now - lo]``? After :meth:`prune`
+        every run left ends after ``now - hi``: the oldest one tells."""
+        return bool(self.runs) and self.runs[0][0] + lo <= now  # type: ignore[operator]
 
     def next_change(self, now: int, lo: int, hi: int) -> int | None:
         """The first instant after ``now`` at which :meth:`once` may change its answer."""
@@ -117,8 +118,6 @@ class Past:
 
     def __init__(self, ops: Sequence[PastOp]) -> None:
         self.ops = tuple(ops)
-        self.mask = sum(1 << op.bit for op in self.ops)
-        self.timed = any(op.window is not None for op in self.ops)
         # per op: prev: [the operand at the last step]; untimed: [its value]; timed: runs
         self.state: list[Any] = [self._initial(op) for op in self.ops]
 

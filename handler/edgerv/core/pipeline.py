@@ -367,8 +367,9 @@ class MonitorRuntime:
         letters: array,  # type: ignore[type-arg]
         stamps: array,  # type: ignore[type-arg]
     ) -> None:
-        """The clock steps at the deadlines up to ``until``: a letter at each instant a
-        timed atom changes its truth (once every signal has a value)."""
+        """The clock steps up to ``until``: a letter at each instant at which time alone
+        changes a timed placeholder (an age atom, a timed past operator, its operands
+        held), once every signal has a value."""
         clock, past = self.clock, self.past
         assert clock is not None
         keep = ~clock.mask
