@@ -332,14 +332,15 @@ spec:
     door: {topic: /door, type: sensor_msgs/msg/Joy, field: "buttons[0]", initial: 1}
 """
 
-# The robot: /speed (stamped) every 10 ms; publishers of /estop and /lift that stay silent
-# but at the given instants (s after the start: the e-stop pressed, the lift raised); no
-# publisher of /door at all. Each message published is recorded as a JSON Lines event.
+# The robot: /speed (stamped) every 10 ms until a stop file appears; publishers of /estop
+# and /lift that stay silent but at the given instants (s after the start: the e-stop
+# pressed, the lift raised); no publisher of /door at all. Each message published is
+# recorded as a JSON Lines event.
 ROBOT = r"""
-import json, sys, time, rclpy
+import json, os, sys, time, rclpy
 from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import Joy
-rec_path, seconds, presses = sys.argv[1], float(sys.argv[2]), json.loads(sys.argv[3])
+rec_path, stop_path, presses = sys.argv[1], sys.argv[2], json.loads(sys.argv[3])
 rclpy.init()
 node = rclpy.create_node("robot")
 speed = node.create_publisher(TwistStamped, "/speed", 1000)
@@ -361,9 +362,10 @@ while time.monotonic() < deadline and not all(
 ):
     time.sleep(0.05)
 time.sleep(0.5)
+print("publishing", flush=True)
 start = time.monotonic()
 i = 0
-while time.monotonic() - start < seconds:
+while not os.path.exists(stop_path):
     t = time.monotonic() - start
     for topic, at in list(presses):
         if t >= at:
@@ -392,12 +394,12 @@ def test_monitors_with_silent_topics_move_and_a_press_mid_move_counts_once(
     recording = tmp_path / "robot.jsonl"
     edge = Handler(tmp_path, monitors, domain, *WINDOW, lab=lab, name="edge")
     cloud = Handler(tmp_path, monitors, domain, *CLOUD, lab=lab, name="cloud")
-    seconds = 6.0
-    presses = [[t, round(rng.uniform(1.0, seconds - 1.0), 3)] for t in ("/estop", "/lift")]
-    presses += [["/estop", round(rng.uniform(1.0, seconds - 1.0), 3)]]
+    stop = tmp_path / "stop"
+    # the presses fall while the monitors move back and forth (4 moves, about 4 s)
+    presses = [[t, round(rng.uniform(0.5, 4.0), 3)] for t in ("/estop", "/lift", "/estop")]
     robot = lab.popen(
         "edge",
-        [sys.executable, "-c", ROBOT, str(recording), str(seconds), json.dumps(presses)],
+        [sys.executable, "-c", ROBOT, str(recording), str(stop), json.dumps(presses)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -405,10 +407,12 @@ def test_monitors_with_silent_topics_move_and_a_press_mid_move_counts_once(
     names = "estop-stops,parked"
     moves: list[str] = []
     try:
+        assert robot.stdout is not None
+        assert robot.stdout.readline().strip() == "publishing", robot.stderr
+        started = time.monotonic()  # the presses' clock
         assert wait_for(lambda: events_seen(edge, "estop-stops") > 20, timeout=60)
         src, dst = edge, cloud
-        started = time.monotonic()
-        while time.monotonic() - started < seconds - 1.5:
+        for _ in range(4):
             time.sleep(rng.uniform(0.05, 0.4))
             done = edgerv(
                 lab, "cloud", "migrate", "--from", addr(src), "--to", addr(dst),
@@ -417,7 +421,8 @@ def test_monitors_with_silent_topics_move_and_a_press_mid_move_counts_once(
             assert done.returncode == 0, done.stderr
             moves.append(done.stderr.strip())
             src, dst = dst, src
-        assert robot.stdout is not None
+        time.sleep(max(0.0, 4.5 - (time.monotonic() - started)))  # every press was made
+        stop.touch()
         assert robot.stdout.readline().strip() == "done", robot.stderr
         time.sleep(1.0)  # the last messages reach the handlers
         late = sum(
@@ -429,7 +434,6 @@ def test_monitors_with_silent_topics_move_and_a_press_mid_move_counts_once(
         assert edge.stop() == 0, edge.stderr
         assert cloud.stop() == 0, cloud.stderr
     print("\n".join(moves))
-    assert len(moves) >= 4, moves
     assert late == 0
     offline = offline_verdicts(monitors, recording)
     assert {name for name, _, _ in offline} == {"estop-stops", "parked"}  # presses counted

@@ -252,14 +252,19 @@ class ControlApi:
             if step == "cut":
                 with e.lock:
                     cuts = {n: e.cut(n, epoch) for n in names}
-                return web.json_response({"cuts": cuts})
+                    quiet = {n: list(e.slots[n].quiet) for n in names if cuts[n] is not None}
+                return web.json_response({"cuts": cuts, "quiet": quiet})
             if step == "release":
                 cuts, grace = body["cuts"], float(body.get("grace", 1.0))
+                quiet = body.get("quiet") or {}
                 # up to ``wait`` seconds for events past the cut here: no round trip a try
                 until = time.monotonic() + min(MAX_WAIT, max(0.0, float(body.get("wait", 0))))
                 while True:
                     with e.lock:
-                        released = {n: e.release(n, epoch, int(cuts[n]), grace) for n in names}
+                        released = {
+                            n: e.release(n, epoch, int(cuts[n]), grace, quiet=quiet.get(n, ()))
+                            for n in names
+                        }
                     waiting = [n for n, data in released.items() if data is None]
                     if not waiting or time.monotonic() >= until:
                         break

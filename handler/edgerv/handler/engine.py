@@ -13,10 +13,9 @@ scheduled) only where it is placed (the paper's section III).
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -77,6 +76,7 @@ class MonitorSlot:
     # H2: per topic without a message yet, since when (wall ns) its subscription has been
     # matched with every publisher of the topic (the cut's stamp for a silent topic)
     vouched: dict[str, int] = field(default_factory=dict)
+    quiet: tuple[str, ...] = ()  # H2: the topics the cut it reported vouched for
     cut_known: tuple[int, float] | None = None  # H1: the cut, and when it first heard of it
     held_at: float = 0.0  # H1: when it began to hold
     peer: str | None = None  # H1: the receiver, as the driver named it (to settle with)
@@ -153,6 +153,9 @@ class Engine:
         # topic -> its subscription here is matched with every publisher the ROS graph
         # shows (the ROS layer's; None: no ROS, a silent topic never vouched for)
         self.matched = matched
+        # wall ns at which the ROS layer last found every subscription empty and nothing in
+        # its reorder window: nothing had reached this handler that it had not taken
+        self.drained_at: int | None = None
         self.lock = threading.RLock()
         self.ready = threading.Condition(self.lock)
         self.slots: dict[str, MonitorSlot] = {}
@@ -461,6 +464,7 @@ class Engine:
         with self.lock:
             slot = self._handoff_slot(name, epoch, "receiving")
             topics, firsts = slot.compiled.spec.topics, dict(slot.first_stamps)
+            quiet = []
             for topic in topics:
                 if topic in firsts or self.matched is None:
                     continue
@@ -470,7 +474,10 @@ class Engine:
                 since = slot.vouched.setdefault(topic, wall) + self.settle_ns
                 if wall >= since:
                     firsts[topic] = since
-            return cut_point(firsts, topics)
+                    quiet.append(topic)
+            cut = cut_point(firsts, topics)
+            slot.quiet = tuple(quiet) if cut is not None else ()
+            return cut
 
     def release(
         self,
@@ -479,7 +486,7 @@ class Engine:
         cut: int,
         grace: float,
         now: float | None = None,
-        wall: int | None = None,
+        quiet: Collection[str] = (),
     ) -> bytes | None:
         """H1, step 5: the snapshot, else None while events up to the cut may still come.
 
@@ -489,11 +496,11 @@ class Engine:
         one has run ``grace`` seconds of stamps past the cut, or when nothing at all
         came for ``grace`` seconds since H1 learned the cut: stream time, not H1's
         clock, so that a lagging H1 does not give up on events still in its queues.
-        Sooner, a topic is let go once H1's stream (the newest stamp it took on any
-        topic) ran ``settle`` past the cut, or H1 took nothing at all for ``settle``
-        and its clock (``wall``) is that far past the cut (a parked robot): with the
-        topics' skew within the reorder window, nothing at or before the cut is still
-        on its way (docs/protocol.md, "Silent topics").
+        A ``quiet`` topic (one H2 vouched for: it brought H2 nothing) is let go sooner,
+        once H1's stream (the newest stamp it took on any topic) ran ``settle`` past
+        the cut, or its ROS layer found nothing left to take that long after the cut
+        (a parked robot): with the topics' skew within the reorder window, nothing at
+        or before the cut is still on its way (docs/protocol.md, "Silent topics").
 
         Then the monitor stops running here, but H1 keeps the snapshot and goes on
         holding the events after the cut until the handoff commits (H2 adopted) or is
@@ -522,11 +529,13 @@ class Engine:
             topics = slot.compiled.spec.topics
             newest = [self.newest.get(t, cut) for t in topics]
             quiet_since = max([slot.held_at] + [self.heard.get(t, 0.0) for t in topics])
+            settled = self._settled(cut + self.settle_ns)
             if not (
-                all(n > cut for n in newest)  # every topic is past the cut
+                all(
+                    n > cut or (t in quiet and settled) for t, n in zip(topics, newest, strict=True)
+                )
                 or max(newest) - cut >= grace * 1e9  # the others ran grace past it: quiet
                 or now - max(slot.cut_known[1], quiet_since) >= grace  # nothing comes
-                or self._stream_past(cut + self.settle_ns, now, wall)
             ):
                 return None
             data = encode(export_snapshot(rt, cut, epoch))  # rt keeps the events after it
@@ -535,14 +544,13 @@ class Engine:
             self._set_handoff(slot, "released")
             return data
 
-    def _stream_past(self, stamp: int, now: float, wall: int | None) -> bool:
-        """H1 took everything stamped up to ``stamp``, on every topic: its stream (the
-        newest stamp it took on any topic) is past it; or it took nothing for ``settle``
-        while its clock is past it."""
+    def _settled(self, stamp: int) -> bool:
+        """Nothing stamped up to ``stamp`` is still on its way to this handler: its stream
+        (the newest stamp it took, on any topic) is past it, or its ROS layer found
+        nothing left to take after that instant. (Stalled, a handler has neither.)"""
         if self.newest and max(self.newest.values()) >= stamp:
             return True
-        idle = now - max(self.heard.values(), default=-math.inf) >= self.settle_ns / 1e9
-        return idle and (time.time_ns() if wall is None else wall) >= stamp
+        return self.drained_at is not None and self.drained_at >= stamp
 
     def commit(self, name: str, epoch: int) -> str:
         """H1, after H2 adopted: let go of the snapshot and the held events."""

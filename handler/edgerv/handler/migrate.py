@@ -253,7 +253,8 @@ def _migrate(
                 receiving.result()  # re-raises its error after the hold's
             mark("receive")
         while True:
-            cuts = json.loads(step(destination, "cut")[1])["cuts"]
+            answer = json.loads(step(destination, "cut")[1])
+            cuts, quiet = answer["cuts"], answer.get("quiet", {})
             waiting = sorted(n for n, c in cuts.items() if c is None)
             if not waiting:
                 break
@@ -268,7 +269,9 @@ def _migrate(
         while True:
             # the sender waits for events past the cut itself (a round trip saved a try)
             wait = max(0.0, min(grace + 0.5, deadline - time.monotonic()))
-            release = functools.partial(step, source, "release", cuts=cuts, grace=grace, wait=wait)
+            release = functools.partial(
+                step, source, "release", cuts=cuts, quiet=quiet, grace=grace, wait=wait
+            )
             status, bundle = _retry(deadline, release)
             if status == 200:
                 break

@@ -334,6 +334,8 @@ class RosIngest:
                     ingest(reorder.due(time.monotonic()))
                 ready = set(wait_set.get_ready_entities("subscription"))
                 if not ready:
+                    if reorder is None or not reorder.pending:  # everything here was taken
+                        self.engine.drained_at = time.time_ns()
                     continue
                 time.sleep(COALESCE_SECONDS)  # let a burst gather: fewer, larger batches
                 subs = [s for s in self.subs.values() if s.subscription.handle.pointer in ready]
