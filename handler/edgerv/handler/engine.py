@@ -147,8 +147,8 @@ class Engine:
         self.type_check = type_check  # message type -> error text if it cannot be subscribed
         # The delivery skew the handler allows between topics (its reorder window): how
         # long a silent topic's subscription must have been matched before H2 vouches for
-        # it, and twice it, how far past a cut H1's stream must run before it lets a topic
-        # that brought nothing past the cut go (docs/protocol.md, "Silent topics").
+        # it, and how far past a cut H1's stream must run before it lets go a topic H2
+        # vouched for (docs/protocol.md, "Silent topics").
         self.settle_ns = int(max(reorder_window, 0.01) * 1e9)
         # topic -> its subscription here is matched with every publisher the ROS graph
         # shows (the ROS layer's; None: no ROS, a silent topic never vouched for)
