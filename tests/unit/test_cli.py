@@ -144,6 +144,10 @@ def test_bad_assertion_exit_2_with_position(tmp_path: Path) -> None:
             '{"topic": "/speed", "stamp": 5, "msg": {"value": 1.0}}',
             ":3: error: message on /speed: no field 'data' in the message",
         ),
+        (
+            '{"topic": "/speed", "stamp": 5, "msg": ' + "[" * 50_000 + "]" * 50_000 + "}",
+            ":3: error: nested too deep to read",
+        ),
     ],
 )
 def test_bad_trace_lines(monitors: Path, tmp_path: Path, line: str, expected: str) -> None:
@@ -267,3 +271,15 @@ def test_the_shipped_example(tmp_path: Path) -> None:
     assert proc.returncode == 1
     result = json.loads(proc.stdout)["monitors"]
     assert result[0]["verdicts"] == [{"verdict": "violated", "stamp": 10025, "step": 3}]
+
+
+def test_a_monitor_file_nested_too_deep_is_an_input_error_not_a_crash(tmp_path: Path) -> None:
+    """libyaml's composer recurses in C: 50,000 nested brackets used to crash the process
+    (exit 139); the shape is checked before any parser sees the text."""
+    deep = tmp_path / "deep.yaml"
+    deep.write_text(MONITORS + "---\nspec: " + "[" * 50_000 + "]" * 50_000 + "\n")
+    trace = write_jsonl(tmp_path / "t.jsonl", RUN[:2])
+    proc = edgerv("check", deep, trace)
+    assert proc.returncode == 2, proc.stderr
+    assert "error: nested more than 64 levels deep" in proc.stderr
+    assert "Traceback" not in proc.stderr

@@ -162,3 +162,31 @@ def test_duplicate_names_across_documents(tmp_path) -> None:  # type: ignore[no-
 def test_multi_document_files() -> None:
     specs = load_monitors_text("m.yaml", GOOD + "---\n" + GOOD.replace("{name: m}", "{name: n}"))
     assert [s.name for s in specs] == ["m", "n"]
+
+
+@pytest.mark.parametrize(
+    ("change", "expected"),
+    [
+        (("  signals:", "  bufferCapacity: 0\n  signals:"),
+         "m.yaml:6:19: error: spec.bufferCapacity: must be at least 1, not 0"),
+        (("  signals:", "  bufferCapacity: 2\n  sortThreshold: 3\n  signals:"),
+         "m.yaml:7:18: error: spec.sortThreshold: 3 is more than bufferCapacity (2)"),
+        (("  signals:", "  sortThreshold: 100000000000\n  signals:"),
+         "m.yaml:6:18: error: spec.sortThreshold: must be at most 100000000, not 100000000000"),
+        (("metadata: {name: m}", "metadata: " + "{a: " * 70 + "1" + "}" * 70),
+         "m.yaml:3:"),
+    ],
+)  # fmt: skip
+def test_counts_and_nesting_are_bounded(change: tuple[str, str], expected: str) -> None:
+    assert first_error(GOOD.replace(*change)).startswith(expected)
+
+
+def test_block_nesting_is_bounded_too() -> None:
+    nested = "".join("  " * i + f"k{i}:\n" for i in range(80)) + "  " * 80 + "v\n"
+    message = first_error(GOOD + "---\n" + nested)
+    assert "nested more than 64 levels deep" in message
+
+
+def test_a_document_too_large_is_refused_before_parsing() -> None:
+    message = first_error(GOOD + "#" * (5 << 20))
+    assert "larger than" in message

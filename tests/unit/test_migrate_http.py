@@ -172,3 +172,82 @@ def test_a_handoff_no_driver_finishes_is_undone_where_that_is_safe() -> None:
     edge.slots["m"].handoff_since -= HANDOFF_EXPIRES + 1
     edge.tick()
     assert edge.slots["m"].handoff == "released"  # the cloud may have adopted: not undone
+
+
+class BadPeer:
+    """A receiver that answers every request 200 with the same wrong body."""
+
+    def __init__(self, body: bytes) -> None:
+        import http.server
+
+        answer = body
+
+        class Answer(http.server.BaseHTTPRequestHandler):
+            def do_POST(self) -> None:
+                self.rfile.read(int(self.headers.get("Content-Length") or 0))
+                self.send_response(200)
+                self.send_header("Content-Length", str(len(answer)))
+                self.end_headers()
+                self.wfile.write(answer)
+
+            do_GET = do_POST
+
+            def log_message(self, *args: object) -> None:
+                pass
+
+        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Answer)
+        self.port = self.server.server_address[1]
+        threading.Thread(target=self.server.serve_forever, daemon=True).start()
+
+    def close(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+
+
+@pytest.mark.parametrize(
+    "body",
+    [b"{}", b"not json", b'{"cuts": "x", "ok": true}', b'{"cuts": {"m": "soon"}}',
+     b'{"cuts": {"m": 5, "other": 7}}', b'{"cuts": {"m": 5}, "quiet": {"m": "/a"}}',
+     b"[" * 50_000 + b"]" * 50_000],
+)  # fmt: skip
+def test_a_peer_that_answers_wrong_fails_the_move_and_the_monitor_resumes(
+    pair: Pair, body: bytes
+) -> None:
+    """A buggy, old or hostile receiver: the driver says what was wrong and undoes the
+    handoff; the monitor runs on the sender again, evaluated, not held."""
+    peer = BadPeer(body)
+    try:
+        with pytest.raises(MigrationFailed) as failed:
+            migrate(pair.source(), Handler(f"127.0.0.1:{peer.port}", TOKEN), ["m"], 2.0, 0.5)
+    finally:
+        peer.close()
+    assert "cut" in str(failed.value)
+    assert not isinstance(failed.value, Unsettled)
+    assert pair.edge.slots["m"].active and pair.edge.slots["m"].handoff is None
+
+
+@pytest.mark.parametrize(
+    ("path", "body"),
+    [("/v1/monitors", b"spec: " + b"[" * 50_000 + b"]" * 50_000),
+     ("/v1/monitors", b'{"spec": ' + b"[" * 50_000 + b"]" * 50_000 + b"}"),
+     ("/v1/handoff/cut", b'{"epoch": 1, "monitors": ' + b"[" * 50_000 + b"]" * 50_000 + b"}")],
+)  # fmt: skip
+def test_a_request_nested_too_deep_gets_a_400_and_the_api_lives_on(
+    pair: Pair, path: str, body: bytes
+) -> None:
+    import urllib.error
+    import urllib.request
+
+    url = f"http://127.0.0.1:{pair.apis[0].port}"
+    request = urllib.request.Request(
+        url + path, data=body, method="POST", headers={"Authorization": f"Bearer {TOKEN}"}
+    )
+    with pytest.raises(urllib.error.HTTPError) as answer:
+        urllib.request.urlopen(request, timeout=10)
+    assert answer.value.code == 400
+    assert b"nested" in answer.value.read()
+    listing = urllib.request.Request(
+        url + "/v1/monitors", headers={"Authorization": f"Bearer {TOKEN}"}
+    )
+    with urllib.request.urlopen(listing, timeout=10) as ok:
+        assert ok.status == 200  # still there

@@ -354,6 +354,8 @@ def _parse_int(
         return default
     if value < minimum:
         doc.error(items[key][1], f"spec.{key}", f"must be at least {minimum}, not {value}")
+    elif value > MAX_COUNT:
+        doc.error(items[key][1], f"spec.{key}", f"must be at most {MAX_COUNT}, not {value}")
     return value
 
 
@@ -459,12 +461,14 @@ def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
     )
     sort_threshold = _parse_int(doc, spec, "sortThreshold", DEFAULT_SORT_THRESHOLD, 1)
     buffer_capacity = _parse_int(doc, spec, "bufferCapacity", DEFAULT_BUFFER_CAPACITY, 1)
-    if sort_threshold > buffer_capacity:
-        doc.error(
-            spec["sortThreshold"][1],
-            "spec.sortThreshold",
-            f"{sort_threshold} is more than bufferCapacity ({buffer_capacity})",
-        )
+    if 1 <= buffer_capacity < sort_threshold:  # (below 1, _parse_int said so already)
+        if "sortThreshold" in spec:
+            key = "sortThreshold"
+            problem = f"{sort_threshold} is more than bufferCapacity ({buffer_capacity})"
+        else:
+            key = "bufferCapacity"
+            problem = f"{buffer_capacity} is less than sortThreshold ({sort_threshold})"
+        doc.error(spec[key][1], f"spec.{key}", problem)
     placement = _parse_placement(doc, spec["placement"][1]) if "placement" in spec else Placement()
     if doc.diagnostics or not isinstance(name, str) or not isinstance(assertion, str):
         return None
@@ -484,9 +488,48 @@ def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
 
 
 _LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml when PyYAML has it
+MAX_DOCUMENT_CHARS = 4 << 20  # a Monitor file, or a request's documents
+MAX_NESTING = 64  # levels of YAML/JSON nesting, blocks and brackets together
+MAX_COUNT = 10**8  # sortThreshold, bufferCapacity: events a monitor may hold
+
+
+def _check_shape(path: str, text: str) -> None:
+    """Refuse a document too large or nested too deep before any YAML parser sees it:
+    libyaml's composer recurses in C, and 50,000 nested brackets crash the process."""
+    if len(text) > MAX_DOCUMENT_CHARS:
+        problem = f"the file is larger than {MAX_DOCUMENT_CHARS} characters"
+        hint = "a Monitor file holds a few documents: split it"
+        raise InputError([Diagnostic(Location(path), problem, hint=hint)])
+    depth = 0
+    indents: list[int] = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.lstrip(" ")
+        if stripped and not stripped.startswith("#") and depth == 0:
+            indent = len(line) - len(stripped)
+            while indents and indents[-1] >= indent:
+                indents.pop()
+            indents.append(indent)  # block nesting: one level per deeper indentation
+        quote = None
+        for col, ch in enumerate(line, start=1):
+            if quote:
+                quote = None if ch == quote else quote
+            elif ch in "\"'":
+                quote = ch
+            elif ch == "#" and (col == 1 or line[col - 2] in " \t"):
+                break  # a comment
+            elif ch in "[{":
+                depth += 1
+            elif ch in "]}":
+                depth = max(0, depth - 1)
+            if depth + len(indents) > MAX_NESTING:
+                loc = Location(path, lineno, col, 1, line[:200])
+                problem = f"nested more than {MAX_NESTING} levels deep"
+                hint = "a Monitor document needs a few levels"
+                raise InputError([Diagnostic(loc, problem, hint=hint)])
 
 
 def _documents(path: str, text: str) -> Iterator[_Doc]:
+    _check_shape(path, text)
     lines = text.splitlines()
     try:
         for root in yaml.compose_all(text, Loader=_LOADER):

@@ -173,6 +173,8 @@ def _jsonl_event(
         record = json.loads(text)
     except json.JSONDecodeError as exc:
         raise fail(f"invalid JSON: {exc.msg}", exc.pos + 1) from None
+    except RecursionError:  # Python's parser recurses per level: thousands are too many
+        raise fail("nested too deep to read (a message has a few levels)") from None
     if not isinstance(record, dict):
         raise fail("each line must be a JSON object with topic, stamp and msg")
     topic = record.get("topic")

@@ -283,6 +283,8 @@ class ControlApi:
             return _message(409, str(exc))
         except (KeyError, ValueError, TypeError) as exc:
             return _message(400, f"bad handoff request: {exc!r}")
+        except RecursionError:
+            return _message(400, "bad handoff request: nested too deep")
         return _message(404, f"no handoff step '{step}'")
 
     async def activate(self, request: web.Request) -> web.Response:

@@ -25,7 +25,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from edgerv.core.handoff import frame_sizes, unbundle
+from edgerv.core.handoff import HandoffError, frame_sizes, unbundle
 
 
 class MigrationFailed(Exception):
@@ -152,6 +152,44 @@ class Handler:
             raise MigrationFailed(f"{self.base}{path}: the answer is not JSON") from None
 
 
+def _json(side: Handler, what: str, raw: bytes) -> Any:
+    """A peer's answer as JSON, or MigrationFailed naming the peer and the step."""
+    try:
+        return json.loads(raw)
+    except (ValueError, RecursionError):
+        raise MigrationFailed(f"{side.base} answered {what} with something not JSON") from None
+
+
+def _cut_answer(side: Handler, raw: bytes, names: Sequence[str]) -> tuple[dict[str, Any], Any]:
+    """The cut step's answer, checked: a cut (integer nanoseconds, or null: not yet) for
+    every monitor asked about, and the topics it vouched for (lists of names)."""
+    answer = _json(side, "the cut", raw)
+    cuts = answer.get("cuts") if isinstance(answer, dict) else None
+    quiet = answer.get("quiet", {}) if isinstance(answer, dict) else None
+    if (
+        not isinstance(cuts, dict)
+        or set(cuts) != set(names)
+        or not all(c is None or (isinstance(c, int) and not isinstance(c, bool))
+                   for c in cuts.values())
+        or not isinstance(quiet, dict)
+        or not all(isinstance(q, list) and all(isinstance(t, str) for t in q)
+                   for q in quiet.values())
+    ):  # fmt: skip
+        raise MigrationFailed(f"{side.base} answered the cut with {raw[:200]!r}: not a cut")
+    return cuts, quiet
+
+
+def _listing(side: Handler, timeout: float) -> list[dict[str, Any]]:
+    """GET /v1/monitors, checked: a list of monitors, each with its name."""
+    listing = side.get("/v1/monitors", timeout=timeout)
+    monitors = listing.get("monitors") if isinstance(listing, dict) else None
+    if not isinstance(monitors, list) or not all(
+        isinstance(m, dict) and isinstance(m.get("name"), str) for m in monitors
+    ):
+        raise MigrationFailed(f"{side.base} answered /v1/monitors with no list of monitors")
+    return monitors
+
+
 def _retry(deadline: float, call: Callable[[], T]) -> T:
     """Repeat a call that failed on the network (every step is idempotent) until the deadline."""
     while True:
@@ -253,8 +291,7 @@ def _migrate(
                 receiving.result()  # re-raises its error after the hold's
             mark("receive")
         while True:
-            answer = json.loads(step(destination, "cut")[1])
-            cuts, quiet = answer["cuts"], answer.get("quiet", {})
+            cuts, quiet = _cut_answer(destination, step(destination, "cut")[1], names)
             waiting = sorted(n for n, c in cuts.items() if c is None)
             if not waiting:
                 break
@@ -280,6 +317,14 @@ def _migrate(
                 raise MigrationFailed("the sender did not release the monitors in time")
             time.sleep(0.005)
         mark("release")
+        try:  # checked before the receiver sees it: a bad one is undone like any failure
+            sizes = [frame_sizes(frame) for frame in unbundle(bundle)]
+        except (HandoffError, ValueError, KeyError, TypeError) as exc:
+            raise MigrationFailed(f"{source.base} released no valid snapshots: {exc}") from None
+        if len(sizes) != len(names):
+            raise MigrationFailed(
+                f"{source.base} released {len(sizes)} snapshots for {len(names)} monitors"
+            )
     except MigrationFailed as failed:
         for side in (source, destination):
             with contextlib.suppress(MigrationFailed):  # best effort: report the first error
@@ -306,7 +351,6 @@ def _migrate(
     with contextlib.suppress(MigrationFailed):  # a source that crashed has let go too
         _retry(deadline + timeout, lambda: step(source, "commit"))
     mark("commit")
-    sizes = [frame_sizes(frame) for frame in unbundle(bundle)]
     headers, letters = sum(h for h, _ in sizes), sum(n for _, n in sizes)
     return Moved(seconds, len(bundle), letters, headers, steps)
 
@@ -323,10 +367,11 @@ def _decide(
     """
 
     try:
-        outcomes = json.loads(
-            _retry(deadline, lambda: receiver.handoff("abort", epoch, names, _left(deadline)))[1]
-        )
-        answers: dict[str, str] = outcomes["outcomes"]
+        raw = _retry(deadline, lambda: receiver.handoff("abort", epoch, names, _left(deadline)))[1]
+        outcomes = _json(receiver, "the abort", raw)
+        answers = outcomes.get("outcomes") if isinstance(outcomes, dict) else None
+        if not isinstance(answers, dict):
+            raise MigrationFailed(f"{receiver.base} answered the abort with {raw[:200]!r}")
     except Refused:
         answers = {}  # nothing listens there: it is down, and runs none of them
     except MigrationFailed as exc:  # no answer, or an error: whether it adopted is unknown
@@ -379,7 +424,7 @@ def _left(deadline: float) -> float:
 def _held(source: Handler, names: Sequence[str]) -> list[str]:
     """Those of ``names`` the source holds for a handoff (none if it does not answer)."""
     try:
-        listing = source.get("/v1/monitors", timeout=5.0)["monitors"]
+        listing = _listing(source, 5.0)
     except MigrationFailed:
         return []
     return [m["name"] for m in listing if m["name"] in names and m.get("handoff")]
@@ -392,11 +437,14 @@ def settle(source: Handler, names: Sequence[str], deadline: float) -> dict[str, 
     adopted: those commit, the others resume. Returns receiver -> monitors it runs now.
     Raises Unsettled while such a receiver does not answer.
     """
-    listing = source.get("/v1/monitors", timeout=_left(deadline))["monitors"]
+    listing = _listing(source, _left(deadline))
     groups: dict[tuple[int, str | None, str], list[str]] = {}
     for m in listing:
         if m["name"] in names and m.get("handoff") in ("sending", "released"):
-            key = (int(m["epoch"]), m.get("peer"), str(m["handoff"]))
+            epoch, peer = m.get("epoch"), m.get("peer")
+            if not isinstance(epoch, int) or not (peer is None or isinstance(peer, str)):
+                raise MigrationFailed(f"{source.base} lists {m['name']} without its handoff")
+            key = (epoch, peer, str(m["handoff"]))
             groups.setdefault(key, []).append(str(m["name"]))
     moved: dict[str, list[str]] = {}
     for (epoch, peer, state), group in groups.items():
