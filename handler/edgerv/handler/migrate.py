@@ -145,11 +145,7 @@ class Handler:
 
     def get(self, path: str, timeout: float = 10.0) -> Any:
         """GET a JSON document (raises MigrationFailed on errors)."""
-        answer = self.call(path, timeout=timeout, check=True, method="GET")[1]
-        try:
-            return json.loads(answer)
-        except ValueError:
-            raise MigrationFailed(f"{self.base}{path}: the answer is not JSON") from None
+        return _json(self, path, self.call(path, timeout=timeout, check=True, method="GET")[1])
 
 
 def _json(side: Handler, what: str, raw: bytes) -> Any:
