@@ -364,3 +364,117 @@ def test_a_deadline_is_reported_live_when_the_publisher_is_killed(
     with recording.open("a") as rec:  # the time that passed after the last command
         rec.write(json.dumps({"topic": "/clock", "stamp": last + 10**9, "msg": {}}) + "\n")
     assert live_verdicts(handler) == offline_verdicts(monitors, recording)
+
+
+POINT_X = """\
+apiVersion: edgerv.io/v1alpha1
+kind: Monitor
+metadata: {name: pt-x}
+spec:
+  assertion: "always (x < 1000000000 & s < 1000000000)"
+  signals:
+    x: {topic: /pt, type: geometry_msgs/msg/Point, field: x}
+    s: {topic: /speed, type: std_msgs/msg/Float64}
+"""
+
+# Other fields of /pt, a topic the handler already reads (for x only).
+POINT_YZ = """\
+apiVersion: edgerv.io/v1alpha1
+kind: Monitor
+metadata: {name: pt-yz}
+spec:
+  assertion: "always (y < z)"
+  signals:
+    y: {topic: /pt, type: geometry_msgs/msg/Point, field: y}
+    z: {topic: /pt, type: geometry_msgs/msg/Point, field: z}
+"""
+
+# Publishes a Point on /pt and a Float64 on /speed every 5 ms (some 400 messages a
+# second in all) until killed; says "publishing" once both are matched.
+TWO_TOPICS = r"""
+import time, rclpy
+from geometry_msgs.msg import Point
+from std_msgs.msg import Float64
+rclpy.init()
+node = rclpy.create_node("two_topics")
+pt = node.create_publisher(Point, "/pt", 1000)
+speed = node.create_publisher(Float64, "/speed", 1000)
+deadline = time.monotonic() + 30
+while (pt.get_subscription_count() == 0 or speed.get_subscription_count() == 0) and (
+    time.monotonic() < deadline
+):
+    time.sleep(0.05)
+time.sleep(0.3)
+print("publishing", flush=True)
+i = 0
+while True:
+    pt.publish(Point(x=float(i), y=float(i), z=float(i + 1)))
+    speed.publish(Float64(data=float(i)))
+    i += 1
+    time.sleep(0.005)
+"""
+
+
+def test_a_monitor_reading_new_fields_of_a_subscribed_topic_is_added_mid_stream(
+    tmp_path: Path, domain: int
+) -> None:
+    """Messages wait long in the reorder window, read for the fields the handler read
+    then (x of /pt); a monitor added meanwhile reads other fields of /pt (y, z). They are
+    read again for the new fields: the handler lives on and the new monitor takes events
+    (it crashed with an IndexError in offer_values, 'the ingest loop failed')."""
+    handler = Handler(
+        tmp_path, write(tmp_path, "pt.yaml", POINT_X), domain, "--reorder-window", "0.3"
+    )
+    pub = subprocess.Popen(
+        [sys.executable, "-c", TWO_TOPICS],
+        env=ros_env(domain),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+    def events(name: str) -> int:
+        try:
+            _, listing = handler.request("GET", "/v1/monitors")
+        except OSError as exc:  # it died (and closed its API) meanwhile
+            raise AssertionError(f"the handler died: {exc}\n{handler.stderr}") from exc
+        assert handler.proc.poll() is None, f"the handler died:\n{handler.stderr}"
+        return sum(m["events"] for m in listing["monitors"] if m["name"] == name)
+
+    def takes(name: str, more: int) -> bool:
+        """The monitor takes ``more`` events from now on (the handler alive)."""
+        start = events(name)
+        return bool(wait_for(lambda: events(name) >= start + more, timeout=60))
+
+    try:
+        assert pub.stdout is not None
+        assert pub.stdout.readline().strip() == "publishing", handler.stderr
+        assert takes("pt-x", 200), handler.stderr
+        for _ in range(4):  # the window is full of messages read for x only each time
+            status, _ = handler.request("PUT", "/v1/monitors/pt-yz", POINT_YZ)
+            assert status == 201, handler.stderr
+            assert takes("pt-yz", 50), handler.stderr
+            assert handler.request("DELETE", "/v1/monitors/pt-yz")[0] == 200
+            # messages read for x, y and z wait in the window now; let x-only ones in again
+            assert takes("pt-x", 100), handler.stderr
+        status, _ = handler.request("POST", "/v1/monitors", POINT_YZ)
+        assert status == 201, handler.stderr
+        assert takes("pt-yz", 50), handler.stderr
+        assert handler.proc.poll() is None, handler.stderr
+        assert handler.request("GET", "/healthz", token=None) == (
+            200,
+            {"status": "ok", "handler": "edge", "activeMonitors": 2},
+        )
+        _, listing = handler.request("GET", "/v1/monitors")
+        assert {m["name"]: m["verdicts"]["violated"] for m in listing["monitors"]} == {
+            "pt-x": 0,
+            "pt-yz": 0,
+        }
+    finally:
+        pub.kill()
+        pub.wait()
+        code = handler.stop()
+    assert code == 0, handler.stderr
+    assert "ingest loop failed" not in handler.stderr
+    assert "Traceback" not in handler.stderr
+    assert "could not be read" not in handler.stderr

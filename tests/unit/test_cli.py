@@ -179,6 +179,16 @@ def test_missing_files_and_bad_arguments(monitors: Path, tmp_path: Path) -> None
     assert proc.returncode == 2 and "give --listen HOST:PORT" in proc.stderr
 
 
+def test_a_bad_deadline_option_exits_2_with_its_place(monitors: Path) -> None:
+    for value, error in [
+        ("/cmd_vel=fast", "--deadline: error: 'fast' is not a duration"),
+        ("/cmd_vel", "--deadline: error: '/cmd_vel' is not TOPIC=DURATION"),
+    ]:
+        proc = edgerv("handler", "--name", "h", "--monitors", monitors, "--deadline", value)
+        assert proc.returncode == 2, proc.stderr
+        assert proc.stderr.startswith(error) and "Traceback" not in proc.stderr
+
+
 def test_warnings_do_not_fail_the_check(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     doc = tmp_path / "w.yaml"
     doc.write_text(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import Verdict
 from edgerv.handler import engine as engine_module
 from edgerv.handler.engine import Engine
@@ -110,3 +111,39 @@ def test_a_failing_sink_does_not_stop_the_others() -> None:
     e.ingest([(1, "/speed", [500.0])])
     e.emit(e.tick())
     assert sink.got == [("m", "violated", 1)]
+
+
+def odom_monitor(name: str, assertion: str, **fields: str) -> CompiledMonitor:
+    """A monitor whose signals read these fields of /odom."""
+    sigs = {
+        s: {"topic": "/odom", "type": "nav_msgs/msg/Odometry", "field": f}
+        for s, f in fields.items()
+    }
+    return compiled(assertion, sigs, name=name)
+
+
+def test_a_batch_read_for_routes_the_engine_no_longer_has_is_refused() -> None:
+    """Messages wait in the ROS layer's reorder window, read for the fields the routes
+    had then; a monitor added meanwhile reads more fields of the topic. Such a batch is
+    refused whole (no monitor offered anything, no IndexError), and offered once read
+    again for the current routes."""
+    e = Engine("edge")
+    e.put(odom_monitor("x", "always (x < 100)", x="pose.pose.position.x"), active=True)
+    old = e.routes_version
+    assert e.ingest([(1, "/odom", [1.0])], routes_version=old) is True
+    e.put(odom_monitor("w", "always (w < 1)", w="twist.twist.angular.z"), active=True)
+    assert e.routes_version != old
+    before = {m["name"]: m["events"] for m in e.snapshot()}
+    assert before == {"x": 1, "w": 0}
+    # read for the old route: one value, where the route now has two fields
+    assert e.ingest([(2, "/odom", [2.0]), (3, "/odom", [3.0])], routes_version=old) is False
+    assert {m["name"]: m["events"] for m in e.snapshot()} == before
+    assert e.messages["/odom"] == 1
+    # read again for the current route: offered to both monitors
+    fields = list(e.routes()["/odom"].fields)
+    assert sorted(fields) == ["pose.pose.position.x", "twist.twist.angular.z"]
+    values = {"pose.pose.position.x": 2.0, "twist.twist.angular.z": 0.5}
+    batch = [(2, "/odom", [values[f] for f in fields])]
+    assert e.ingest(batch, routes_version=e.routes_version) is True
+    assert {m["name"]: m["events"] for m in e.snapshot()} == {"x": 2, "w": 1}
+    assert e.messages["/odom"] == 2

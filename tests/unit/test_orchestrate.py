@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
+import argparse
+
 import pytest
 
 from edgerv.core.diagnostics import InputError
-from edgerv.core.placement import Placement, PolicyConfig
+from edgerv.core.placement import DeadlineReading, Placement, PolicyConfig
 from edgerv.handler.migrate import MigrationFailed
 from edgerv.handler.orchestrate import (
     Counters,
     Orchestrator,
     Target,
+    add_arguments,
     build_reports,
+    config_from,
+    deadline_reading,
     parse_handlers,
     parse_pairs,
 )
@@ -110,3 +115,56 @@ def test_without_starts_nothing_is_started_and_targets_follow_the_pods() -> None
     assert o.round() == []  # m runs nowhere: the orchestrator would start it, this one not
     o.set_targets([edge])
     assert list(o.clients) == [edge] and list(o.previous) == [edge] and kept is not None
+
+
+def test_the_deadline_of_a_load_report_becomes_the_policys_reading() -> None:
+    edge = Target("edge", "h1:1")
+    report = load(10.0, 5.0, 100)
+    (r,), _, _ = build_reports({edge: report}, {})
+    assert r.deadline is None  # a handler without --deadline
+    report["deadline"] = {
+        "topic": "/cmd_vel",
+        "budgetMs": 125.0,
+        "windowSeconds": 2.0,
+        "count": 40,
+        "misses": 3,
+        "p50Ms": 100.0,
+        "p95Ms": 130.0,
+        "maxMs": 140.0,
+        "lastMs": 99.0,
+        "missesTotal": 7,
+        "messagesTotal": 400,
+    }
+    (r,), _, _ = build_reports({edge: report}, {})
+    assert r.deadline == DeadlineReading(budget=0.125, p95=0.13, count=40)
+    empty = {"budgetMs": 125.0, "count": 0, "p95Ms": None}
+    assert deadline_reading(empty) == DeadlineReading(0.125, None, 0)
+    for odd in (None, "fast", [], {"count": 4}, {"budgetMs": "125", "count": 4}):
+        assert deadline_reading(odd) is None
+
+
+def orchestrate_args(*argv: str) -> argparse.Namespace:
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    return p.parse_args(["--handlers", "edge=e:1,cloud=c:1", *argv])
+
+
+def test_the_deadline_flags_set_the_policy_and_default_to_it() -> None:
+    targets = parse_handlers("edge=e:1,cloud=c:1")
+    config = config_from(orchestrate_args(), targets)
+    default = PolicyConfig(tiers=("edge", "cloud"))
+    assert (config.deadline_high, config.deadline_low) == (default.deadline_high, 0.95)
+    assert (config.deadline_shed, config.deadline_wait) == (0.5, 2.0)
+    config = config_from(
+        orchestrate_args(
+            "--deadline-high", "0.9", "--deadline-low", "0.8", "--deadline-shed", "0.25",
+            "--deadline-wait", "3",
+        ),
+        targets,
+    )  # fmt: skip
+    assert (config.deadline_high, config.deadline_low) == (0.9, 0.8)
+    assert (config.deadline_shed, config.deadline_wait) == (0.25, 3.0)
+    with pytest.raises(InputError, match="--deadline-low: error: need 0 < deadline_low <"):
+        config_from(orchestrate_args("--deadline-low", "1.2"), targets)
+    with pytest.raises(InputError, match="--deadline-shed: error: need 0 < deadline_shed"):
+        config_from(orchestrate_args("--deadline-shed", "2"), targets)

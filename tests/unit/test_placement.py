@@ -5,10 +5,13 @@ from __future__ import annotations
 import pytest
 
 from edgerv.core.placement import (
+    DeadlineReading,
     HandlerReport,
     MonitorLoad,
+    Move,
     Placement,
     PolicyConfig,
+    PolicyConfigError,
     PolicyMemory,
     plan,
 )
@@ -140,3 +143,128 @@ def test_a_monitor_running_nowhere_starts_on_its_home_tier() -> None:
     only_cloud = [idle("cloud", "cloud-1", a=off, c=off)]
     moves = plan(only_cloud, placements, CONFIG, PolicyMemory(), now=0)
     assert [(m.monitor, m.destination) for m in moves] == [("a", "cloud-1")]  # c: 40 ms > 1
+
+
+# -- deadline pressure (docs/protocol.md, "Deadline pressure") ----------------------------
+
+
+def timed(
+    cpu: float, p95_ms: float | None, count: int = 40, **monitors: MonitorLoad
+) -> HandlerReport:
+    """The edge handler with a --deadline of 125 ms whose window reads ``p95_ms``."""
+    reading = DeadlineReading(0.125, None if p95_ms is None else p95_ms / 1000, count)
+    return HandlerReport("edge-1", "edge", cpu, monitors=monitors, deadline=reading)
+
+
+def moved(moves: list[Move]) -> list[tuple[str, str, str]]:
+    return [(m.monitor, m.destination, m.reason) for m in moves]
+
+
+def test_deadline_pressure_sheds_half_the_movable_load_busiest_first() -> None:
+    mon = {"m100": busy(100), "m400": busy(400), "m200": busy(200), "m300": busy(300)}
+    handlers = [timed(0.3, p95_ms=140, **mon), idle("fog", "fog-1")]
+    # 1000 events/s movable: at least 500 go, busiest first: 400 + 300
+    assert moved(plan(handlers, {}, CONFIG, PolicyMemory(), now=0)) == [
+        ("m400", "fog-1", "deadline"),
+        ("m300", "fog-1", "deadline"),
+    ]
+    # at the budget exactly (p95 / budget = deadline_high = 1.0) is pressure too
+    handlers = [timed(0.3, p95_ms=125, **mon), idle("fog", "fog-1")]
+    assert [m.monitor for m in plan(handlers, {}, CONFIG, PolicyMemory(), now=0)] == [
+        "m400",
+        "m300",
+    ]
+    handlers = [timed(0.3, p95_ms=124, **mon), idle("fog", "fog-1")]
+    assert plan(handlers, {}, CONFIG, PolicyMemory(), now=0) == []
+
+
+def test_deadline_shed_counts_only_movable_monitors_and_the_cpu_rule_applies_when_larger() -> None:
+    mon = {"pinned": busy(1000), "a": busy(100), "b": busy(100), "far": busy(900)}
+    placements = {"pinned": Placement(migrate="pinned"), "far": Placement(max_latency_ms=1.0)}
+    handlers = [timed(0.3, p95_ms=200, **mon), idle("fog", "fog-1")]
+    # movable: a and b, 200 events/s; half of it is one of them
+    assert moved(plan(handlers, placements, CONFIG, PolicyMemory(), now=0)) == [
+        ("a", "fog-1", "deadline")
+    ]
+    ten = {f"m{i}": busy(100) for i in range(10)}
+    small_shed = PolicyConfig(tiers=("edge", "fog"), deadline_shed=0.1)
+    handlers = [timed(0.95, p95_ms=200, **ten), idle("fog", "fog-1")]
+    # the deadline asks for 10% (one monitor), the CPU for (0.95 - 0.7) / 0.95 = 26%: three
+    assert [m.reason for m in plan(handlers, {}, small_shed, PolicyMemory(), now=0)] == [
+        "deadline"
+    ] * 3
+
+
+def test_after_a_deadline_shed_the_deadline_waits_for_its_window_to_refill() -> None:
+    memory = PolicyMemory()
+    mon = {"a": busy(400), "b": busy(300), "c": busy(200), "d": busy(100)}
+    assert len(plan([timed(0.3, 150, **mon), idle("fog", "fog-1")], {}, CONFIG, memory, 0)) == 2
+    left = {"c": busy(200), "d": busy(100)}
+    # the window still holds makespans from before the move: not acted on for 2 s
+    for now in (0.5, 1.0, 1.99):
+        assert plan([timed(0.3, 150, **left), idle("fog", "fog-1")], {}, CONFIG, memory, now) == []
+    # load pressure meanwhile is not delayed (and says so: it is not the deadline's move)
+    hot = plan([timed(0.95, 150, **left), idle("fog", "fog-1")], {}, CONFIG, memory, now=1.5)
+    assert moved(hot) == [("c", "fog-1", "pressure")]
+    # once the wait is over, a deadline still at risk sheds again
+    again = plan([timed(0.3, 150, d=busy(100)), idle("fog", "fog-1")], {}, CONFIG, memory, now=2.0)
+    assert moved(again) == [("d", "fog-1", "deadline")]
+
+
+def test_too_few_makespans_are_no_information() -> None:
+    mon = {"a": busy(400), "b": busy(300)}
+    few = [timed(0.3, p95_ms=500, count=3, **mon), idle("fog", "fog-1")]
+    assert plan(few, {}, CONFIG, PolicyMemory(), now=0) == []  # no pressure
+    enough = [timed(0.3, p95_ms=500, count=4, **mon), idle("fog", "fog-1")]
+    assert [m.reason for m in plan(enough, {}, CONFIG, PolicyMemory(), now=0)] == ["deadline"]
+    empty = [timed(0.3, p95_ms=None, count=0, **mon), idle("fog", "fog-1")]
+    assert plan(empty, {}, CONFIG, PolicyMemory(), now=0) == []
+    # ... and they do not block calm: a monitor comes back down as without a reading
+    memory = PolicyMemory()
+    below = [timed(0.2, p95_ms=500, count=3), idle("fog", "fog-1", a=busy(10))]
+    assert plan(below, {}, CONFIG, memory, now=0) == []
+    assert moved(plan(below, {}, CONFIG, memory, now=61)) == [("a", "edge-1", "calm below")]
+
+
+def test_calm_needs_the_deadline_below_its_low_mark() -> None:
+    def descents(p95_ms: float | None, count: int = 40) -> list[Move]:
+        memory = PolicyMemory()
+        below = [timed(0.2, p95_ms, count), idle("fog", "fog-1", a=busy(10))]
+        plan(below, {}, CONFIG, memory, now=0)
+        return plan(below, {}, CONFIG, memory, now=61)
+
+    # between the marks (0.95 and 1.0 of 125 ms): neither pressure nor calm
+    assert descents(p95_ms=122) == []
+    assert moved(descents(p95_ms=118)) == [("a", "edge-1", "calm below")]  # 0.944
+    assert moved(descents(p95_ms=None, count=0)) == [("a", "edge-1", "calm below")]
+    no_reading = [edge(0.2), idle("fog", "fog-1", a=busy(10))]
+    memory = PolicyMemory()
+    plan(no_reading, {}, CONFIG, memory, now=0)
+    assert moved(plan(no_reading, {}, CONFIG, memory, now=61)) == [("a", "edge-1", "calm below")]
+
+
+def test_the_deadline_alone_moves_nothing_before_rates_are_known() -> None:
+    """The orchestrator's first poll knows the window but no event rates yet."""
+    mon = {"a": busy(0), "b": busy(0)}
+    assert plan([timed(0.0, 300, **mon), idle("fog", "fog-1")], {}, CONFIG, PolicyMemory(), 0) == []
+
+
+def test_a_handler_whose_deadline_is_at_risk_receives_no_monitors() -> None:
+    hot_fog = HandlerReport(
+        "fog-1", "fog", 0.1, deadline=DeadlineReading(0.1, 0.2, 40)
+    )  # its own robot's task
+    handlers = [edge(0.95, a=busy(600)), hot_fog]
+    assert plan(handlers, {}, CONFIG, PolicyMemory(), now=0) == []
+    off = MonitorLoad(active=False)
+    starts = [timed(0.1, 300, a=off), idle("edge", "edge-2", cpu=0.5, a=off)]
+    assert moved(plan(starts, {}, CONFIG, PolicyMemory(), now=0)) == [("a", "edge-2", "start")]
+
+
+def test_bad_deadline_settings_are_refused() -> None:
+    with pytest.raises(PolicyConfigError, match="deadline_low < deadline_high") as exc:
+        PolicyConfig(tiers=("edge",), deadline_low=1.0)
+    assert exc.value.setting == "deadline_low"
+    with pytest.raises(PolicyConfigError, match="deadline_shed <= 1"):
+        PolicyConfig(tiers=("edge",), deadline_shed=0.0)
+    with pytest.raises(PolicyConfigError, match="deadline_wait >= 0"):
+        PolicyConfig(tiers=("edge",), deadline_wait=-1)

@@ -18,7 +18,13 @@ import struct
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from edgerv.core.msgtypes import make_getter, normalize_type, parse_field_path, typestore
+from edgerv.core.msgtypes import (
+    make_getter,
+    normalize_type,
+    parse_field_path,
+    starts_with_header,
+    typestore,
+)
 
 # (struct format, size) of each primitive; alignment equals size in XCDR1. A scalar `byte`
 # reads as signed and a `byte` array element as unsigned, exactly as rosbags decodes them,
@@ -220,18 +226,13 @@ def _paths(paths: Sequence[str]) -> list[tuple[Any, ...]]:
     return out
 
 
-def _has_header(msg_type: str) -> bool:
-    fields = typestore().fielddefs[msg_type][1]
-    return bool(fields) and fields[0][0] == "header" and fields[0][1][1] == "std_msgs/msg/Header"
-
-
 def compile_reader(msg_type: str, paths: Sequence[str]) -> Reader:
     """A function: CDR bytes -> (the values at ``paths``, header stamp in ns or None).
 
     The stamp is None without a header and 0 for a header nobody stamped.
     """
     msg_type = normalize_type(msg_type)
-    header = _has_header(msg_type)
+    header = starts_with_header(msg_type)
     try:
         gen = _Gen()
         wanted = {p: i for i, p in enumerate(_paths(paths))}
@@ -273,3 +274,18 @@ def _fallback_reader(msg_type: str, paths: Sequence[str], header: bool) -> Reade
         return values, stamp
 
     return read
+
+
+_STAMP_LE, _STAMP_BE = struct.Struct("<iI"), struct.Struct(">iI")
+
+
+def header_stamp_ns(data: bytes) -> int:
+    """The ``header.stamp`` (ns) of a CDR payload whose type starts with a
+    ``std_msgs/msg/Header`` (:func:`~edgerv.core.msgtypes.starts_with_header`): after the
+    4-byte encapsulation header, int32 sec and uint32 nanosec, little-endian when the
+    encapsulation's second byte is odd (CDR_LE, PL_CDR_LE), else big-endian.
+    Raises ValueError when the payload is too short."""
+    if len(data) < 12:
+        raise ValueError(f"a stamped message is at least 12 bytes, not {len(data)}")
+    sec, nanosec = (_STAMP_LE if data[1] & 1 else _STAMP_BE).unpack_from(data, 4)
+    return int(sec) * 1_000_000_000 + int(nanosec)

@@ -33,6 +33,7 @@ OnVerdict = Literal["reset", "halt"]
 _NAME = re.compile(r"^[a-z0-9]([-a-z0-9.]{0,251}[a-z0-9])?$")  # Kubernetes object name
 _IDENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _TIER = re.compile(r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$")  # a label value, e.g. edge, cloud
+_TOPIC = re.compile(r"^/?[A-Za-z_~{][A-Za-z0-9_/{}~]*$")
 
 # Words of the assertion language that cannot name a signal or a parameter.
 RESERVED = frozenset(
@@ -209,6 +210,13 @@ def _parse_value(
     return cast(Value, value)
 
 
+def topic_name(text: str) -> str | None:
+    """The ROS topic name ``text`` names, absolute (``/cmd_vel`` for ``cmd_vel``), or None."""
+    if not _TOPIC.match(text):
+        return None
+    return text if text.startswith("/") else "/" + text
+
+
 def _value_fits(value: Value, kind: ValueKind) -> bool:
     if kind == "bool":
         return isinstance(value, bool)
@@ -243,11 +251,11 @@ def _parse_signal(doc: _Doc, name: str, knode: yaml.Node, node: yaml.Node) -> Si
         fld = _parse_value(doc, items["field"][1], f"{where}.field", (str,))
     if not isinstance(topic, str) or not isinstance(msg_type, str) or not isinstance(fld, str):
         return None
-    if not re.match(r"^/?[A-Za-z_~{][A-Za-z0-9_/{}~]*$", topic):
+    absolute = topic_name(topic)
+    if absolute is None:
         doc.error(items["topic"][1], f"{where}.topic", f"'{topic}' is not a ROS topic name")
         return None
-    if not topic.startswith("/"):
-        topic = "/" + topic
+    topic = absolute
     try:
         kind = field_kind(msg_type, fld)
         msg_type = normalize_type(msg_type)

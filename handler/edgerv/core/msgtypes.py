@@ -119,6 +119,19 @@ def ensure_type(msg_type: str) -> bool:
     return True
 
 
+def starts_with_header(msg_type: str) -> bool:
+    """``msg_type``'s first field is a ``std_msgs/msg/Header`` named ``header`` (so a CDR
+    payload starts with its stamp: int32 sec, uint32 nanosec). False for a type not known."""
+    try:
+        name = normalize_type(msg_type)
+        if not ensure_type(name):
+            return False
+    except FieldError:
+        return False
+    fields = typestore().fielddefs[name][1]
+    return bool(fields) and fields[0][0] == "header" and fields[0][1][1] == "std_msgs/msg/Header"
+
+
 def known_types() -> list[str]:
     return sorted(typestore().fielddefs)
 

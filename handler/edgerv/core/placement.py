@@ -6,16 +6,28 @@ migration protocol moves.
 
 * **Up** (the paper's section V): a handler is *under pressure* when one of its
   monitors wants to migrate (its buffer stays full), or its CPU or ingest lag is
-  above the high mark. Its movable monitors go one tier up: those that want to
-  migrate first, then the busiest (most events freed) with the least added
-  latency, until the load it sheds brings it to the target.
+  above the high mark, or the robot's real-time task it shares the CPU with is at
+  risk of missing its deadline (*deadline pressure*: the 95th percentile of the
+  task's makespan is at or above ``deadline_high`` times its budget, over a window
+  of at least ``deadline_min_count`` measurements; a handler started with
+  ``--deadline``, :mod:`edgerv.core.deadline`). Its movable monitors go one tier
+  up: those that want to migrate first, then the busiest (most events freed) with
+  the least added latency, until the load it sheds brings it to the CPU target
+  and, under deadline pressure, is at least ``deadline_shed`` of its movable event
+  load (reason ``deadline``; before the monitors' rates are known the deadline
+  alone moves nothing). After such a shed the handler's deadline pressure is not
+  acted on for ``deadline_wait`` seconds: its window must first fill with
+  makespans measured after the move. A handler under any pressure receives no
+  monitors.
 * **Down** (beyond the paper): a monitor above its home tier comes back one tier
   once the handler below has been calm (CPU and lag below the low marks, nobody
-  wanting to migrate) for ``calm_seconds``, and not within ``cooldown_seconds``
-  of its last move. The gap between high and low marks plus the two waits is the
-  hysteresis that keeps a monitor from flapping; a monitor pushed back up within
-  a cooldown of coming down (a bounce) waits twice as long before the next descent.
-  Moving *up* is never delayed: the robot's deadlines come first.
+  wanting to migrate, the deadline's 95th percentile at most ``deadline_low`` of
+  its budget when there is a reading) for ``calm_seconds``, and not within
+  ``cooldown_seconds`` of its last move. The gap between high and low marks plus
+  the two waits is the hysteresis that keeps a monitor from flapping; a monitor
+  pushed back up within a cooldown of coming down (a bounce) waits twice as long
+  before the next descent. Moving *up* is never delayed but for that
+  ``deadline_wait``: the robot's deadlines come first.
 * **Start**: a monitor active on no handler (handlers started with ``--active
   none``) starts on the least loaded handler of its home tier (``placement.tier``,
   default the lowest), or of the nearest tier above that has one.
@@ -39,12 +51,23 @@ class MonitorLoad:
 
 
 @dataclass(frozen=True)
+class DeadlineReading:
+    """The robot's real-time task on a handler's machine (``--deadline``): its budget and
+    the 95th percentile of its makespans over the window, in seconds."""
+
+    budget: float
+    p95: float | None  # None: no makespan in the window
+    count: int  # makespans in the window
+
+
+@dataclass(frozen=True)
 class HandlerReport:
     name: str
     tier: str
     cpu: float  # share of the handler's CPU budget in use, 0..1
     ingest_lag: float = 0.0  # seconds
     monitors: Mapping[str, MonitorLoad] = field(default_factory=dict)
+    deadline: DeadlineReading | None = None  # None: the handler measures no deadline
 
     def active(self) -> list[str]:
         return [m for m, load in self.monitors.items() if load.active]
@@ -71,6 +94,14 @@ def placement_from_json(d: Mapping[str, object]) -> Placement:
     )
 
 
+class PolicyConfigError(ValueError):
+    """A policy setting out of range; ``setting`` names the PolicyConfig field."""
+
+    def __init__(self, message: str, setting: str) -> None:
+        super().__init__(message)
+        self.setting = setting
+
+
 @dataclass(frozen=True)
 class PolicyConfig:
     tiers: tuple[str, ...]  # lowest (closest to the robot) first, e.g. ("edge", "fog", "cloud")
@@ -83,12 +114,26 @@ class PolicyConfig:
     calm_seconds: float = 30.0
     cooldown_seconds: float = 60.0
     max_moves_down: int = 1  # per decision: come back gently
+    # Deadline pressure: p95 makespan / budget at or above deadline_high; calm needs it at
+    # or below deadline_low. Under it, shed at least deadline_shed of the movable event load,
+    # then leave the deadline alone deadline_wait seconds (the window refills).
+    deadline_high: float = 1.0
+    deadline_low: float = 0.95
+    deadline_shed: float = 0.5
+    deadline_wait: float = 2.0
+    deadline_min_count: int = 4  # fewer makespans in the window: no information
 
     def __post_init__(self) -> None:
         if not self.tiers or len(set(self.tiers)) != len(self.tiers):
             raise ValueError("tiers must be distinct names, lowest first")
         if not self.cpu_low < self.cpu_target < self.cpu_high:
             raise ValueError("need cpu_low < cpu_target < cpu_high")
+        if not 0 < self.deadline_low < self.deadline_high:
+            raise PolicyConfigError("need 0 < deadline_low < deadline_high", "deadline_low")
+        if not 0 < self.deadline_shed <= 1:
+            raise PolicyConfigError("need 0 < deadline_shed <= 1", "deadline_shed")
+        if not 0 <= self.deadline_wait < float("inf"):
+            raise PolicyConfigError("need deadline_wait >= 0 seconds", "deadline_wait")
 
 
 @dataclass(frozen=True)
@@ -107,9 +152,12 @@ class PolicyMemory:
     last_move: dict[str, float] = field(default_factory=dict)  # monitor -> when it moved
     last_down: dict[str, float] = field(default_factory=dict)  # monitor -> when it came down
     bounces: dict[str, int] = field(default_factory=dict)  # monitor -> up soon after down
+    # handler -> when monitors were last shed from it for its deadline
+    deadline_shed: dict[str, float] = field(default_factory=dict)
 
 
-def _pressured(h: HandlerReport, c: PolicyConfig) -> bool:
+def _loaded(h: HandlerReport, c: PolicyConfig) -> bool:
+    """Under pressure from its own load: CPU, ingest lag, a monitor that wants to move."""
     return (
         h.cpu >= c.cpu_high
         or h.ingest_lag >= c.lag_high
@@ -117,17 +165,47 @@ def _pressured(h: HandlerReport, c: PolicyConfig) -> bool:
     )
 
 
+def _deadline_ratio(h: HandlerReport, c: PolicyConfig) -> float | None:
+    """p95 makespan / budget, or None without information (no reading, too few makespans)."""
+    d = h.deadline
+    if d is None or d.p95 is None or d.count < c.deadline_min_count or d.budget <= 0:
+        return None
+    return d.p95 / d.budget
+
+
+def _deadline_at_risk(h: HandlerReport, c: PolicyConfig) -> bool:
+    ratio = _deadline_ratio(h, c)
+    return ratio is not None and ratio >= c.deadline_high
+
+
+def _pressured(h: HandlerReport, c: PolicyConfig) -> bool:
+    return _loaded(h, c) or _deadline_at_risk(h, c)
+
+
 def _calm(h: HandlerReport, c: PolicyConfig) -> bool:
+    ratio = _deadline_ratio(h, c)
     return (
         h.cpu <= c.cpu_low
         and h.ingest_lag <= c.lag_low
         and not any(m.active and m.migration_wanted for m in h.monitors.values())
+        and (ratio is None or ratio <= c.deadline_low)
     )
 
 
 def _allowed(tier: str, placement: Placement, c: PolicyConfig) -> bool:
     budget = placement.max_latency_ms
     return budget is None or c.tier_latency_ms.get(tier, 0.0) <= budget
+
+
+def _shed_enough(
+    shed: float, total: float, excess: float, floor: float | None, loaded: bool
+) -> bool:
+    """Has a handler shed enough (events/s) of its active load ``total``? The CPU's
+    ``excess`` share, and under deadline pressure the deadline's ``floor`` too. Before
+    any rate is known, load pressure moves everything and the deadline alone nothing."""
+    if not total:
+        return not loaded
+    return shed / total >= excess and (floor is None or shed >= floor)
 
 
 def _least_loaded(
@@ -178,7 +256,12 @@ def plan(
 
     # Up: relieve each handler under pressure.
     for h in sorted(handlers, key=lambda h: (rank[h.tier], h.name)):
-        if not _pressured(h, c) or rank[h.tier] + 1 >= len(c.tiers):
+        loaded = _loaded(h, c)
+        deadline = (
+            _deadline_at_risk(h, c)
+            and now - memory.deadline_shed.get(h.name, float("-inf")) >= c.deadline_wait
+        )
+        if not (loaded or deadline) or rank[h.tier] + 1 >= len(c.tiers):
             continue
         up = c.tiers[rank[h.tier] + 1]
         destination = _least_loaded(handlers, up, c)
@@ -196,15 +279,20 @@ def plan(
         )
         total = sum(load.events_per_second for load in h.monitors.values() if load.active)
         excess = max(0.0, (h.cpu - c.cpu_target) / h.cpu) if h.cpu > 0 else 0.0
+        # under deadline pressure, at least deadline_shed of the movable load (busiest first)
+        movable_load = sum(h.monitors[m].events_per_second for m in candidates)
+        floor = c.deadline_shed * movable_load if deadline else None
         shed = 0.0
         for m in candidates:
             load = h.monitors[m]
-            if not load.migration_wanted and total and shed / total >= excess:
+            if not load.migration_wanted and _shed_enough(shed, total, excess, floor, loaded):
                 break
-            moves.append(Move(m, h.name, destination.name, "pressure"))
+            moves.append(Move(m, h.name, destination.name, "deadline" if deadline else "pressure"))
             moved.add(m)
             shed += load.events_per_second
             memory.last_move[m] = now
+            if deadline:
+                memory.deadline_shed[h.name] = now  # its window must refill first
             if now - memory.last_down.get(m, float("-inf")) < c.cooldown_seconds:
                 memory.bounces[m] = memory.bounces.get(m, 0) + 1  # it came down too soon
 

@@ -5,7 +5,7 @@ Open: ``GET /healthz``, ``GET /metrics`` (Prometheus text). Everything under
 
 * ``GET /v1/monitors``, ``GET /v1/monitors/{name}``: placement, state, buffers
 * ``GET /v1/load``: the load report the orchestrator reads (CPU seconds, ingest lag,
-  per monitor: active, events, migration wanted, placement)
+  the ``--deadline`` makespans, per monitor: active, events, migration wanted, placement)
 * ``POST /v1/monitors``: add the Monitor documents of the body (YAML or JSON); 409 if one exists
 * ``PUT /v1/monitors/{name}``: add or replace that monitor
 * ``DELETE /v1/monitors/{name}``: remove it

@@ -19,6 +19,7 @@ from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from edgerv.core.deadline import MakespanWindow
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import MonitorSpec
 from edgerv.core.handoff import (
@@ -140,6 +141,7 @@ class Engine:
         type_check: Callable[[str], str | None] | None = None,
         reorder_window: float = 0.02,
         matched: Callable[[str], bool] | None = None,
+        deadline: MakespanWindow | None = None,
     ) -> None:
         self.name = name
         self.sinks = list(sinks)
@@ -168,6 +170,8 @@ class Engine:
         self.ingest_lag = 0.0  # seconds between publication and ingestion, last batch
         self.waiting: dict[str, MonitorRuntime] = {}  # monitors with letters to evaluate
         self.in_handoff: dict[str, MonitorSlot] = {}  # so ingest need not scan every slot
+        # --deadline: the makespans of the robot's real-time task (the ROS layer measures)
+        self.deadline = deadline
 
     # -- monitors --------------------------------------------------------------------------
 
@@ -240,14 +244,24 @@ class Engine:
     # -- the data path ---------------------------------------------------------------------
 
     def ingest(
-        self, batch: Sequence[tuple[int, str, Sequence[Any]]], now: float | None = None
-    ) -> None:
-        """Offer messages, in this order, as ``(stamp ns, topic, field values)``."""
+        self,
+        batch: Sequence[tuple[int, str, Sequence[Any]]],
+        now: float | None = None,
+        routes_version: int | None = None,
+    ) -> bool:
+        """Offer messages, in this order, as ``(stamp ns, topic, field values)``.
+
+        ``routes_version``: the :attr:`routes_version` the values were read for (each
+        topic's fields, in its route's order). If the routes changed since (a monitor
+        added or removed meanwhile), nothing is offered and False is returned: the
+        caller reads the messages again for the new fields and retries."""
         if not batch:
-            return
+            return True
         now = time.monotonic() if now is None else now
         woke = False
         with self.lock:
+            if routes_version is not None and routes_version != self.routes_version:
+                return False
             routes, slots = self.router.routes, self.slots
 
             def admit(runtime: MonitorRuntime) -> bool:
@@ -284,8 +298,9 @@ class Engine:
                     woke = woke or len(runtime.letters) >= WAKE_LETTERS
             if woke:
                 self.ready.notify()
+        return True
 
-    def taken(self, batch: Sequence[tuple[int, str, Sequence[Any]]]) -> None:
+    def taken(self, batch: Sequence[tuple[Any, ...]]) -> None:
         """Messages taken from their subscriptions, before they are merged in stamp order
         (the ROS layer's reorder window): a receiver notes its first stamp on each topic
         from them, a window earlier. Each is ingested after, in the same topic order."""
@@ -293,14 +308,15 @@ class Engine:
             with self.lock:
                 self._note_firsts(batch)
 
-    def _note_firsts(self, batch: Sequence[tuple[int, str, Sequence[Any]]]) -> None:
+    def _note_firsts(self, batch: Sequence[tuple[Any, ...]]) -> None:
         """H2 notes its first stamp on each topic of a receiving monitor (for the cut)."""
         for slot in self.in_handoff.values():
             firsts, topics = slot.first_stamps, slot.compiled.spec.topics
             if slot.handoff == "receiving" and len(firsts) < len(topics):
-                for stamp, topic, _ in batch:
+                for item in batch:
+                    topic = item[1]
                     if topic not in firsts and topic in topics:
-                        firsts[topic] = stamp
+                        firsts[topic] = item[0]
 
     def _evaluate(self) -> list[Verdict]:
         """Evaluate the letters of the monitors that have some (not all monitors: cheap)."""
@@ -701,13 +717,16 @@ class Engine:
         return slot
 
     def load(self) -> dict[str, Any]:
-        """The load report the orchestrator reads (``GET /v1/load``): counters, not rates."""
+        """The load report the orchestrator reads (``GET /v1/load``): counters, not rates;
+        ``deadline`` is the makespan window's reading (null without ``--deadline``)."""
+        deadline = self.deadline.report(time.monotonic_ns()) if self.deadline else None
         with self.lock:
             return {
                 "handler": self.name,
                 "monotonic": time.monotonic(),
                 "cpuSeconds": time.process_time(),
                 "ingestLag": self.ingest_lag,
+                "deadline": deadline,
                 "monitors": {
                     slot.name: {
                         "active": slot.active,

@@ -18,6 +18,7 @@ import sys
 import threading
 from pathlib import Path
 
+from edgerv.core.deadline import MakespanWindow, parse_deadline
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
 from edgerv.core.documents import read_monitors
 from edgerv.handler.engine import Engine, VerdictSink
@@ -108,6 +109,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="order messages of different topics by timestamp within this window before "
         "evaluating them (default 0.02; 0 turns it off)",
     )
+    p.add_argument(
+        "--deadline",
+        metavar="TOPIC=DURATION",
+        help="the robot's real-time task publishes its outputs on TOPIC, each stamped "
+        "(header.stamp) with the capture of its input; measure its makespan (publication "
+        "minus stamp) against DURATION (e.g. /cmd_vel=125ms) and report it in /v1/load",
+    )
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
 
 
@@ -119,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
     )
     try:
         token = read_token(args)
+        deadline = parse_deadline(args.deadline) if args.deadline is not None else None
     except InputError as exc:
         print(exc, file=sys.stderr)
         return EXIT_INPUT
@@ -166,6 +175,7 @@ def run(args: argparse.Namespace) -> int:
         flush_after=args.flush_after,
         type_check=ros_node.type_problem,
         reorder_window=window,
+        deadline=MakespanWindow(deadline.topic, deadline.budget_ns) if deadline else None,
     )
     ros = ros_node.RosIngest(engine, args.name, reorder_window=window)
     engine.sinks.append(ros)

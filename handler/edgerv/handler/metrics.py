@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterator
 
 from prometheus_client import CollectorRegistry, ProcessCollector
@@ -82,6 +83,42 @@ class EngineCollector(Collector):
             "Publication to ingestion delay of the last messages taken",
             value=lag,
         )
+        yield from self.deadline()
+
+    def deadline(self) -> Iterator[Metric]:
+        """--deadline: the robot's real-time task (nothing without the option)."""
+        window = self.engine.deadline
+        if window is None:
+            return
+        reading = window.report(time.monotonic_ns())
+        topic = [reading["topic"]]
+        budget = GaugeMetricFamily(
+            "edgerv_deadline_budget_seconds",
+            "The real-time task's deadline (--deadline)",
+            labels=["topic"],
+        )
+        budget.add_metric(topic, reading["budgetMs"] / 1e3)
+        p95 = GaugeMetricFamily(
+            "edgerv_deadline_makespan_p95_seconds",
+            "95th percentile of the task's makespan (publication minus header.stamp) over "
+            "the window; absent while the window is empty",
+            labels=["topic"],
+        )
+        if reading["p95Ms"] is not None:
+            p95.add_metric(topic, reading["p95Ms"] / 1e3)
+        misses = CounterMetricFamily(
+            "edgerv_deadline_misses",
+            "Outputs of the task whose makespan exceeded the deadline",
+            labels=["topic"],
+        )
+        misses.add_metric(topic, reading["missesTotal"])
+        measured = CounterMetricFamily(
+            "edgerv_deadline_messages",
+            "Outputs of the task whose makespan was measured",
+            labels=["topic"],
+        )
+        measured.add_metric(topic, reading["messagesTotal"])
+        yield from (budget, p95, misses, measured)
 
 
 def build_registry(engine: Engine, qos_problems: Callable[[], dict[str, int]]) -> CollectorRegistry:

@@ -21,15 +21,17 @@ import sys
 import threading
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
 from edgerv.core.placement import (
+    DeadlineReading,
     HandlerReport,
     MonitorLoad,
     Placement,
     PolicyConfig,
+    PolicyConfigError,
     PolicyMemory,
     placement_from_json,
     plan,
@@ -78,6 +80,23 @@ def parse_pairs(text: str, flag: str) -> dict[str, float]:
     return out
 
 
+def _number(value: object) -> float | None:
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
+def deadline_reading(value: object) -> DeadlineReading | None:
+    """The load report's ``deadline`` (milliseconds) as the policy reads it (seconds).
+
+    None when the handler measures no deadline (``--deadline`` not given) or reports
+    something else: the policy then goes without it."""
+    if not isinstance(value, Mapping):
+        return None
+    budget, p95, count = (_number(value.get(k)) for k in ("budgetMs", "p95Ms", "count"))
+    if budget is None or count is None:
+        return None
+    return DeadlineReading(budget / 1000, None if p95 is None else p95 / 1000, int(count))
+
+
 @dataclass
 class Counters:
     monotonic: float
@@ -94,6 +113,7 @@ def build_reports(
     CPU is the handler's share of one core since the last poll (the handler's data
     path is one Python thread); events per second likewise per monitor. On the
     first poll of a handler both are 0: nothing moves for load before a rate is known.
+    A handler's ``deadline`` (``--deadline``) is a reading already: it counts at once.
     """
     reports: list[HandlerReport] = []
     placements: dict[str, Placement] = {}
@@ -117,6 +137,7 @@ def build_reports(
                 tier=target.tier,
                 cpu=max(0.0, cpu),
                 ingest_lag=float(load.get("ingestLag", 0.0)),
+                deadline=deadline_reading(load.get("deadline")),
                 monitors={
                     m: MonitorLoad(
                         active=bool(d["active"]),
@@ -195,6 +216,7 @@ class Orchestrator:
             client = self.clients[where[start.destination]]
             started = time.monotonic()
             record: dict[str, Any] = {
+                "at": round(time.time(), 3),
                 "monitors": [start.monitor],
                 "from": None,
                 "to": client.base,
@@ -214,7 +236,13 @@ class Orchestrator:
             )
         for (source, destination, reason), names in batches.items():
             src, dst = self.clients[where[source]], self.clients[where[destination]]
-            record = {"monitors": names, "from": src.base, "to": dst.base, "reason": reason}
+            record = {
+                "at": round(time.time(), 3),
+                "monitors": names,
+                "from": src.base,
+                "to": dst.base,
+                "reason": reason,
+            }
             started = time.monotonic()
             try:
                 moved = migrate(src, dst, names, self.timeout, self.grace)
@@ -269,6 +297,38 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--cooldown", type=float, default=60.0, metavar="SECONDS", help="least time between moves"
     )
+    defaults = {f.name: f.default for f in fields(PolicyConfig)}
+    p.add_argument(
+        "--deadline-high",
+        type=float,
+        default=defaults["deadline_high"],
+        metavar="RATIO",
+        help="deadline pressure: a handler's p95 makespan / budget at or above this "
+        "(default %(default)s; handlers started with --deadline)",
+    )
+    p.add_argument(
+        "--deadline-low",
+        type=float,
+        default=defaults["deadline_low"],
+        metavar="RATIO",
+        help="calm needs p95 makespan / budget at or below this (default %(default)s)",
+    )
+    p.add_argument(
+        "--deadline-shed",
+        type=float,
+        default=defaults["deadline_shed"],
+        metavar="FRACTION",
+        help="under deadline pressure, move at least this share of the handler's movable "
+        "event load up a tier, busiest first (default %(default)s)",
+    )
+    p.add_argument(
+        "--deadline-wait",
+        type=float,
+        default=defaults["deadline_wait"],
+        metavar="SECONDS",
+        help="after such a move, leave that handler's deadline alone this long "
+        "(default %(default)s)",
+    )
     p.add_argument("--timeout", type=float, default=30.0, metavar="SECONDS", help="per migration")
     p.add_argument("--once", action="store_true", help="one round (after a first poll), then exit")
 
@@ -295,7 +355,14 @@ def config_from(args: argparse.Namespace, targets: Sequence[Target]) -> PolicyCo
             tier_latency_ms=parse_pairs(args.tier_latency, "--tier-latency"),
             calm_seconds=args.calm,
             cooldown_seconds=args.cooldown,
+            deadline_high=args.deadline_high,
+            deadline_low=args.deadline_low,
+            deadline_shed=args.deadline_shed,
+            deadline_wait=args.deadline_wait,
         )
+    except PolicyConfigError as exc:
+        flag = "--" + exc.setting.replace("_", "-")
+        raise InputError([Diagnostic(Location(flag), str(exc))]) from None
     except ValueError as exc:
         raise InputError([Diagnostic(Location("--tiers"), str(exc))]) from None
 

@@ -13,13 +13,13 @@ from __future__ import annotations
 
 from bisect import bisect_right
 from operator import itemgetter
-from typing import Any
+from typing import Any, Generic, TypeVar
 
-Item = tuple[int, str, Any]  # (stamp ns, topic, field values)
+Item = TypeVar("Item", bound=tuple[Any, ...])  # (stamp ns, topic, field values, ...)
 _STAMP = itemgetter(0)
 
 
-class ReorderWindow:
+class ReorderWindow(Generic[Item]):
     def __init__(self, window: float) -> None:
         self.window = window
         self.window_ns = int(window * 1e9)

@@ -9,6 +9,11 @@ to the engine.
 
 The timestamp of a message is its ``header.stamp`` when it has a header, else
 the DDS source timestamp: the instant the robot published it.
+
+With ``--deadline TOPIC=DURATION`` it also subscribes to TOPIC (raw, a subscription
+of its own whatever the monitors read) once the ROS graph shows a publisher and
+so its type, and feeds each message's makespan (source timestamp minus
+``header.stamp``) to the engine's :class:`~edgerv.core.deadline.MakespanWindow`.
 """
 
 from __future__ import annotations
@@ -31,8 +36,10 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import ok
 
-from edgerv.core.cdr import Reader, compile_reader
+from edgerv.core.cdr import Reader, compile_reader, header_stamp_ns
+from edgerv.core.deadline import MakespanWindow
 from edgerv.core.documents import QosSpec
+from edgerv.core.msgtypes import starts_with_header
 from edgerv.core.pipeline import TopicRoute, Verdict
 from edgerv.handler.engine import Engine
 from edgerv.handler.reorder import ReorderWindow
@@ -45,6 +52,8 @@ TAKE_PER_WAKE = 2000  # messages taken from one subscription before looking at t
 QOS_CHECK_SECONDS = 1.0
 COALESCE_SECONDS = 0.0005  # at most this much latency for much less work per message
 _FIRST = itemgetter(0)
+# (stamp ns, topic, field values, the message's bytes, the routes version they were read for)
+Taken = tuple[int, str, list[Any], bytes, int]
 
 
 def message_class(msg_type: str) -> Any:
@@ -83,6 +92,20 @@ class _Sub:
     auto_reliability: bool
 
 
+@dataclass
+class _Deadline:
+    """``--deadline``: the task's output topic, as the handler learns and reads it."""
+
+    window: MakespanWindow
+    msg_type: str | None = None  # from the ROS graph, once a publisher shows it (QoS thread)
+    subscription: Any = None  # made by the ingest thread once the type is known
+    given_up: bool = False  # a type without a header, or several: no deadline data
+
+    @property
+    def pending(self) -> bool:
+        return self.msg_type is not None and self.subscription is None and not self.given_up
+
+
 def _node_name(name: str) -> str:
     clean = "".join(c if c.isalnum() else "_" for c in name)
     return f"edgerv_{clean}"
@@ -112,6 +135,7 @@ class RosIngest:
         self.failed = False
         self._resubscribe: set[str] = set()  # topics the QoS thread wants re-created
         self.reorder_window = reorder_window
+        self.deadline = _Deadline(engine.deadline) if engine.deadline is not None else None
 
     # -- verdicts out ----------------------------------------------------------------------
 
@@ -209,8 +233,76 @@ class RosIngest:
         while not self._stop.wait(QOS_CHECK_SECONDS):
             try:
                 self._check_qos()
+                self._learn_deadline_type()
             except Exception:  # a failed check is retried; it must not stop the handler
                 log.exception("QoS check failed")
+
+    # -- --deadline ------------------------------------------------------------------------
+
+    def _learn_deadline_type(self) -> None:
+        """In the QoS thread, each second until a publisher shows it: the deadline topic's
+        type. One that does not start with a std_msgs/msg/Header is an error, logged once:
+        the handler goes on without deadline data."""
+        d = self.deadline
+        if d is None or d.msg_type is not None or d.given_up:
+            return
+        topic = d.window.topic
+        types = sorted({p.topic_type for p in self.node.get_publishers_info_by_topic(topic)})
+        if not types:
+            return  # no publisher yet: asked again in a second
+        problem = None
+        if len(types) > 1:
+            problem = f"its publishers publish several types ({', '.join(types)})"
+        elif not starts_with_header(types[0]):
+            problem = (
+                f"its type {types[0]} does not start with a std_msgs/msg/Header, so its "
+                "messages carry no stamp of the input they were computed from"
+            )
+        elif (missing := type_problem(types[0])) is not None:
+            problem = missing
+        if problem is not None:
+            d.given_up = True
+            log.error("--deadline %s: %s: no deadline data", topic, problem)
+            return
+        d.msg_type = types[0]
+        self.wake()  # the ingest thread subscribes
+
+    def _subscribe_deadline(self, d: _Deadline) -> None:
+        """In the ingest thread: the deadline topic's own raw subscription."""
+        topic, msg_type = d.window.topic, str(d.msg_type)
+        try:
+            qos, _ = self._resolve_qos(topic, QosSpec())
+            d.subscription = self.node.create_subscription(
+                message_class(msg_type), topic, lambda _: None, qos, raw=True
+            )
+        except Exception as exc:  # carry on without deadline data
+            d.given_up = True
+            log.error("--deadline %s: cannot subscribe (%s): no deadline data", topic, exc)
+            return
+        log.info(
+            "deadline: measuring the makespan of %s (%s) against %g ms",
+            topic,
+            msg_type,
+            d.window.budget_ns / 1e6,
+        )
+
+    def _take_deadline(self, d: _Deadline) -> None:
+        """The makespans of what waits on the deadline topic."""
+        sub, window, topic = d.subscription, d.window, d.window.topic
+        take, cls = sub.handle.take_message, sub.msg_type
+        taken = time.monotonic_ns()
+        for _ in range(TAKE_PER_WAKE):
+            got = take(cls, True)
+            if got is None:
+                return
+            raw, info = got
+            try:
+                stamp = header_stamp_ns(raw)
+            except ValueError:
+                self._bad_message(topic, str(d.msg_type))
+                continue
+            if not window.add(info["source_timestamp"], stamp, taken) and window.unstamped == 1:
+                log.warning("%s: header.stamp is 0 (nobody stamped it): not measured", topic)
 
     def _apply_resubscriptions(self) -> bool:
         """In the ingest thread: re-create the subscriptions the QoS thread asked for."""
@@ -262,8 +354,9 @@ class RosIngest:
 
     # -- the take loop ---------------------------------------------------------------------
 
-    def _take_all(self, subs: list[_Sub]) -> list[tuple[int, str, list[Any]]]:
-        batch: list[tuple[int, str, list[Any]]] = []
+    def _take_all(self, subs: list[_Sub]) -> list[Taken]:
+        batch: list[Taken] = []
+        version = self._version
         append = batch.append
         oldest_source: int | None = None
         delivered = 0  # subscriptions that had messages
@@ -284,7 +377,8 @@ class RosIngest:
                 except Exception:  # a malformed message is counted and skipped
                     self._bad_message(topic, sub.route.msg_type)
                 else:
-                    append((stamp or info["source_timestamp"], topic, values))  # unstamped: 0
+                    # unstamped: 0; the bytes and the routes' version: read again if they change
+                    append((stamp or info["source_timestamp"], topic, values, raw, version))
                 got = take(cls, True)
                 if got is None:
                     break
@@ -293,6 +387,33 @@ class RosIngest:
         if delivered > 1:
             batch.sort(key=_FIRST)  # one order across topics: by timestamp
         return batch
+
+    def _ingest(self, items: list[Taken]) -> None:
+        """Hand taken messages to the engine, read for the fields its routes have now.
+
+        Messages wait in the reorder window while monitors come and go (a handoff adds
+        some mid-stream), and the API changes the engine's routes from another thread:
+        a message read for an older set of fields is read again from its bytes, and the
+        engine refuses a batch read for routes it no longer has (then this retries)."""
+        while items:
+            if self.engine.routes_version != self._version:
+                self._reconfigure()  # the loop rebuilds its wait set on its next turn
+            version = self._version
+            batch = []
+            for stamp, topic, values, raw, read_for in items:
+                if read_for != version:
+                    sub = self.subs.get(topic)
+                    if sub is None:
+                        continue  # no monitor reads the topic any more
+                    try:
+                        values = sub.reader(raw)[0]
+                    except Exception:  # a malformed message is counted and skipped
+                        self._bad_message(topic, sub.route.msg_type)
+                        continue
+                batch.append((stamp, topic, values))
+            if self.engine.ingest(batch, routes_version=version):
+                return
+            items = [(s, t, v, r, -1) for s, t, v, r, _ in items]  # all read again
 
     def _bad_message(self, topic: str, msg_type: str) -> None:
         n = self.bad_messages[topic] = self.bad_messages.get(topic, 0) + 1
@@ -305,26 +426,37 @@ class RosIngest:
         handles: list[Any] = []
         version = None
         # The window outlives reconfigurations: draining it early would reorder.
-        reorder = ReorderWindow(self.reorder_window) if self.reorder_window > 0 else None
+        reorder: ReorderWindow[Taken] | None = (
+            ReorderWindow(self.reorder_window) if self.reorder_window > 0 else None
+        )
         several = False  # one topic is delivered in order: only several need the window
-        ingest, taken = self.engine.ingest, self.engine.taken
+        ingest, taken = self._ingest, self.engine.taken
+        deadline = self.deadline
+        timed: _Deadline | None = None  # --deadline once subscribed: waited on too
+        waited: list[Any] = []
         try:
             while not self._stop.is_set():
                 if self._resubscribe and self._apply_resubscriptions():
                     version = None  # a subscription was re-created: rebuild the wait set
+                if deadline is not None and deadline.pending:
+                    self._subscribe_deadline(deadline)
+                    version = None
                 if version != self.engine.routes_version:
                     stack.close()  # the wait set is rebuilt for the new subscriptions
                     self._reconfigure()
                     version = self._version
                     stack = contextlib.ExitStack()
                     handles = [s.subscription.handle for s in self.subs.values()]
-                    for h in (*handles, self.wakeup.handle, self.node.context.handle):
+                    subscribed = deadline is not None and deadline.subscription is not None
+                    timed = deadline if subscribed else None
+                    waited = [*handles, timed.subscription.handle] if timed else handles
+                    for h in (*waited, self.wakeup.handle, self.node.context.handle):
                         stack.enter_context(h)  # keeps each alive while the wait set holds it
-                    wait_set = _rclpy.WaitSet(len(handles), 1, 0, 0, 0, 0, self.node.context.handle)
+                    wait_set = _rclpy.WaitSet(len(waited), 1, 0, 0, 0, 0, self.node.context.handle)
                     several = len(handles) > 1
                     self.ready.set()
                 wait_set.clear_entities()
-                for h in handles:
+                for h in waited:
                     wait_set.add_subscription(h)
                 wait_set.add_guard_condition(self.wakeup.handle)
                 holding = reorder is not None and reorder.pending
@@ -333,7 +465,10 @@ class RosIngest:
                 if reorder is not None:
                     ingest(reorder.due(time.monotonic()))
                 ready = set(wait_set.get_ready_entities("subscription"))
-                if not ready:
+                if timed is not None and timed.subscription.handle.pointer in ready:
+                    ready.discard(timed.subscription.handle.pointer)  # not a monitor's topic
+                    self._take_deadline(timed)
+                if not ready:  # (the monitors' topics: the deadline's does not count)
                     if reorder is None or not reorder.pending:  # everything here was taken
                         self.engine.drained_at = time.time_ns()
                     continue
@@ -346,6 +481,8 @@ class RosIngest:
                         ingest(reorder.add(batch, time.monotonic()))
                     else:
                         ingest(batch)
+                    if timed is not None:  # an overloaded handler measures on, too
+                        self._take_deadline(timed)
                     batch = self._take_all(subs)
         finally:
             if reorder is not None:

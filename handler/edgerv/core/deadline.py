@@ -1,0 +1,192 @@
+"""The robot's real-time task and its deadline, as a handler measures it (``--deadline``).
+
+``edgerv handler --deadline TOPIC=DURATION``: each message on TOPIC is an output
+of the robot's real-time task, and its ``header.stamp`` is the instant the input
+it was computed from was captured (a velocity command stamped with its camera
+frame's stamp). The task's **makespan** for that message is its DDS source
+timestamp (the instant it was published) minus its ``header.stamp``; it misses
+the deadline when the makespan is longer than DURATION (the budget).
+
+:class:`MakespanWindow` keeps the makespans of the last ``window`` of publish
+time and answers with their count, misses, median, 95th percentile, maximum and
+the last one: the reading the orchestration policy weighs against the budget
+(:mod:`edgerv.core.placement`, "deadline pressure"). No ROS here: the handler's
+ROS layer feeds it what it takes.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import deque
+from dataclasses import dataclass
+from typing import TypedDict
+
+from edgerv.core.assertion import UNITS, duration_ns
+from edgerv.core.diagnostics import Diagnostic, InputError, Location
+from edgerv.core.documents import topic_name
+
+WINDOW_NS = 2_000_000_000  # the makespans of the last 2 s of publish time
+MAX_ENTRIES = 100_000  # at most this many makespans in the window (the oldest go first)
+
+
+@dataclass(frozen=True)
+class DeadlineOption:
+    """``--deadline TOPIC=DURATION``: the task's output topic and its budget."""
+
+    topic: str
+    budget_ns: int
+
+
+def parse_deadline(text: str, flag: str = "--deadline") -> DeadlineOption:
+    """``/cmd_vel=125ms`` (a duration as the assertion language writes it); raises
+    :class:`InputError` located at ``flag``."""
+    topic, eq, duration = (part.strip() for part in text.partition("="))
+    if not eq or not topic or not duration:
+        raise _bad(flag, f"'{text}' is not TOPIC=DURATION", "e.g. --deadline /cmd_vel=125ms")
+    name = topic_name(topic)
+    if name is None:
+        raise _bad(flag, f"'{topic}' is not a ROS topic name", "e.g. --deadline /cmd_vel=125ms")
+    budget = duration_ns(duration)
+    if budget is None:
+        raise _bad(
+            flag,
+            f"'{duration}' is not a duration",
+            f"a number and its unit written together ({', '.join(UNITS)}), e.g. 125ms",
+        )
+    if budget <= 0:
+        raise _bad(flag, f"the deadline of {name} must be longer than 0, not {duration}")
+    return DeadlineOption(name, budget)
+
+
+def _bad(flag: str, message: str, hint: str | None = None) -> InputError:
+    return InputError([Diagnostic(Location(flag), message, hint=hint)])
+
+
+class DeadlineLoad(TypedDict):
+    """``deadline`` in ``GET /v1/load``: the window's reading, in milliseconds.
+
+    The four makespan figures are null while the window is empty."""
+
+    topic: str
+    budgetMs: float
+    windowSeconds: float
+    count: int  # makespans in the window
+    misses: int  # of those, longer than the budget
+    p50Ms: float | None
+    p95Ms: float | None
+    maxMs: float | None
+    lastMs: float | None  # the newest in the window
+    missesTotal: int  # since the handler started
+    messagesTotal: int  # messages measured since the handler started
+
+
+@dataclass(frozen=True)
+class MakespanStats:
+    """The makespans of one window, in nanoseconds (None: the window is empty)."""
+
+    count: int
+    misses: int
+    p50: int | None
+    p95: int | None
+    max: int | None
+    last: int | None
+
+
+def percentile(ordered: list[int], q: float) -> int:
+    """The nearest-rank ``q`` quantile of a non-empty sorted list."""
+    return ordered[max(0, math.ceil(q * len(ordered)) - 1)]
+
+
+def _ms(ns: int | None) -> float | None:
+    return None if ns is None else round(ns / 1e6, 3)
+
+
+class MakespanWindow:
+    """Makespans of the last ``window_ns`` of publish time. Thread-safe.
+
+    The window ends at the newest publish time plus the (local, monotonic) time
+    since that message was taken: when the task stops publishing, its old
+    makespans leave the window as time goes on, without comparing the robot's
+    clock with this handler's.
+    """
+
+    def __init__(
+        self,
+        topic: str,
+        budget_ns: int,
+        window_ns: int = WINDOW_NS,
+        max_entries: int = MAX_ENTRIES,
+    ) -> None:
+        if budget_ns <= 0 or window_ns <= 0:
+            raise ValueError("the budget and the window must be longer than 0")
+        self.topic = topic
+        self.budget_ns = budget_ns
+        self.window_ns = window_ns
+        self._entries: deque[tuple[int, int]] = deque(maxlen=max_entries)  # (published, span)
+        self._newest: tuple[int, int] | None = None  # (published, taken) of the newest
+        self._lock = threading.Lock()
+        self.messages_total = 0
+        self.misses_total = 0
+        self.unstamped = 0  # messages whose header nobody stamped: not measured
+
+    def add(self, published_ns: int, stamp_ns: int, taken_ns: int) -> bool:
+        """One output of the task: published at ``published_ns`` (its source timestamp),
+        computed from an input captured at ``stamp_ns`` (its header.stamp), taken here at
+        ``taken_ns`` (monotonic). False (not measured) for a header stamped 0."""
+        with self._lock:
+            if stamp_ns == 0:
+                self.unstamped += 1
+                return False
+            span = published_ns - stamp_ns
+            self._entries.append((published_ns, span))
+            if self._newest is None or published_ns >= self._newest[0]:
+                self._newest = (published_ns, taken_ns)
+            self.messages_total += 1
+            self.misses_total += span > self.budget_ns
+            return True
+
+    def _evict(self, now_ns: int) -> None:
+        if self._newest is None:
+            return
+        published, taken = self._newest
+        horizon = published + max(0, now_ns - taken) - self.window_ns
+        entries = self._entries
+        while entries and entries[0][0] <= horizon:
+            entries.popleft()
+
+    def stats(self, now_ns: int) -> MakespanStats:
+        """The reading at ``now_ns`` (monotonic, the clock of :meth:`add`'s ``taken_ns``)."""
+        with self._lock:
+            self._evict(now_ns)
+            spans = [span for _, span in self._entries]
+        if not spans:
+            return MakespanStats(0, 0, None, None, None, None)
+        ordered = sorted(spans)
+        return MakespanStats(
+            count=len(spans),
+            misses=sum(1 for s in spans if s > self.budget_ns),
+            p50=percentile(ordered, 0.5),
+            p95=percentile(ordered, 0.95),
+            max=ordered[-1],
+            last=spans[-1],
+        )
+
+    def report(self, now_ns: int) -> DeadlineLoad:
+        """The ``deadline`` of the load report."""
+        s = self.stats(now_ns)
+        with self._lock:
+            misses_total, messages_total = self.misses_total, self.messages_total
+        return DeadlineLoad(
+            topic=self.topic,
+            budgetMs=self.budget_ns / 1e6,
+            windowSeconds=self.window_ns / 1e9,
+            count=s.count,
+            misses=s.misses,
+            p50Ms=_ms(s.p50),
+            p95Ms=_ms(s.p95),
+            maxMs=_ms(s.max),
+            lastMs=_ms(s.last),
+            missesTotal=misses_total,
+            messagesTotal=messages_total,
+        )

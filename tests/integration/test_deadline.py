@@ -1,0 +1,99 @@
+"""--deadline on real ROS 2 traffic: the makespan of a stamped command stream in /v1/load."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from rosprocs import Handler, ros_env, wait_for
+
+pytestmark = pytest.mark.integration
+
+MONITOR = """\
+apiVersion: edgerv.io/v1alpha1
+kind: Monitor
+metadata: {name: slow-enough}
+spec:
+  assertion: "always (vx < 10)"
+  signals:
+    vx: {topic: /cmd, type: geometry_msgs/msg/TwistStamped, field: twist.linear.x}
+"""
+
+# The robot's real-time task: a velocity command at 20 Hz, stamped with the capture of the
+# input it was computed from, 140 ms before it is published; 50 ms after SIGUSR1.
+TASK = r"""
+import signal, time, rclpy
+from geometry_msgs.msg import TwistStamped
+age = [0.140]
+signal.signal(signal.SIGUSR1, lambda *_: age.__setitem__(0, 0.050))
+rclpy.init()
+node = rclpy.create_node("task")
+pub = node.create_publisher(TwistStamped, "/cmd", 10)
+print("publishing", flush=True)
+while True:
+    msg = TwistStamped()
+    stamp = time.time_ns() - int(age[0] * 1e9)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+    msg.header.frame_id = "camera"
+    msg.twist.linear.x = 0.5
+    pub.publish(msg)
+    time.sleep(0.05)
+"""
+
+
+def deadline(handler: Handler) -> dict[str, Any]:
+    status, load = handler.request("GET", "/v1/load")
+    assert status == 200, load
+    reading: dict[str, Any] = load["deadline"]
+    return reading
+
+
+def test_the_makespan_of_a_stamped_command_stream_is_in_the_load_report(
+    tmp_path: Path, domain: int
+) -> None:
+    monitors = tmp_path / "m.yaml"
+    monitors.write_text(MONITOR)
+    handler = Handler(tmp_path, monitors, domain, "--deadline", "/cmd=125ms")
+    task = subprocess.Popen(
+        [sys.executable, "-c", TASK],
+        env=ros_env(domain),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert deadline(handler)["count"] == 0
+        full = wait_for(lambda: deadline(handler)["count"] >= 30, timeout=30)
+        assert full, handler.stderr
+        reading = deadline(handler)
+        assert set(reading) == {
+            "topic", "budgetMs", "windowSeconds", "count", "misses", "p50Ms", "p95Ms",
+            "maxMs", "lastMs", "missesTotal", "messagesTotal",
+        }  # fmt: skip
+        assert (reading["topic"], reading["budgetMs"], reading["windowSeconds"]) == (
+            "/cmd",
+            125.0,
+            2.0,
+        )
+        assert 135 <= reading["p95Ms"] <= 200, reading
+        assert reading["misses"] > 0, reading
+        assert "measuring the makespan of /cmd (geometry_msgs/msg/TwistStamped)" in handler.stderr
+        assert (handler.metric("edgerv_deadline_misses_total", topic="/cmd") or 0) > 0
+        # the monitor reading the same topic runs as ever
+        assert (handler.metric("edgerv_events_total", monitor="slow-enough") or 0) > 0
+
+        task.send_signal(signal.SIGUSR1)  # the task meets its deadline from now on
+        time.sleep(2.5)
+        calm = wait_for(lambda: deadline(handler)["misses"] == 0, timeout=10)
+        reading = deadline(handler)
+        assert calm and reading["count"] > 0 and reading["p95Ms"] < 125, reading
+        assert reading["missesTotal"] > 0  # the counter keeps the past
+    finally:
+        task.kill()
+        task.wait()
+        assert handler.stop() == 0, handler.stderr
