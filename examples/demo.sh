@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# `make demo`: verify a recorded run of the paper's running example, then show an error.
+# `make tour`: verify a recorded run of the paper's running example, then show an error.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 edgerv=.venv/bin/edgerv

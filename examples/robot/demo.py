@@ -1,0 +1,948 @@
+"""``make demo``: the seed paper's case study (section VI) on a simulated robot.
+
+A robot (examples/robot/robot.py) drives a route under an 8 Hz control loop
+whose deadline is 125 ms, while edgerv's monitors watch its topics. Three
+phases, each a fresh boot of the robot with the same mission:
+
+1. **baseline**: no monitor runs; the real-time stage's work is calibrated here
+   (its CPU seconds per frame) so that the loop's makespan is about 115 ms.
+2. **edgeOnly**: every monitor runs in the edge handler, which shares the
+   real-time stage's CPU (one core, by CPU affinity: the edge device's budget).
+3. **orchestrated**: the same, plus a cloud handler on the other cores and
+   ``edgerv orchestrate``, whose policy sees the loop's deadline pressure
+   (the edge handler's ``--deadline /cmd_vel=125ms``) and moves monitors.
+
+Each monitored phase is recorded as a rosbag2 MCAP bag; ``edgerv check`` on it
+must give exactly the verdicts the handlers gave live, across every move.
+Writes ``OUT/summary.json``, ``OUT/makespan.png`` (when matplotlib is
+installed), the bags, the verdict logs and every process's log under ``OUT``.
+Exits 1 when the run did not reproduce the paper's shape, saying which part.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import random
+import secrets
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent.parent
+DEADLINE_MS = 125.0
+TARGET_MS = 115.0
+GOAL_MONITOR = "goal-reached"
+PATH = ((0.0, 0.0), (4.0, 0.0), (4.0, 3.0), (0.0, 3.0))
+GOAL_SECONDS = 20.0  # the goal monitor's F[0..20s]
+TOPICS = {
+    "/odom": "nav_msgs/msg/Odometry",
+    "/imu": "sensor_msgs/msg/Imu",
+    "/scan": "sensor_msgs/msg/LaserScan",
+    "/camera/image": "sensor_msgs/msg/Image",
+    "/cmd_vel": "geometry_msgs/msg/TwistStamped",
+    "/goal": "geometry_msgs/msg/PoseStamped",
+    "/battery": "sensor_msgs/msg/BatteryState",
+    "/bumper": "std_msgs/msg/Bool",
+}
+RATES_HZ = {"/imu": 200, "/odom": 50, "/scan": 20, "/camera/image": 8, "/cmd_vel": 8}
+
+
+# -- processes ---------------------------------------------------------------------------------
+
+
+class Processes:
+    """Every process the demo starts: each in its own session, on the given CPUs."""
+
+    def __init__(self, logs: Path, env: dict[str, str]) -> None:
+        self.logs, self.env = logs, env
+        self.running: dict[str, subprocess.Popen[bytes]] = {}
+        self.files: list[IO[bytes]] = []
+
+    def start(self, name: str, argv: Sequence[str], cpus: set[int]) -> subprocess.Popen[bytes]:
+        out = open(self.logs / f"{name}.log", "ab")  # noqa: SIM115 - closed in stop_all
+        self.files.append(out)
+        proc = subprocess.Popen(
+            list(argv),
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            env=self.env,
+            cwd=ROOT,
+            start_new_session=True,
+            preexec_fn=lambda: os.sched_setaffinity(0, cpus),
+        )
+        self.running[name] = proc
+        return proc
+
+    def stop(self, name: str, timeout: float = 15.0) -> int | None:
+        proc = self.running.pop(name, None)
+        if proc is None:
+            return None
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT if name in ("base", "slam") else signal.SIGTERM)
+            try:
+                proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        return proc.returncode
+
+    def stop_all(self) -> None:
+        for name in list(self.running):
+            self.stop(name, timeout=5.0)
+        for f in self.files:
+            f.close()
+        self.files.clear()
+
+    def log_text(self, name: str) -> str:
+        path = self.logs / f"{name}.log"
+        return path.read_text(errors="replace") if path.exists() else ""
+
+    def wait_for_line(self, name: str, needle: str, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if needle in self.log_text(name):
+                return True
+            proc = self.running.get(name)
+            if proc is not None and proc.poll() is not None:
+                return False
+            time.sleep(0.05)
+        return False
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Api:
+    """A handler's HTTP API, with the bearer token."""
+
+    def __init__(self, port: int, token: str) -> None:
+        self.base, self.token = f"http://127.0.0.1:{port}", token
+
+    def get(self, path: str) -> Any:
+        request = urllib.request.Request(
+            self.base + path, headers={"Authorization": f"Bearer {self.token}"}
+        )
+        with urllib.request.urlopen(request, timeout=5) as response:
+            return json.load(response)
+
+    def ready(self, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            with contextlib.suppress(OSError, ValueError):
+                self.get("/v1/load")
+                return True
+            time.sleep(0.1)
+        return False
+
+
+# -- the mission planner (a ROS node in this process) ------------------------------------------
+
+
+class Planner:
+    def __init__(self) -> None:
+        import rclpy
+        from geometry_msgs.msg import PoseStamped
+        from nav_msgs.msg import Path as PathMsg
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import Empty
+
+        rclpy.init()
+        self.node = rclpy.create_node("mission_planner")
+        latched = QoSProfile(
+            depth=1,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+            reliability=ReliabilityPolicy.RELIABLE,
+        )
+        reliable = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
+        self.path_pub = self.node.create_publisher(PathMsg, "/path", latched)
+        self.goal_pub = self.node.create_publisher(PoseStamped, "/goal", reliable)
+        self.reset_pub = self.node.create_publisher(Empty, "/sim/reset", reliable)
+        self._pose, self._path, self._empty = PoseStamped, PathMsg, Empty
+
+    def wait_readers(self, observers: int, timeout: float = 30.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if (
+                self.goal_pub.get_subscription_count() >= observers + 2  # + base and slam
+                and self.reset_pub.get_subscription_count() >= 1
+                and self.path_pub.get_subscription_count() >= 2
+            ):
+                return True
+            time.sleep(0.05)
+        return False
+
+    def pose(self, x: float, y: float) -> Any:
+        msg = self._pose()
+        msg.header.frame_id = "map"
+        stamp = time.time_ns()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+        msg.pose.position.x, msg.pose.position.y = x, y
+        msg.pose.orientation.w = 1.0
+        return msg
+
+    def start_mission(self) -> int:
+        """Reset the simulator to the start, publish the path, then the new goal."""
+        self.reset_pub.publish(self._empty())
+        path = self._path()
+        path.header.frame_id = "map"
+        path.poses = [self.pose(x, y) for x, y in PATH]
+        self.path_pub.publish(path)
+        time.sleep(0.3)
+        goal = self.pose(*PATH[-1])
+        self.goal_pub.publish(goal)
+        return int(goal.header.stamp.sec) * 1_000_000_000 + int(goal.header.stamp.nanosec)
+
+    def close(self) -> None:
+        import rclpy
+
+        self.node.destroy_node()
+        rclpy.try_shutdown()
+
+
+# -- what the robot wrote ----------------------------------------------------------------------
+
+
+class RobotLog:
+    """Tails the base's JSON lines (makespans, frames, poses, arrivals, collisions)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.offset = 0
+        self.records: list[dict[str, Any]] = []
+
+    def poll(self) -> None:
+        if not self.path.exists():
+            return
+        with self.path.open("rb") as f:
+            f.seek(self.offset)
+            data = f.read()
+        end = data.rfind(b"\n") + 1
+        self.offset += end
+        for line in data[:end].splitlines():
+            with contextlib.suppress(ValueError):
+                self.records.append(json.loads(line))
+
+    def kind(self, kind: str, since_ns: int = 0) -> list[dict[str, Any]]:
+        return [
+            r
+            for r in self.records
+            if r["kind"] == kind and r.get("stamp", r["t"] * 1e9) >= since_ns
+        ]
+
+    def event(self, kind: str, since_s: float) -> dict[str, Any] | None:
+        return next((r for r in self.records if r["kind"] == kind and r["t"] >= since_s), None)
+
+
+def percentile(values: Sequence[float], q: float) -> float | None:
+    if not values:
+        return None
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+# -- the run -----------------------------------------------------------------------------------
+
+
+@dataclass
+class Phase:
+    name: str
+    handlers: tuple[str, ...]  # "edge", "cloud"
+    monitors: Path | None = None  # the Monitor YAML the handlers load
+    orchestrated: bool = False
+    settle: float = 8.0  # robot idle before the goal: the policy sees the loop meanwhile
+    wait_verdict: bool = False  # run until the goal monitor's deadline has passed
+
+
+@dataclass
+class PhaseResult:
+    name: str
+    goal_stamp: int = 0
+    goal_time: float = 0.0
+    end_time: float = 0.0
+    makespans: list[tuple[float, float]] = field(default_factory=list)  # (t, ms), the mission
+    timeline: list[tuple[float, float]] = field(default_factory=list)  # (t, ms), the whole phase
+    frames: int = 0
+    misses: int = 0
+    arrived: bool = False
+    collided: bool = False
+    monitors_on_edge: int = 0
+    monitors_on_edge_min: int | None = None
+    goal_verdict: str = "n/a"
+    handler_cpu: dict[str, float] = field(default_factory=dict)
+    migrations: list[dict[str, Any]] = field(default_factory=list)
+    verdict_check: dict[str, Any] = field(default_factory=dict)
+    monitors: Path | None = None
+
+    def figures(self) -> dict[str, Any]:
+        ms = [m for _, m in self.makespans]
+        med, p95 = percentile(ms, 0.5), percentile(ms, 0.95)
+        return {
+            "medianMs": None if med is None else round(med, 1),
+            "p95Ms": None if p95 is None else round(p95, 1),
+            "deadlineMisses": self.misses,
+            "frames": self.frames,
+            "monitorsOnEdge": self.monitors_on_edge,
+            "goalVerdict": self.goal_verdict,
+            "goalReached": self.arrived,
+            "collision": self.collided,
+            "handlerCpu": {k: round(v, 3) for k, v in self.handler_cpu.items()},
+        }
+
+
+class Demo:
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.out: Path = args.out
+        cpus = sorted(os.sched_getaffinity(0))
+        if len(cpus) < 2:
+            raise SystemExit("demo: needs 2 CPUs (one is the edge device's budget)")
+        self.edge_cpus, self.other_cpus = {cpus[0]}, set(cpus[1:])
+        os.sched_setaffinity(0, self.other_cpus)  # this process and its threads: off the edge
+        self.token = secrets.token_hex(16)
+        self.domain = args.domain if args.domain is not None else random.randint(102, 199)
+        env = dict(os.environ)
+        env.update(
+            ROS_DOMAIN_ID=str(self.domain),
+            ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+            EDGERV_TOKEN=self.token,
+            PYTHONUNBUFFERED="1",
+        )
+        os.environ.update(ROS_DOMAIN_ID=str(self.domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+        self.procs = Processes(self.out / "logs", env)
+        self.python = sys.executable
+        self.edgerv = str(Path(sys.executable).with_name("edgerv"))
+        self.monitors = self.out / "monitors.yaml"  # the paper's 200 and the extra ones
+        self.paper_monitors = self.out / "monitors-paper.yaml"  # the paper's 200
+        self.work: float | None = None
+        self.started = time.time()
+        self.view = View(self, args.plain)
+        self.planner: Planner | None = None
+        self.current: PhaseResult | None = None
+        self.apis: dict[str, Api] = {}
+        self.monitor_count = 0
+
+    # -- phases --------------------------------------------------------------------------------
+
+    def run(self) -> dict[str, Any]:
+        for path, extra in ((self.monitors, self.args.extra), (self.paper_monitors, 0)):
+            subprocess.run(
+                [self.python, str(HERE / "monitors.py"), str(path), "--extra", str(extra)],
+                check=True,
+                capture_output=True,
+            )
+        self.monitor_count = self.monitors.read_text().count("\nkind: Monitor")
+        self.planner = Planner()
+        short = self.args.short
+        full = self.monitors
+        phases = [
+            Phase("baseline", (), full, settle=6.0),
+            Phase("paperConfig", ("edge",), self.paper_monitors, settle=6.0),
+            Phase("edgeOnly", ("edge",), full, settle=6.0 if short else 10.0, wait_verdict=True),
+            Phase("orchestrated", ("edge", "cloud"), full, orchestrated=True, settle=10.0),
+        ]
+        if short:  # the integration test: the three phases of the paper's figure
+            phases = [p for p in phases if p.name != "paperConfig"]
+        results = {}
+        with self.view:
+            for phase in phases:
+                results[phase.name] = self.run_phase(phase)
+        return self.summarize(results)
+
+    def run_phase(self, phase: Phase) -> PhaseResult:
+        result = PhaseResult(phase.name)
+        self.current = result
+        self.view.phase = phase.name
+        logs = self.out / "logs"
+        bag = self.out / "bags" / phase.name
+        shutil.rmtree(bag, ignore_errors=True)
+        bag.parent.mkdir(parents=True, exist_ok=True)
+        specs = [f"{t}={ty}" for t, ty in TOPICS.items()]
+        self.procs.start(
+            f"{phase.name}-recorder",
+            [self.python, str(HERE / "record.py"), str(bag), *specs],
+            self.other_cpus,
+        )
+        if not self.procs.wait_for_line(f"{phase.name}-recorder", "ready", 30):
+            raise SystemExit(
+                f"demo: the recorder did not start: see {logs}/{phase.name}-recorder.log"
+            )
+        self.apis = {}
+        for tier in phase.handlers:
+            port = free_port()
+            argv = [
+                self.edgerv,
+                "handler",
+                "--name",
+                tier,
+                "--monitors",
+                str(phase.monitors),
+                "--active",
+                "all" if tier == "edge" else "none",
+                "--listen",
+                f"127.0.0.1:{port}",
+                "--verdict-log",
+                str(self.out / f"{phase.name}-{tier}-verdicts.jsonl"),
+            ]
+            if tier == "edge":
+                argv += ["--deadline", f"/cmd_vel={DEADLINE_MS:g}ms"]
+            (self.out / f"{phase.name}-{tier}-verdicts.jsonl").unlink(missing_ok=True)
+            self.procs.start(
+                f"{phase.name}-{tier}", argv, self.edge_cpus if tier == "edge" else self.other_cpus
+            )
+            self.apis[tier] = Api(port, self.token)
+        for tier, api in self.apis.items():
+            if not api.ready(60):
+                raise SystemExit(
+                    f"demo: the {tier} handler did not start: see {logs}/{phase.name}-{tier}.log"
+                )
+        if phase.orchestrated:
+            handlers = ",".join(
+                f"{t}={a.base.removeprefix('http://')}" for t, a in self.apis.items()
+            )
+            self.procs.start(
+                f"{phase.name}-orchestrate",
+                [
+                    self.edgerv,
+                    "orchestrate",
+                    "--handlers",
+                    handlers,
+                    "--tiers",
+                    "edge,cloud",
+                    "--tier-latency",
+                    "edge=0,cloud=20",
+                    "--interval",
+                    "1",
+                    "--calm",
+                    "20",
+                    "--cooldown",
+                    "30",
+                ],
+                self.other_cpus,
+            )
+        # Subscriptions besides the robot's own that must match before it starts, so that
+        # the recording and the edge handler see the run from its first message: the
+        # recorder's and the edge handler's (which has a second one on /cmd_vel: --deadline).
+        # The cloud handler takes over monitors by the handoff, which needs no such wait.
+        observers = 1 + ("edge" in phase.handlers)
+        robot_log = self.out / f"{phase.name}-robot.jsonl"
+        robot_log.unlink(missing_ok=True)
+        self.procs.start(
+            "base",
+            [
+                self.python,
+                str(HERE / "robot.py"),
+                "base",
+                "--log",
+                str(robot_log),
+                "--observers",
+                str(observers),
+            ],
+            self.other_cpus,
+        )
+        on_cmd = observers + ("edge" in phase.handlers)
+        slam = [self.python, str(HERE / "robot.py"), "slam", "--observers", str(on_cmd)]
+        if self.work is None:
+            slam += ["--calibrate", str(phase.settle - 1.0), "--target", str(TARGET_MS / 1000)]
+        else:
+            slam += ["--work", f"{self.work:.6f}"]
+        self.procs.start("slam", slam, self.edge_cpus)
+        assert self.planner is not None
+        if not (
+            self.procs.wait_for_line("base", '"started"', 40)
+            and self.procs.wait_for_line("slam", '"started"', 40)
+        ):
+            raise SystemExit(f"demo: the robot did not start: see {logs}/base.log, slam.log")
+        self.planner.wait_readers(observers)
+        log = RobotLog(robot_log)
+        self.view.robot = log
+        self.sleep(phase.settle, log)
+        if self.work is None:
+            if not self.procs.wait_for_line("slam", "calibrated", 10):
+                raise SystemExit("demo: the real-time stage did not calibrate: see logs/slam.log")
+            line = next(li for li in self.procs.log_text("slam").splitlines() if "calibrated" in li)
+            self.work = json.loads(line)["calibrated"]["workMs"] / 1000
+        cpu0 = self.cpu_seconds()
+        result.goal_time = time.time()
+        result.goal_stamp = self.planner.start_mission()
+        wait_verdict = phase.wait_verdict and not self.args.short
+        limit = result.goal_time + GOAL_SECONDS + 2.0
+        while time.time() < limit:
+            self.sleep(0.25, log)
+            arrived = log.event("arrived", result.goal_time)
+            collided = log.event("collision", result.goal_time)
+            if arrived and time.time() > arrived["t"] + 1.0:
+                break
+            if collided and not wait_verdict and time.time() > collided["t"] + 2.0:
+                break
+        result.end_time = time.time()
+        cpu1 = self.cpu_seconds()
+        span = result.end_time - result.goal_time
+        result.handler_cpu = {t: (cpu1[t] - cpu0[t]) / span for t in cpu1 if t in cpu0}
+        self.note_placement(result, final=True)
+        self.procs.stop("slam")
+        self.procs.stop("base")
+        time.sleep(1.0)  # the handlers' clocks pass the recording's end
+        if phase.orchestrated:
+            self.procs.stop(f"{phase.name}-orchestrate")
+            result.migrations = self.moves(phase.name)
+        for tier in phase.handlers:
+            self.procs.stop(f"{phase.name}-{tier}")
+        self.procs.stop(f"{phase.name}-recorder")
+        log.poll()
+        self.measure(result, log)
+        result.verdict_check = self.compare(phase, bag)
+        result.monitors = phase.monitors
+        result.goal_verdict = self.goal_verdict(phase, bag, result)
+        self.view.done.append(result)
+        return result
+
+    def sleep(self, seconds: float, log: RobotLog) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            log.poll()
+            if self.current:
+                self.note_placement(self.current)
+            self.view.refresh()
+            time.sleep(min(0.5, max(0.0, end - time.monotonic())))
+            for name in ("base", "slam"):
+                proc = self.procs.running.get(name)
+                if proc is not None and proc.poll() is not None:
+                    raise SystemExit(
+                        f"demo: the robot's {name} exited: see {self.out}/logs/{name}.log"
+                    )
+
+    def cpu_seconds(self) -> dict[str, float]:
+        out = {}
+        for tier, api in self.apis.items():
+            with contextlib.suppress(OSError, ValueError):
+                out[tier] = float(api.get("/v1/load")["cpuSeconds"])
+        return out
+
+    def note_placement(self, result: PhaseResult, final: bool = False) -> None:
+        api = self.apis.get("edge")
+        if api is None:
+            return
+        with contextlib.suppress(OSError, ValueError):
+            load = api.get("/v1/load")
+            active = sum(1 for m in load["monitors"].values() if m["active"])
+            self.view.deadline = load.get("deadline")
+            if result.goal_time and time.time() >= result.goal_time:
+                low = result.monitors_on_edge_min
+                result.monitors_on_edge_min = active if low is None else min(low, active)
+            if final or not result.goal_time:
+                result.monitors_on_edge = active
+            self.view.on_edge = active
+
+    def moves(self, phase: str) -> list[dict[str, Any]]:
+        records = []
+        for line in self.procs.log_text(f"{phase}-orchestrate").splitlines():
+            with contextlib.suppress(ValueError):
+                record = json.loads(line)
+                if isinstance(record, dict) and "monitors" in record:
+                    records.append(record)
+        return records
+
+    def measure(self, result: PhaseResult, log: RobotLog) -> None:
+        since = result.goal_stamp
+        until = int(result.end_time * 1e9)
+        cmds = [r for r in log.kind("cmd", since) if r["stamp"] <= until]
+        result.makespans = [(r["stamp"] / 1e9 - self.started, r["makespanMs"]) for r in cmds]
+        whole = [r for r in log.kind("cmd") if r["stamp"] <= until]
+        result.timeline = [(r["stamp"] / 1e9 - self.started, r["makespanMs"]) for r in whole]
+        frames = [r for r in log.kind("frame", since) if r["stamp"] <= until]
+        result.frames = len(frames)
+        result.misses = sum(1 for r in frames if not r["met"])
+        result.arrived = log.event("arrived", result.goal_time) is not None
+        result.collided = log.event("collision", result.goal_time) is not None
+
+    # -- verdicts: live against edgerv check on the recording ----------------------------------
+
+    def check(self, monitors: Path, bag: Path) -> dict[str, list[tuple[str, int, int]]]:
+        done = subprocess.run(
+            [self.edgerv, "check", str(monitors), str(bag), "--json"],
+            capture_output=True,
+            text=True,
+            env=self.procs.env,
+        )
+        if done.returncode not in (0, 1):
+            raise SystemExit(f"demo: edgerv check failed on {bag}:\n{done.stderr}")
+        verdicts: dict[str, list[tuple[str, int, int]]] = {}
+        for m in json.loads(done.stdout)["monitors"]:
+            verdicts[m["name"]] = [(v["verdict"], v["stamp"], v["step"]) for v in m["verdicts"]]
+        return verdicts
+
+    def compare(self, phase: Phase, bag: Path) -> dict[str, Any]:
+        if not phase.handlers:
+            return {}
+        assert phase.monitors is not None
+        offline = self.check(phase.monitors, bag)
+        end = bag_end(bag)
+        live: dict[str, list[tuple[str, int, int]]] = {}
+        for tier in phase.handlers:
+            path = self.out / f"{phase.name}-{tier}-verdicts.jsonl"
+            for line in path.read_text().splitlines() if path.exists() else []:
+                r = json.loads(line)
+                if r["stamp"] <= end:  # after the recording's end only the live clock went on
+                    live.setdefault(r["monitor"], []).append((r["verdict"], r["stamp"], r["step"]))
+        mismatched, lost = [], 0
+        for name in sorted(set(offline) | set(live)):
+            a = sorted(live.get(name, []), key=lambda v: (v[2], v[1]))
+            b = offline.get(name, [])
+            if a != b:
+                mismatched.append(name)
+                last_a = a[-1][2] if a else 0
+                last_b = b[-1][2] if b else 0
+                lost += abs(last_a - last_b) or 1
+        return {
+            "monitors": len(offline),
+            "verdictsLive": sum(len(v) for v in live.values()),
+            "verdictsOffline": sum(len(v) for v in offline.values()),
+            "mismatchedMonitors": mismatched,
+            "lostEvents": lost,
+        }
+
+    def goal_verdict(self, phase: Phase, bag: Path, result: PhaseResult) -> str:
+        """What the goal monitor said about this phase's mission: live where it ran live,
+        else (baseline: no monitor ran) by edgerv check on the phase's recording."""
+        if phase.handlers:
+            said = []
+            for tier in phase.handlers:
+                path = self.out / f"{phase.name}-{tier}-verdicts.jsonl"
+                for line in path.read_text().splitlines() if path.exists() else []:
+                    r = json.loads(line)
+                    if r["monitor"] == GOAL_MONITOR and r["stamp"] >= result.goal_stamp:
+                        said.append(r["verdict"])
+        else:
+            said = [
+                v
+                for v, stamp, _ in self.check(self.monitors, bag).get(GOAL_MONITOR, [])
+                if stamp >= result.goal_stamp
+            ]
+        if "violated" in said:
+            return "violated"
+        covered = (result.end_time - result.goal_time) >= GOAL_SECONDS or result.arrived
+        return "not violated" if covered else "pending"
+
+    # -- the outcome ---------------------------------------------------------------------------
+
+    def summarize(self, results: dict[str, PhaseResult]) -> dict[str, Any]:
+        base, edge, orch = results["baseline"], results["edgeOnly"], results["orchestrated"]
+        paper = results.get("paperConfig")
+        moves = [m for m in orch.migrations if m.get("from") and m.get("ok")]
+        figure = ("baseline", "edgeOnly", "orchestrated")
+        summary: dict[str, Any] = {
+            "phases": {name: results[name].figures() for name in figure},
+            "migrations": len(moves),
+            "monitorsMoved": sum(len(m["monitors"]) for m in moves),
+            "migrationReasons": sorted({m["reason"] for m in moves}),
+            "lostEvents": sum(r.verdict_check.get("lostEvents", 0) for r in results.values()),
+            "verdictChecks": {n: r.verdict_check for n, r in results.items() if r.verdict_check},
+            "goalReached": orch.arrived and orch.goal_verdict != "violated",
+            "edgeLimit": (
+                f"the real-time stage and the edge handler pinned to CPU {min(self.edge_cpus)} by "
+                "CPU affinity; everything else (robot base, recorder, cloud handler, "
+                "orchestrator) "
+                f"on CPUs {','.join(map(str, sorted(self.other_cpus)))}"
+            ),
+            "cloudLink": "loopback (same machine, other CPUs)",
+            "deadlineMs": DEADLINE_MS,
+            "calibratedWorkMs": round((self.work or 0) * 1000, 2),
+            "paperConfig": {
+                "monitors": 200,
+                "topicRatesHz": RATES_HZ,
+                "measured": paper.figures() if paper else None,
+                "note": "the paper's 200 monitors, all on the edge, at the robot's topic rates "
+                "(not measured in a --short run)",
+            },
+            "raisedLoad": {
+                "monitors": self.monitor_count,
+                "extraMonitors": self.args.extra,
+                "note": f"edgeOnly and orchestrated run the paper's 200 plus {self.args.extra} "
+                "that read the 200 Hz IMU (examples/robot/monitors.py --extra)",
+            },
+            "machine": machine(),
+            "short": self.args.short,
+        }
+        problems = []
+        b, e, o = (r.figures() for r in (base, edge, orch))
+        if not base.arrived or (b["p95Ms"] or 1e9) > DEADLINE_MS * 1.1:
+            problems.append("the baseline loop did not reach its goal on time without monitors")
+        if e["deadlineMisses"] <= b["deadlineMisses"] or (e["p95Ms"] or 0) <= DEADLINE_MS:
+            problems.append(
+                "the monitors on the edge did not push the loop past its deadline "
+                "(raise the load: --extra N)"
+            )
+        if not self.args.short and (edge.arrived or edge.goal_verdict != "violated"):
+            problems.append(
+                "with every monitor on the edge the robot still reached its goal in time "
+                "(the late loop did not drive it off its route this run)"
+            )
+        if not moves:
+            problems.append("the policy moved no monitor")
+        elif not any(m["reason"] == "deadline" for m in moves):
+            problems.append("no move was decided on deadline pressure")
+        if (o["p95Ms"] or 1e9) >= (e["p95Ms"] or 0) or o["deadlineMisses"] >= e["deadlineMisses"]:
+            problems.append("moving monitors did not bring the loop back under its deadline")
+        if not summary["goalReached"]:
+            problems.append("the orchestrated robot did not reach its goal")
+        if summary["lostEvents"] or any(
+            r.verdict_check.get("mismatchedMonitors") for r in results.values()
+        ):
+            problems.append("live verdicts differ from edgerv check on the recording")
+        summary["shapeReproduced"] = not problems
+        summary["problems"] = problems
+        (self.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        plot(self.out / "makespan.png", {n: results[n] for n in figure}, self.started)
+        return summary
+
+
+def bag_end(bag: Path) -> int:
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([bag]) as reader:
+        return int(reader.end_time) - 1
+
+
+def machine() -> str:
+    model = ""
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    return f"{os.cpu_count()} CPUs, {model or 'unknown CPU'}, Python {sys.version.split()[0]}"
+
+
+# -- output ------------------------------------------------------------------------------------
+
+
+class View:
+    """The live terminal view (rich), or a line every few seconds when not on a terminal."""
+
+    def __init__(self, demo: Demo, plain: bool) -> None:
+        self.demo = demo
+        self.plain = plain or not sys.stdout.isatty()
+        self.phase = ""
+        self.robot: RobotLog | None = None
+        self.deadline: dict[str, Any] | None = None
+        self.on_edge: int | None = None
+        self.done: list[PhaseResult] = []
+        self.live: Any = None
+        self.last_line = 0.0
+
+    def __enter__(self) -> View:
+        if not self.plain:
+            from rich.live import Live
+
+            self.live = Live(self.render(), refresh_per_second=2, transient=False)
+            self.live.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.live is not None:
+            self.live.__exit__(None, None, None)
+
+    def status(self) -> dict[str, Any]:
+        log = self.robot
+        recent = (
+            [r["makespanMs"] for r in log.records[-400:] if r["kind"] == "cmd"][-16:] if log else []
+        )
+        frames = [r for r in log.records[-400:] if r["kind"] == "frame"][-16:] if log else []
+        pose = (
+            next((r for r in reversed(log.records) if r["kind"] == "pose"), None) if log else None
+        )
+        current = self.demo.current
+        return {
+            "phase": self.phase,
+            "makespan": percentile(recent, 0.5),
+            "misses": sum(1 for f in frames if not f["met"]),
+            "frames": len(frames),
+            "pose": (pose["x"], pose["y"]) if pose else None,
+            "onEdge": self.on_edge,
+            "moves": len(self.demo.moves(self.phase))
+            if current and self.phase == "orchestrated"
+            else 0,
+            "deadline": self.deadline,
+        }
+
+    def render(self) -> Any:
+        from rich.table import Table
+
+        s = self.status()
+        table = Table(title=f"edgerv case study: phase {s['phase']}", expand=False)
+        for col in ("", "value"):
+            table.add_column(col)
+        table.add_row(
+            "makespan (last 2 s, median)", f"{s['makespan']:.1f} ms" if s["makespan"] else "-"
+        )
+        table.add_row("deadline misses (last 16 frames)", f"{s['misses']} / {s['frames']}")
+        table.add_row("robot at", f"({s['pose'][0]:.2f}, {s['pose'][1]:.2f})" if s["pose"] else "-")
+        table.add_row(
+            "monitors on the edge",
+            "-" if s["onEdge"] is None else f"{s['onEdge']} of {self.demo.monitor_count}",
+        )
+        table.add_row("handoffs this phase", str(s["moves"]))
+        d = s["deadline"]
+        if d and d.get("p95Ms") is not None:
+            table.add_row(
+                "edge handler sees (p95, 2 s)", f"{d['p95Ms']:.1f} ms, {d['misses']} late"
+            )
+        for r in self.done:
+            f = r.figures()
+            table.add_row(
+                f"[bold]{r.name}[/bold]",
+                f"median {f['medianMs']} ms, p95 {f['p95Ms']} ms, {f['deadlineMisses']} misses, "
+                f"goal {'reached' if f['goalReached'] else 'missed'}",
+            )
+        return table
+
+    def refresh(self) -> None:
+        if self.live is not None:
+            self.live.update(self.render())
+        elif time.monotonic() - self.last_line > 5:
+            self.last_line = time.monotonic()
+            s = self.status()
+            print(
+                f"[{s['phase']}] makespan {s['makespan'] or 0:.1f} ms, "
+                f"misses {s['misses']}/{s['frames']}, "
+                f"on edge {s['onEdge']}, moves {s['moves']}",
+                flush=True,
+            )
+
+
+def plot(path: Path, results: dict[str, PhaseResult], started: float) -> None:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("(matplotlib is not installed: no plot; `make demo` installs it)", file=sys.stderr)
+        return
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5), sharey=True)
+    for ax, (name, r) in zip(axes, results.items(), strict=True):
+        t0 = r.goal_time - started
+        xs = [t - t0 for t, _ in r.timeline]
+        ys = [m for _, m in r.timeline]
+        ax.plot(xs, ys, ".", markersize=3, color="tab:blue", label="makespan")
+        ax.axhline(
+            DEADLINE_MS, color="tab:red", linestyle="--", label=f"deadline {DEADLINE_MS:g} ms"
+        )
+        for m in r.migrations:
+            if m.get("from") and m.get("ok") and "at" in m:
+                ax.axvline(m["at"] - r.goal_time, color="tab:green", alpha=0.6)
+        f = r.figures()
+        ax.set_title(
+            f"{name}: median {f['medianMs']} ms, {f['deadlineMisses']} misses\n"
+            f"{f['monitorsOnEdge']} monitors on the edge, "
+            f"goal {'reached' if r.arrived else 'missed'}"
+        )
+        ax.axvline(0, color="grey", linewidth=0.8)
+        ax.set_xlabel("seconds since the goal was given (before: the robot waits)")
+    axes[0].set_ylabel("frame to command (ms)")
+    axes[0].legend(loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def print_table(summary: dict[str, Any]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title="edgerv case study (seed paper, section VI)")
+    for col in (
+        "phase",
+        "median ms",
+        "p95 ms",
+        "deadline misses",
+        "monitors on edge",
+        "goal monitor",
+        "goal",
+    ):
+        table.add_column(col)
+    rows = dict(summary["phases"])
+    if summary["paperConfig"]["measured"]:
+        rows = {"paper's 200 on edge": summary["paperConfig"]["measured"], **rows}
+    for name, p in rows.items():
+        table.add_row(
+            name,
+            str(p["medianMs"]),
+            str(p["p95Ms"]),
+            f"{p['deadlineMisses']} of {p['frames']}",
+            str(p["monitorsOnEdge"]),
+            p["goalVerdict"],
+            "reached" if p["goalReached"] else "missed",
+        )
+    console = Console()
+    console.print(table)
+    console.print(
+        f"migrations: {summary['migrations']} ({summary['monitorsMoved']} monitors, "
+        f"reasons {', '.join(summary['migrationReasons']) or '-'}); events lost or doubled: "
+        f"{summary['lostEvents']}"
+    )
+    if summary["problems"]:
+        console.print("[bold red]The run did not reproduce the paper's shape:[/bold red]")
+        for p in summary["problems"]:
+            console.print(f"  - {p}")
+    else:
+        console.print("[bold green]The paper's shape, reproduced.[/bold green]")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=ROOT / "demo-output")
+    parser.add_argument("--short", action="store_true", help="a shorter run (the integration test)")
+    parser.add_argument(
+        "--extra",
+        type=int,
+        default=100,
+        metavar="N",
+        help="monitors added to the paper's 200 to raise the load (default 100)",
+    )
+    parser.add_argument(
+        "--plain", action="store_true", help="status lines instead of the live view"
+    )
+    parser.add_argument("--domain", type=int, metavar="ID", help="ROS domain (default: random)")
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "logs").mkdir(exist_ok=True)
+    demo = Demo(args)
+    stop = {"signal": False}
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stop["signal"] = True
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, on_signal)
+    try:
+        summary = demo.run()
+    except KeyboardInterrupt:
+        print("\ndemo: interrupted; stopping every process it started", file=sys.stderr)
+        return 130
+    finally:
+        demo.procs.stop_all()
+        if demo.planner:
+            demo.planner.close()
+    print_table(summary)
+    print(f"written: {args.out}/summary.json, {args.out}/makespan.png, bags in {args.out}/bags")
+    return 0 if summary["shapeReproduced"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
