@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import ctypes
 import json
 import os
 import random
@@ -46,6 +47,7 @@ TARGET_MS = 115.0
 GOAL_MONITOR = "goal-reached"
 PATH = ((0.0, 0.0), (4.0, 0.0), (4.0, 3.0), (0.0, 3.0))
 GOAL_SECONDS = 20.0  # the goal monitor's F[0..20s]
+CLOUD_DELAY_MS = 20.0  # one way, edge to cloud
 TOPICS = {
     "/odom": "nav_msgs/msg/Odometry",
     "/imu": "sensor_msgs/msg/Imu",
@@ -130,8 +132,8 @@ def free_port() -> int:
 class Api:
     """A handler's HTTP API, with the bearer token."""
 
-    def __init__(self, port: int, token: str) -> None:
-        self.base, self.token = f"http://127.0.0.1:{port}", token
+    def __init__(self, host: str, port: int, token: str) -> None:
+        self.base, self.token = f"http://{host}:{port}", token
 
     def get(self, path: str) -> Any:
         request = urllib.request.Request(
@@ -315,14 +317,18 @@ class Demo:
         os.sched_setaffinity(0, self.other_cpus)  # this process and its threads: off the edge
         self.token = secrets.token_hex(16)
         self.domain = args.domain if args.domain is not None else random.randint(102, 199)
-        env = dict(os.environ)
-        env.update(
-            ROS_DOMAIN_ID=str(self.domain),
-            ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-            EDGERV_TOKEN=self.token,
-            PYTHONUNBUFFERED="1",
-        )
-        os.environ.update(ROS_DOMAIN_ID=str(self.domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+        self.lab: Any = None
+        self.hosts = {"edge": "127.0.0.1", "cloud": "127.0.0.1"}
+        env = self.join_edge_host(args.cloud) if args.cloud != "loopback" else None
+        if env is None:
+            env = dict(os.environ)
+            env.update(ROS_DOMAIN_ID=str(self.domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+            self.cloud_link = "loopback (same machine, other CPUs)"
+        env.update(EDGERV_TOKEN=self.token, PYTHONUNBUFFERED="1")
+        os.environ.update({k: v for k, v in env.items() if k.startswith(("ROS_", "FASTDDS_"))})
+        for key in set(os.environ) - set(env):
+            if key.startswith(("ROS_", "FASTDDS_")):
+                del os.environ[key]
         self.procs = Processes(self.out / "logs", env)
         self.python = sys.executable
         self.edgerv = str(Path(sys.executable).with_name("edgerv"))
@@ -335,6 +341,39 @@ class Demo:
         self.current: PhaseResult | None = None
         self.apis: dict[str, Api] = {}
         self.monitor_count = 0
+
+    def join_edge_host(self, mode: str) -> dict[str, str] | None:
+        """The cloud on a host of its own: the migration tests' network namespaces joined
+        by a user-space link that delays every packet (tests/netlab; needs root). This
+        process joins the edge host, so everything it starts runs there (robot, edge
+        handler, recorder, orchestrator); the cloud handler runs in the cloud host, and
+        reaches the robot's topics and the edge's API only through the link."""
+        sys.path.insert(0, str(ROOT / "tests"))
+        from netlab import Lab, available
+
+        why = available()
+        if why is not None:
+            if mode == "link":
+                raise SystemExit(f"demo: --cloud link: {why}")
+            self.cloud_link = f"loopback (no delayed link here: {why})"
+            return None
+        self.lab = Lab(CLOUD_DELAY_MS, self.domain)
+        fd = os.open(f"/var/run/netns/{self.lab.hosts['edge']}", os.O_RDONLY)
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            if libc.setns(fd, 0x40000000) != 0:  # CLONE_NEWNET, this thread (the only one)
+                raise SystemExit(
+                    f"demo: cannot join the edge host: {os.strerror(ctypes.get_errno())}"
+                )
+        finally:
+            os.close(fd)
+        self.hosts = dict(self.lab.addr)
+        self.cloud_link = (
+            f"a user-space link delaying each packet {CLOUD_DELAY_MS:g} ms each way between two "
+            f"network namespaces (edge {self.hosts['edge']}, cloud {self.hosts['cloud']}); "
+            "ROS 2 over UDPv4 only"
+        )
+        return dict(self.lab.env())
 
     # -- phases --------------------------------------------------------------------------------
 
@@ -353,7 +392,7 @@ class Demo:
             Phase("baseline", (), full, settle=6.0),
             Phase("paperConfig", ("edge",), self.paper_monitors, settle=6.0),
             Phase("edgeOnly", ("edge",), full, settle=6.0 if short else 10.0, wait_verdict=True),
-            Phase("orchestrated", ("edge", "cloud"), full, orchestrated=True, settle=10.0),
+            Phase("orchestrated", ("edge", "cloud"), full, orchestrated=True, settle=14.0),
         ]
         if short:  # the integration test: the three phases of the paper's figure
             phases = [p for p in phases if p.name != "paperConfig"]
@@ -394,17 +433,19 @@ class Demo:
                 "--active",
                 "all" if tier == "edge" else "none",
                 "--listen",
-                f"127.0.0.1:{port}",
+                f"{self.hosts[tier]}:{port}",
                 "--verdict-log",
                 str(self.out / f"{phase.name}-{tier}-verdicts.jsonl"),
             ]
             if tier == "edge":
                 argv += ["--deadline", f"/cmd_vel={DEADLINE_MS:g}ms"]
             (self.out / f"{phase.name}-{tier}-verdicts.jsonl").unlink(missing_ok=True)
+            if tier == "cloud" and self.lab is not None:
+                argv = self.lab.command("cloud", argv)
             self.procs.start(
                 f"{phase.name}-{tier}", argv, self.edge_cpus if tier == "edge" else self.other_cpus
             )
-            self.apis[tier] = Api(port, self.token)
+            self.apis[tier] = Api(self.hosts[tier], port, self.token)
         for tier, api in self.apis.items():
             if not api.ready(60):
                 raise SystemExit(
@@ -659,7 +700,7 @@ class Demo:
                 "orchestrator) "
                 f"on CPUs {','.join(map(str, sorted(self.other_cpus)))}"
             ),
-            "cloudLink": "loopback (same machine, other CPUs)",
+            "cloudLink": self.cloud_link,
             "deadlineMs": DEADLINE_MS,
             "calibratedWorkMs": round((self.work or 0) * 1000, 2),
             "paperConfig": {
@@ -918,6 +959,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--plain", action="store_true", help="status lines instead of the live view"
     )
+    parser.add_argument(
+        "--cloud",
+        choices=("auto", "link", "loopback"),
+        default="auto",
+        help="the cloud handler's host: over a delayed link where network namespaces work "
+        "(auto, link), or this machine's loopback",
+    )
     parser.add_argument("--domain", type=int, metavar="ID", help="ROS domain (default: random)")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -939,6 +987,8 @@ def main(argv: list[str] | None = None) -> int:
         demo.procs.stop_all()
         if demo.planner:
             demo.planner.close()
+        if demo.lab is not None:
+            demo.lab.close()
     print_table(summary)
     print(f"written: {args.out}/summary.json, {args.out}/makespan.png, bags in {args.out}/bags")
     return 0 if summary["shapeReproduced"] else 1
