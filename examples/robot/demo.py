@@ -161,9 +161,10 @@ class Planner:
         from geometry_msgs.msg import PoseStamped
         from nav_msgs.msg import Path as PathMsg
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from rclpy.signals import SignalHandlerOptions
         from std_msgs.msg import Empty
 
-        rclpy.init()
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C is the demo's
         self.node = rclpy.create_node("mission_planner")
         latched = QoSProfile(
             depth=1,
@@ -978,6 +979,7 @@ def main(argv: list[str] | None = None) -> int:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGHUP, on_signal)
     try:
         summary = demo.run()
     except KeyboardInterrupt:
