@@ -41,6 +41,8 @@ ASSERTIONS = [
     # past operators: their state moves too (a timed window partly filled at the cut)
     "always (historically[1ns..6ns] (x < 8) | a)",
     "always ((a since (x > 3)) -> prev !a)",
+    "always ((x < 7) since[0ns..5ns] a | x > 8)",
+    "always ((a since[2ns..9ns] (x > 4)) -> x < 9)",
 ]
 
 

@@ -41,7 +41,7 @@ def error_of(assertion: str) -> str:
         ("always (once[1..2s] a)", "bad interval [1..2s]"),
         ("always (once (a U b))", "'once' needs a formula without future operators"),
         ("always (historically X a)", "'historically' needs a formula without future"),
-        ("always (a since[0..1s] b)", "since with a time bound is not supported yet"),
+        ("always (a since[0..2] b)", "a past operator's interval counts time"),
         ("always (once)", "'once' needs a formula"),
     ],
 )
@@ -200,7 +200,7 @@ def reelay_safe(rng: random.Random, depth: int) -> tuple[str, str, int]:
     e1, r1, reach = reelay_safe(rng, depth - 1)
     if rng.random() < 0.2:
         return f"(!{e1})", f"(not {r1})", reach
-    word = rng.choice(["once", "historically"])
+    word = rng.choice(["once", "historically"])  # not since[..]: see the test below
     lo = rng.choice([0, 0, 10, 20]) * MS
     hi = lo + rng.choice([5, 20, 40]) * MS
     return f"({word}[{lo}ns..{hi}ns] {e1})", f"({word}[{lo}:{hi}] {r1})", reach + hi
@@ -254,6 +254,47 @@ def test_reelays_dense_or_loses_what_its_de_morgan_dual_keeps() -> None:
         (403.0, True), (406.0, True), (426.5, False), (446.0, True), (456.0, True)]  # fmt: skip
 
 
+def test_reelays_dense_since_differs_at_two_boundaries() -> None:
+    """`f since[lo..hi] g` at t: some instant s of [t - hi, t - lo] where g held, and f
+    at every instant of (s, t] (docs/semantics.md, "Past"). Two boundary points where
+    Reelay 25's dense monitor answers otherwise, which is why its differential test
+    leaves `since[..]` out (the brute-force definition below covers it):
+
+    * the present instant is a witness: with lo = 0, f since[0..hi] g holds wherever
+      g does, as the untimed `f since g` does at a step where g holds (Reelay's dense
+      since needs f too);
+    * a value holds from its message to the next one, that one excluded: where g
+      stops exactly as f starts, no instant of g has f at every instant after it
+      (Reelay's dense since counts the junction)."""
+    import reelay
+
+    def both(
+        text: str, pattern: str, run_: list[tuple[str, int, bool]], t: int
+    ) -> tuple[bool, bool]:
+        end = run_[-1][1] + 50 * MS
+        ours = dict(edgerv_steps(text, run_, end))
+        return ours[t], truth_at(reelay_dense(pattern, run_, end), t)
+
+    assert reelay  # a test dependency: its dense monitors, through reelay_dense
+    present = [("/a", 0, False), ("/b", 1 * MS, False), ("/b", 2 * MS, True)]
+    assert both("(a since[0ns..5000000ns] b)", "({a} since[0:5000000] {b})", present, 2 * MS) == (
+        True,
+        False,
+    )
+    assert dict(edgerv_steps("(a since b)", present, 3 * MS))[2 * MS] is True
+    # g = b & !a holds from 10 ms until a starts at 20 ms, f = a from then on
+    junction = [
+        ("/a", 0, False),
+        ("/b", 10 * MS, True),
+        ("/a", 20 * MS, True),
+        ("/a", 30 * MS, True),
+    ]
+    text = "(a since[5000000ns..30000000ns] (b & (!a)))"
+    pattern = "({a} since[5000000:30000000] ({b} and (not {a})))"
+    assert both(text, pattern, junction, 30 * MS) == (False, True)
+    assert Definition(text).steps(junction, 30 * MS)[-1] == (30 * MS, False)
+
+
 # -- differential: the definition, step by step ---------------------------------------------
 
 
@@ -274,17 +315,22 @@ class Definition:
         nodes = _nodes(self.tree)
         offsets = {0}
         for node in nodes:
-            if node[0] in ("once_t", "hist_t"):
+            if node[0] in ("once_t", "hist_t", "since_t"):
                 offsets = offsets | {o + d for o in offsets for d in (node[1], node[2])}
-        tries = sorted({s + o for _, s, _ in run_ for o in offsets} | {s + o + 1 for _, s, _ in run_
-                        for o in offsets})  # fmt: skip
+        # instants to try: each message's, and each step's (a clock step's too: a `prev`
+        # read at it can start a window) plus every sum of window bounds, and 1 ns more
+        tries = {s for _, s, _ in run_}
         held = {"a": False, "b": False}
         history: list[tuple[int, dict[int, bool]]] = []  # (instant, every node's truth)
         out: list[tuple[int, bool]] = []
         events = list(run_)
         i = 0
-        for t in sorted(set(tries) | {s for _, s, _ in run_}):
-            if t > end or t < run_[0][1]:
+        while tries:
+            t = min(tries)
+            tries.discard(t)
+            if t > end:
+                break
+            if t < run_[0][1]:
                 continue
             took = False
             while i < len(events) and events[i][1] == t:  # each message is a step
@@ -294,12 +340,13 @@ class Definition:
                 out.append((t, values[id(self.tree)]))
                 i += 1
                 took = True
-            if took or not history:
-                continue
-            if self._time_changes(t, nodes, history):  # a clock step
+            if not took and history and self._time_changes(t, nodes, history):  # a clock step
                 values = self._values(t, held, history)
                 history.append((t, values))
                 out.append((t, values[id(self.tree)]))
+                took = True
+            if took:
+                tries |= {t + o + d for o in offsets if o for d in (0, 1)}
         return out
 
     @staticmethod
@@ -314,12 +361,32 @@ class Definition:
                 seen.append(val)
         return any(seen) if n[0] == "once_t" else all(seen)
 
+    @staticmethod
+    def _since(n: Any, t: int, spans: list[tuple[int, bool, bool]]) -> bool:
+        """f since[lo..hi] g at t over (instant, f, g) spans, each lasting until the next
+        one (the last: until t, included): some instant s of [t - hi, t - lo] where g
+        held, and f at every instant of (s, t]."""
+        lo, hi = n[1], n[2]
+        for k, (s, f, g) in enumerate(spans):
+            if not g:
+                continue
+            if k == len(spans) - 1:  # s in [start, t]; s = t needs no f after it
+                if lo == 0 or (f and s <= t - lo):
+                    return True
+            elif s <= t - lo and spans[k + 1][0] > t - hi and all(x[1] for x in spans[k:]):
+                return True
+        return False
+
     def _time_changes(self, t: int, nodes: list[Any], history: list[Any]) -> bool:
         last = history[-1][1]
         for n in nodes:
             if n[0] in ("once_t", "hist_t"):
                 spans = [(s, h[id(n[3])]) for s, h in history]  # the operand held since
                 if self._window(n, t, spans) != last[id(n)]:
+                    return True
+            if n[0] == "since_t":
+                fg = [(s, h[id(n[3])], h[id(n[4])]) for s, h in history]
+                if self._since(n, t, [*fg, (t, fg[-1][1], fg[-1][2])]) != last[id(n)]:
                     return True
         return False
 
@@ -346,6 +413,10 @@ class Definition:
                 f, g = ev(n[1]), ev(n[2])
                 before = history[-1][1][id(n)] if history else False
                 v = g or (f and before)
+            elif kind == "since_t":
+                f, g = ev(n[3]), ev(n[4])
+                fg = [(s, h[id(n[3])], h[id(n[4])]) for s, h in history]
+                v = self._since(n, t, [*fg, (t, f, g)])
             else:  # once_t / hist_t: [lo, hi] back, each step's value over its interval
                 now = ev(n[3])
                 v = self._window(n, t, [(s, h[id(n[3])]) for s, h in history] + [(t, now)])
@@ -388,7 +459,11 @@ def _parse(text: str) -> Any:
             left = expr()
             op = tokens[pos]
             pos += 1
-            node = ({"&": "and", "|": "or", "since": "since"}[op], left, expr())
+            if op.startswith("since["):
+                lo, hi = (int(x[:-2]) for x in op[6:-1].split(".."))
+                node = ("since_t", lo, hi, left, expr())
+            else:
+                node = ({"&": "and", "|": "or", "since": "since"}[op], left, expr())
         assert tokens[pos] == ")"
         pos += 1
         return node
@@ -409,8 +484,12 @@ def random_mixed(rng: random.Random, depth: int) -> str:
     if depth == 0 or rng.random() < 0.2:
         return rng.choice("ab")
     kind = rng.choice(["not", "and", "or", "once", "hist", "since", "prev", "once_t", "hist_t",
-                       "once_t", "hist_t"])  # fmt: skip
+                       "once_t", "hist_t", "since_t", "since_t"])  # fmt: skip
     x = random_mixed(rng, depth - 1)
+    if kind == "since_t":
+        lo = rng.choice([0, 0, 10, 20]) * MS
+        hi = lo + rng.choice([5, 20, 40]) * MS
+        return f"({x} since[{lo}ns..{hi}ns] {random_mixed(rng, depth - 1)})"
     if kind in ("and", "or", "since"):
         op = {"and": "&", "or": "|", "since": "since"}[kind]
         return f"({x} {op} {random_mixed(rng, depth - 1)})"
@@ -433,3 +512,16 @@ def test_mixed_past_formulas_match_the_definition(seed: int) -> None:
         run_ = random_run(rng, 25, ties=False)
         end = run_[-1][1] + rng.choice([0, 30, 80]) * MS
         assert edgerv_steps(text, run_, end) == definition.steps(run_, end), (text, run_, end)
+
+
+def test_a_timed_since_state_moves_and_a_malformed_one_is_refused() -> None:
+    m = compiled("always (a since[0ns..5ns] b)", BOOLS)
+    rt = MonitorRuntime(m)
+    assert rt.past is not None
+    rt.past.step(10, 0b10)  # b now, a not: the present instant is a witness
+    saved = rt.past.save()
+    assert saved == [{"runs": [], "live": False, "g": True}]
+    rt.past.load(saved)
+    for bad in ([{"runs": [], "live": "yes", "g": True}], [[[1, None]]], [{"live": True}]):
+        with pytest.raises((ValueError, TypeError)):
+            rt.past.load(bad)

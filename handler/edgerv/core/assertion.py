@@ -404,14 +404,6 @@ class _Parser:
                 if operand is None:
                     return out
                 operands.append(operand)
-            if op.text == "since" and op.window is not None:
-                self.fail(
-                    op.start,
-                    op.end - op.start,
-                    "since with a time bound is not supported yet",
-                    "once[a..b] and historically[a..b] take one",
-                )
-                return out
             bit = len(self.atoms) + len(self.past)
             kind: PastKind = cast(PastKind, op.text)
             source = self.text[out[start].start : out[end - 1].end]

@@ -113,6 +113,35 @@ class _Runs:
         return best
 
 
+@dataclass
+class _SinceRuns:
+    """``f since[lo..hi] g``: the runs of g since f's current run began (an instant of g
+    counts only if f held at every instant after it, up to now). While f is false only
+    the present instant can count (nothing after it): then it holds where g does, if
+    ``lo`` is 0."""
+
+    runs: _Runs = field(default_factory=_Runs)
+    live: bool = False  # f holds now: ``runs`` are the candidates
+    g: bool = False  # g now, while f does not hold
+
+    def step(self, now: int, f: bool, g: bool) -> None:
+        if not f:
+            self.runs, self.live, self.g = _Runs(), False, g
+            return
+        if not self.live:  # f's run begins: instants of g before it no longer count
+            self.runs, self.live = _Runs(), True
+        self.runs.step(now, g)
+
+    def holds(self, now: int, lo: int, hi: int) -> bool:
+        if self.live:
+            self.runs.prune(now, hi)
+            return self.runs.once(now, lo, hi)
+        return lo == 0 and self.g
+
+    def next_change(self, now: int, lo: int, hi: int) -> int | None:
+        return self.runs.next_change(now, lo, hi) if self.live else None
+
+
 class Past:
     """The derived placeholders of one monitor and their state. Not thread-safe."""
 
@@ -124,7 +153,7 @@ class Past:
     @staticmethod
     def _initial(op: PastOp) -> Any:
         if op.window is not None:
-            return _Runs()
+            return _SinceRuns() if op.kind == "since" else _Runs()
         return [op.kind == "historically"]  # once, since, prev: False; historically: True
 
     def step(self, now: int, bits: int) -> int:
@@ -132,7 +161,10 @@ class Past:
         placeholders set, inner ones first (an outer one reads their new bits)."""
         for op, state in zip(self.ops, self.state, strict=True):
             f = op.operands[0](bits)
-            if op.window is not None:
+            if op.window is not None and op.kind == "since":
+                state.step(now, f, op.operands[1](bits))
+                value = state.holds(now, *op.window)
+            elif op.window is not None:
                 lo, hi = op.window
                 value = self._timed(state, now, lo, hi, f if op.kind == "once" else not f)
                 if op.kind == "historically":
@@ -162,8 +194,11 @@ class Past:
         for op, state in zip(self.ops, self.state, strict=True):
             if op.window is not None:
                 lo, hi = op.window
-                state.prune(now, hi)
-                value = state.once(now, lo, hi) != (op.kind == "historically")
+                if op.kind == "since":
+                    value = state.holds(now, lo, hi)
+                else:
+                    state.prune(now, hi)
+                    value = state.once(now, lo, hi) != (op.kind == "historically")
                 if value != bool(bits >> op.bit & 1):
                     return True
         return False
@@ -181,7 +216,13 @@ class Past:
 
     def save(self) -> Any:
         """The state, as plain JSON values (a handoff snapshot carries it)."""
-        return [s.runs if isinstance(s, _Runs) else s for s in self.state]
+        out: list[Any] = []
+        for s in self.state:
+            if isinstance(s, _SinceRuns):
+                out.append({"runs": s.runs.runs, "live": s.live, "g": s.g})
+            else:
+                out.append(s.runs if isinstance(s, _Runs) else s)
+        return out
 
     def load(self, ops: Any) -> None:
         """The state :meth:`save` gave (checked: raises ValueError if it does not fit)."""
@@ -189,12 +230,24 @@ class Past:
             raise ValueError("the past operators' state does not fit")
         state: list[Any] = []
         for op, s in zip(self.ops, ops, strict=True):
-            if op.window is not None:
-                runs = [[int(a), None if b is None else int(b)] for a, b in s]
-                state.append(_Runs(runs))
+            if op.window is not None and op.kind == "since":
+                if not isinstance(s, dict) or not all(
+                    isinstance(s.get(k), bool) for k in ("live", "g")
+                ):
+                    raise ValueError("a timed since's state does not fit")
+                state.append(_SinceRuns(_Runs(_runs(s.get("runs"))), s["live"], s["g"]))
+            elif op.window is not None:
+                state.append(_Runs(_runs(s)))
             else:
                 (value,) = s
                 if not isinstance(value, bool):
                     raise ValueError("a past operator's value is not a bool")
                 state.append([value])
         self.state = state
+
+
+def _runs(value: Any) -> list[list[int | None]]:
+    """Runs from their JSON form (raises ValueError or TypeError if they do not fit)."""
+    if not isinstance(value, list):
+        raise ValueError("a timed operator's runs are not a list")
+    return [[int(a), None if b is None else int(b)] for a, b in value]
