@@ -49,6 +49,7 @@ SCHEDULE_SECONDS = 0.002
 WAKE_LETTERS = 512
 HANDOFF_EXPIRES = 120.0  # seconds a handoff may wait for its next step before it is undone
 PREHOLD_SECONDS = 0.002  # a scheduler round's time for the buffers of monitors being handed off
+ADOPTIONS_KEPT = 64  # per monitor: the epochs of the latest handoffs a handler adopted
 
 
 class VerdictSink(Protocol):
@@ -82,6 +83,10 @@ class MonitorSlot:
     held_at: float = 0.0  # H1: when it began to hold
     peer: str | None = None  # H1: the receiver, as the driver named it (to settle with)
     handoff_since: float = 0.0  # when it entered its handoff state
+    # H2: the epochs of the handoffs it adopted (the newest ADOPTIONS_KEPT), and the newest
+    # one forgotten since: a settle may ask about a handoff after a newer one (see abort)
+    adopted: list[int] = field(default_factory=list)
+    forgotten: int = 0
     prehold: int = 0  # H1: events buffered before the hold, not yet compressed (see hold)
 
     @property
@@ -622,6 +627,10 @@ class Engine:
                 except HandoffError as exc:
                     raise HandoffError(f"{name}: {exc}") from None
             self._resume(restored)
+            for slot, _ in restored:
+                slot.adopted.append(epoch)
+                if len(slot.adopted) > ADOPTIONS_KEPT:
+                    slot.forgotten = slot.adopted.pop(0)
 
     def abort(self, name: str, epoch: int) -> str:
         """Undo a handoff on this side; what it did, as one word.
@@ -630,11 +639,26 @@ class Engine:
         release); ``dropped``: H2 let go of what it held, and will refuse an adoption
         with this epoch; ``active``: too late, the monitor runs here (H2 adopted);
         ``gone``: H1 let go already (committed); ``nothing to undo`` otherwise.
+
+        Asked about an older handoff than its newest one (a settle that comes after the
+        monitor moved on, or back): ``active`` if it adopted that one and runs the monitor
+        now, ``adopted`` if it adopted it and is in a newer handoff or let go since; else
+        ``nothing to undo`` (its epoch is past that one: it never will adopt it), or
+        ``unknown`` past its record of adoptions. (``nothing to undo`` there would make
+        the sender resume a monitor that runs here or moved on from here: two copies.)
+        An abort of a handoff newer than any it saw here fences that epoch.
         """
         with self.lock:
             slot = self._slot(name)
             if slot.epoch != epoch:
-                return "nothing to undo"
+                if epoch in slot.adopted:
+                    running = slot.handoff is None and slot.runtime is not None
+                    return "active" if running else "adopted"
+                if epoch > slot.epoch and slot.handoff is None:
+                    # it overtook that handoff's hold or receive: fence them, so that a
+                    # late one does not hold the monitor for HANDOFF_EXPIRES
+                    slot.epoch = epoch
+                return "unknown" if epoch <= slot.forgotten else "nothing to undo"
             if slot.handoff is None:
                 return "active" if slot.runtime is not None else "gone"
             rt = slot.runtime

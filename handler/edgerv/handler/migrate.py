@@ -56,6 +56,11 @@ class Unsettled(MigrationFailed):
 
 T = TypeVar("T")
 
+# A receiver's answers to ``abort`` after a release (Engine.abort): it adopted the monitor
+# (runs it now, or moved it on since), or it never will; any other leaves it held.
+ADOPTED = ("active", "adopted")
+NOT_ADOPTED = ("dropped", "nothing to undo", "gone")
+
 
 class Handler:
     """A handler's control API, over one kept-alive connection (a round trip per call)."""
@@ -355,11 +360,13 @@ def _decide(
     source: Handler, receiver: Handler, epoch: int, names: Sequence[str], deadline: float
 ) -> dict[str, str]:
     """After a release: ask the receiver to abort, which answers per monitor whether it
-    adopted it (``active``) or now never will; commit the adopted ones on the source and
-    resume the others there. Returns the receiver's answers (none when it is down).
+    adopted it (``active``, or ``adopted`` when it moved it on since) or now never will;
+    commit the adopted ones on the source and resume the others there. Returns the
+    receiver's answers (``down`` for each when it is down).
 
-    Raises Unsettled while the receiver does not answer: it may have adopted them, so
-    the source goes on holding them (at most one active copy, tested).
+    Raises Unsettled while the receiver does not answer, or cannot say for some monitor:
+    it may have adopted them, so the source goes on holding them (at most one active
+    copy, tested).
     """
 
     try:
@@ -369,15 +376,15 @@ def _decide(
         if not isinstance(answers, dict):
             raise MigrationFailed(f"{receiver.base} answered the abort with {raw[:200]!r}")
     except Refused:
-        answers = {}  # nothing listens there: it is down, and runs none of them
+        answers = dict.fromkeys(names, "down")  # nothing listens there: it runs none of them
     except MigrationFailed as exc:  # no answer, or an error: whether it adopted is unknown
         raise Unsettled(
             f"{receiver.base} did not say whether it adopted them ({exc}): "
             f"{', '.join(names)} stay held on {source.base}, active nowhere, until it "
             "does; run the same migration again to settle them"
         ) from None
-    adopted = [n for n in names if answers.get(n) == "active"]
-    back = [n for n in names if n not in adopted]
+    adopted = [n for n in names if answers.get(n) in ADOPTED]
+    back = [n for n in names if answers.get(n) in (*NOT_ADOPTED, "down")]
     if adopted:
         with contextlib.suppress(MigrationFailed):  # a source that crashed has let go too
             _retry(deadline, lambda: source.handoff("commit", epoch, adopted, _left(deadline)))
@@ -389,6 +396,13 @@ def _decide(
                 f"the sender could not resume {', '.join(back)}: {exc} (it keeps their "
                 "snapshots: run the same migration again once it is reachable)"
             ) from None
+    unknown = [n for n in names if n not in adopted and n not in back]
+    if unknown:
+        raise Unsettled(
+            f"{receiver.base} could not say whether it adopted {', '.join(unknown)} "
+            f"({', '.join(sorted({str(answers.get(n)) for n in unknown}))}): {source.base} "
+            "keeps holding them (they may run there) until that is known"
+        )
     return answers
 
 
@@ -406,9 +420,9 @@ def _settle(
     resumed on the source, Unsettled while the destination does not answer.
     """
     answers = _decide(source, destination, epoch, names, deadline)
-    back = [n for n in names if answers.get(n) != "active"]
+    back = [n for n in names if answers.get(n) not in ADOPTED]
     if back:
-        state = ", ".join(f"{n} {answers.get(n, 'down')}" for n in sorted(back))
+        state = ", ".join(f"{n} {answers[n]}" for n in sorted(back))
         raise MigrationFailed(f"{failed}; the destination had {state}: the sender resumed those")
 
 
@@ -460,6 +474,9 @@ def settle(source: Handler, names: Sequence[str], deadline: float) -> dict[str, 
         adopted = [n for n in group if answers.get(n) == "active"]
         if adopted:
             moved.setdefault(receiver.base, []).extend(adopted)
+        on = [n for n in group if answers.get(n) == "adopted"]  # adopted, moved on since
+        if on:
+            moved.setdefault(f"{receiver.base}, which moved them on since", []).extend(on)
     return moved
 
 
