@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install test test-unit test-integration test-e2e lint demo tour bench clean cluster-up cluster-down
+.PHONY: install test test-unit test-integration test-e2e lint demo tour bench clean cluster-up cluster-down fuzz
 
 install: $(STAMP)
 
@@ -35,6 +35,25 @@ test-e2e: install
 # e2e (a real cluster: $$KUBECONFIG's, else the project's own, brought up and down).
 test: lint
 	$(BIN)/pytest -q tests
+
+# Fuzzing, longer than `make test` does: each coverage-guided target of tests/fuzz (atheris:
+# the CDR readers, the snapshot bundle) for FUZZ_SECONDS from its seed corpus (new inputs are
+# kept in .fuzz/), then the property tests with FUZZ_EXAMPLES random examples each. A crash or
+# a hang is written to tests/fuzz/crashes/<target>/: check it in (the unit tier replays it).
+FUZZ_SECONDS ?= 60
+FUZZ_EXAMPLES ?= 1000
+fuzz: install
+	@status=0; for target in cdr bundle; do \
+	  mkdir -p .fuzz/$$target tests/fuzz/crashes/$$target; \
+	  echo "fuzzing $$target for $(FUZZ_SECONDS) s"; \
+	  $(BIN)/python tests/fuzz/fuzz_$$target.py .fuzz/$$target tests/fuzz/corpus/$$target \
+	    $$(test -f tests/fuzz/$$target.dict && echo -dict=tests/fuzz/$$target.dict) \
+	    -max_total_time=$(FUZZ_SECONDS) -timeout=10 -print_final_stats=1 \
+	    -artifact_prefix=tests/fuzz/crashes/$$target/ || status=1; \
+	done; \
+	EDGERV_PROPERTY_EXAMPLES=$(FUZZ_EXAMPLES) $(BIN)/pytest -q tests/unit/test_hostile_properties.py \
+	  || status=1; \
+	exit $$status
 
 # The project's test cluster (tests/cluster): Kubernetes built from sources, two nodes.
 cluster-up: install

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+import contextlib
+import signal
+from collections.abc import Iterable, Iterator, Sequence
+from types import FrameType
 from typing import Any
 
 import yaml
@@ -62,3 +65,24 @@ def run(monitors: Sequence[CompiledMonitor], evs: Iterable[TraceEvent]) -> list[
 
 def verdicts(result: MonitorResult) -> list[tuple[str, int, int]]:
     return [(v.verdict, v.step, v.stamp) for v in result.verdicts]
+
+
+class Hang(BaseException):
+    """A call ran past its time (:func:`bounded`): a BaseException, so that no ``except
+    Exception`` in the code under test eats it."""
+
+
+@contextlib.contextmanager
+def bounded(seconds: float) -> Iterator[None]:
+    """Fail with :class:`Hang` instead of hanging (main thread only: SIGALRM)."""
+
+    def expire(signum: int, frame: FrameType | None) -> None:
+        raise Hang(f"no answer within {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)

@@ -110,14 +110,20 @@ _UNIT_LIST = ", ".join(UNITS)
 _TIMED_BOUND = re.compile(r"\d\s*[A-Za-z]")  # an interval bound with a unit: [0..500ms]
 
 
+MAX_DURATION = 2**63 - 1  # ns (about 292 years): what 64-bit stamps can tell apart
+
+
 def duration_ns(text: str) -> int | None:
     """The nanoseconds of a duration token (``1.5s``), or None if it is not a whole number
-    of nanoseconds or its unit is unknown."""
+    of nanoseconds up to :data:`MAX_DURATION` or its unit is unknown."""
     m = _NUMBER.match(text)
     if m is None or text[m.end() :] not in UNITS:
         return None
+    digits, _, exponent = m.group().lower().partition("e")
+    if len(digits) > 40 or len(exponent.lstrip("+-").lstrip("0")) > 2:
+        return None  # out of range (1e9999999s would take Fraction seconds to compute)
     ns = Fraction(m.group()) * UNITS[text[m.end() :]]
-    return int(ns) if ns.denominator == 1 else None
+    return int(ns) if ns.denominator == 1 and ns <= MAX_DURATION else None
 
 
 # PSL binary keyword operators: Spot text with L and R for the operands.
@@ -262,7 +268,13 @@ def tokenize(text: str, fail: Callable[[int, int, str, str | None], None]) -> li
                     f"a duration's unit is one of {_UNIT_LIST}, e.g. 500ms",
                 )
             elif duration_ns(whole) is None:
-                fail(i, len(whole), f"'{whole}' is not a whole number of nanoseconds", None)
+                fail(
+                    i,
+                    len(whole),
+                    f"'{whole}' is not a whole number of nanoseconds"
+                    " (up to 2^63 - 1 ns, about 292 years)",
+                    None,
+                )
             tokens.append(Token("duration", whole, i, unit.end()))  # also when bad: one error
             i = unit.end()
             continue
@@ -327,7 +339,11 @@ class _Parser:
         if t.kind == "ident" and t.text == "age" and _is_call(toks, i):
             return self._age(toks, i)
         if t.kind == "number":
-            number: int | float = int(t.text) if t.text.isdigit() else float(t.text)
+            try:
+                number: int | float = int(t.text) if t.text.isdigit() else float(t.text)
+            except ValueError:  # Python reads no integer of more than 4,300 digits
+                self.fail(t.start, t.end - t.start, "a number too long to read")
+                return Operand(None, 0), "error", used + 1
             return Operand(None, -number if sign < 0 else number), "number", used + 1
         if t.kind == "string":
             return Operand(None, t.text[1:-1]), "string", 1

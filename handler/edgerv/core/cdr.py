@@ -10,10 +10,17 @@ from the type's definition (rosbags' type store): it walks the CDR encoding
 the start of the payload, skipping strings and sequences by their length
 prefix, and unpacks just the wanted values. Big-endian payloads and types it
 cannot walk (wstring) fall back to full deserialization.
+
+Any bytes can arrive on a topic: a reader returns values or raises one of
+:data:`MALFORMED`, quickly. A length (a string's, a sequence's count) that runs
+past the end of the payload is refused as soon as it is read, so that a hostile
+count cannot make a reader step through billions of elements that are not there
+(tests/unit/test_hostile_properties.py, tests/fuzz/fuzz_cdr.py).
 """
 
 from __future__ import annotations
 
+import functools
 import struct
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -49,6 +56,11 @@ _NAME, _BASE, _ARRAY, _SEQUENCE = 2, 1, 3, 4
 
 Reader = Callable[[bytes], tuple[list[Any], int | None]]
 
+# What a reader raises for bytes that are not a message of its type (truncated, a length
+# running past the end, bad UTF-8, a sequence too short for a wanted index): the handler's
+# take loop counts the message as malformed and goes on (tests/unit/test_hostile_properties.py).
+MALFORMED: tuple[type[Exception], ...] = (ValueError, IndexError, struct.error)
+
 
 class _Unsupported(Exception):
     pass
@@ -70,6 +82,15 @@ class _Gen:
 
     def emit(self, line: str, indent: int) -> None:
         self.lines.append("    " * indent + line)
+
+    def fits(self, elem: tuple[Any, Any], indent: int, out: list[str]) -> None:
+        """After a sequence's count ``n``: refuse a count its elements cannot fit in what is
+        left of the payload (at least ``min_size`` bytes each). A hostile count (2^32 - 1)
+        must not make a reader step through billions of elements that are not there."""
+        out.append(
+            "    " * indent
+            + f"if n * {min_size(elem)} > len(b) - 4 - p: raise ValueError(_LONG % (n, p))"
+        )
 
     def align(self, size: int, indent: int, lines: list[str] | None = None) -> None:
         if size > 1:
@@ -101,6 +122,7 @@ class _Gen:
                 self.align(4, indent, out)
                 out.append(pad + f"n = {self.unpack('<I')}(b, 4 + p)[0]")
                 out.append(pad + "p += 4")
+                self.fits(elem, indent, out)
             else:
                 out.append(pad + f"n = {count}")
             ekind, epay = int(elem[0]), elem[1]
@@ -169,6 +191,8 @@ class _Gen:
             if base == "string":
                 self.align(4, indent)
                 self.emit(f"n = {self.unpack('<I')}(b, 4 + p)[0]", indent)
+                # (the n bytes end with a NUL; a string running past the end is refused)
+                self.emit("if n > len(b) - 8 - p: raise ValueError(_LONG % (n, p))", indent)
                 for slot in (s for p, s in wanted.items() if p == here):
                     self.emit(f"out[{slot}] = b[8 + p : 7 + p + n].decode()", indent)
                 self.emit("p += 4 + n", indent)
@@ -190,6 +214,7 @@ class _Gen:
                 self.align(4, indent)
                 self.emit(f"n = {self.unpack('<I')}(b, 4 + p)[0]", indent)
                 self.emit("p += 4", indent)
+                self.fits(elem, indent, self.lines)
             else:
                 self.emit(f"n = {count}", indent)
             # a sequence too short for a wanted index fails like a getter would
@@ -213,6 +238,28 @@ class _Gen:
             self.skip(elem, indent + 1, self.lines)
         else:
             raise _Unsupported(str(node))
+
+
+@functools.cache
+def _message_min_size(msg_type: str) -> int:
+    fields: list[tuple[str, Any]] = typestore().fielddefs[msg_type][1]
+    return sum(min_size(node) for _, node in fields)
+
+
+def min_size(node: tuple[Any, Any]) -> int:
+    """The fewest bytes a value of this type takes in CDR (alignment aside), at least 1: a
+    string or a sequence its length word, a message the sum of its fields."""
+    kind, payload = int(node[0]), node[1]
+    if kind == _BASE:
+        return _PRIMITIVES[payload[0]][1] if payload[0] in _PRIMITIVES else 4
+    if kind == _NAME:
+        return max(1, _message_min_size(payload))
+    if kind == _ARRAY:
+        return max(1, int(payload[1]) * min_size(payload[0]))
+    return 4  # a sequence: its count
+
+
+_LONG = "a length of %d at offset %d runs past the end of the message"
 
 
 def _paths(paths: Sequence[str]) -> list[tuple[Any, ...]]:
@@ -258,6 +305,7 @@ def compile_reader(msg_type: str, paths: Sequence[str]) -> Reader:
         return _fallback_reader(msg_type, paths, header)
     namespace: dict[str, Any] = {f: struct.Struct(fmt).unpack_from for fmt, f in gen.fmts.items()}
     namespace["_fallback"] = _fallback_reader(msg_type, paths, header)
+    namespace["_LONG"] = _LONG
     exec(compile(source, f"<cdr reader {msg_type}>", "exec"), namespace)
     reader: Reader = namespace["read"]
     return reader
@@ -268,7 +316,10 @@ def _fallback_reader(msg_type: str, paths: Sequence[str], header: bool) -> Reade
     getters = [make_getter(p) for p in paths]
 
     def read(b: bytes) -> tuple[list[Any], int | None]:
-        msg = store.deserialize_cdr(b, msg_type)
+        try:
+            msg = store.deserialize_cdr(b, msg_type)
+        except Exception as exc:  # rosbags' SerdeError and what it wraps: one of MALFORMED
+            raise ValueError(f"not a {msg_type}: {exc}") from None
         values = [g(msg) for g in getters]
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec if header else None
         return values, stamp

@@ -204,6 +204,9 @@ def _parse_value(
     except yaml.YAMLError as exc:
         doc.error(node, where, f"invalid value: {exc}")
         return None
+    except ValueError:  # Python reads no integer of more than 4,300 digits
+        doc.error(node, where, "invalid value: a number too long to read")
+        return None
     if not isinstance(value, kinds) or (isinstance(value, float) and math.isnan(value)):
         doc.error(node, where, f"must be one of: {', '.join(k.__name__ for k in kinds)}")
         return None
@@ -558,6 +561,16 @@ def _documents(path: str, text: str) -> Iterator[_Doc]:
             else Location(path)
         )
         raise InputError([Diagnostic(loc, f"invalid YAML: {exc.problem}")]) from None
+    except yaml.reader.ReaderError as exc:  # a character YAML does not allow (a control)
+        at = min(max(0, exc.position), len(text))
+        line = text.count("\n", 0, at)
+        col = at - (text.rfind("\n", 0, at) + 1) + 1
+        src = lines[line] if line < len(lines) else None
+        char = exc.character if isinstance(exc.character, int) else ord(exc.character[:1] or "?")
+        problem = f"invalid YAML: {exc.reason} (U+{char:04X})"
+        raise InputError([Diagnostic(Location(path, line + 1, col, 1, src), problem)]) from None
+    except yaml.YAMLError as exc:  # any other the parser raises: at least the file
+        raise InputError([Diagnostic(Location(path), f"invalid YAML: {exc}")]) from None
 
 
 def _unique(spec: MonitorSpec, seen: dict[str, Location], diagnostics: list[Diagnostic]) -> bool:

@@ -56,7 +56,14 @@ from typing import Any
 import numpy as np
 
 from edgerv.core.monitor import CompiledMonitor
-from edgerv.core.pipeline import _STAMP, _UNSET, Event, MonitorRuntime, letter_typecode
+from edgerv.core.pipeline import (
+    _STAMP,
+    _UNSET,
+    Event,
+    MonitorRuntime,
+    _checker,
+    letter_typecode,
+)
 
 WIRE_VERSION = 3
 _FRAME = struct.Struct("!4sII")  # magic, header length, body length
@@ -181,6 +188,10 @@ def restore(monitor: CompiledMonitor, snap: Snapshot, held: list[Event]) -> Moni
         )
     if not 0 <= snap.state < table.states:
         raise HandoffError(f"automaton state {snap.state} out of range")
+    for name, value in zip(monitor.signal_names, snap.values, strict=True):
+        kind = monitor.spec.signals[name].kind
+        if value is not None and not _checker(kind)(value):
+            raise HandoffError(f"signal '{name}' is {value!r} in the snapshot, not a {kind} value")
     clock_fits = (
         not monitor.clocked
         if snap.clock is None
@@ -195,7 +206,7 @@ def restore(monitor: CompiledMonitor, snap: Snapshot, held: list[Event]) -> Moni
     if rt.past is not None:
         try:
             rt.past.load(snap.past)
-        except (ValueError, TypeError, KeyError) as exc:
+        except (ValueError, TypeError, KeyError, OverflowError) as exc:  # Overflow: int(inf)
             raise HandoffError(f"snapshot of '{snap.monitor}': {exc}") from None
     if rt.clock is not None and snap.clock is not None:
         rt.clock.restore(*snap.clock)
@@ -326,9 +337,12 @@ def unbundle(data: bytes, limit: int = MAX_BUNDLE) -> list[bytes]:
 def frame_sizes(frame: bytes) -> tuple[int, int]:
     """A snapshot's constant part (frame and header, in bytes, before the bundle's
     compression) and its letter count, read from its header alone."""
-    hlen = int(_FRAME.unpack_from(frame)[1])
-    header = json.loads(frame[_FRAME.size : _FRAME.size + hlen])
-    return _FRAME.size + hlen, int(header["n"])
+    try:
+        hlen = int(_FRAME.unpack_from(frame)[1])
+        header = json.loads(frame[_FRAME.size : _FRAME.size + hlen])
+        return _FRAME.size + hlen, int(header["n"])
+    except (struct.error, ValueError, KeyError, TypeError, OverflowError, RecursionError) as exc:
+        raise HandoffError(f"malformed snapshot header: {exc!r}"[:300]) from None
 
 
 def _inflate(data: bytes, size: int) -> bytes:
@@ -340,8 +354,13 @@ def _inflate(data: bytes, size: int) -> bytes:
     return out
 
 
+def _stamp(t: Any) -> bool:
+    """Signed 64-bit integer nanoseconds (what the runtime's stamp arrays hold)."""
+    return isinstance(t, int) and not isinstance(t, bool) and -(2**63) <= t < 2**63
+
+
 def _stamp_or_none(t: Any) -> bool:
-    return t is None or (isinstance(t, int) and not isinstance(t, bool) and -(2**63) <= t < 2**63)
+    return t is None or _stamp(t)
 
 
 def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
@@ -355,6 +374,8 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
         raise HandoffError("length does not match its frame")
     try:
         h = json.loads(data[_FRAME.size : _FRAME.size + hlen])
+        if not isinstance(h, dict):
+            raise HandoffError("a snapshot's header is not a JSON object")
         if h.get("v") != WIRE_VERSION:
             raise HandoffError(f"wire version {h.get('v')} is not {WIRE_VERSION}")
         n, bits = int(h["n"]), int(h["bits"])
@@ -379,6 +400,8 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
             i, stamp = i + gap, stamp + delta
             if not 0 <= i < n or (stamps and gap < 1):
                 raise HandoffError("a stamp's index is out of range")
+            if not _stamp(stamp):
+                raise HandoffError("a stamp is not 64-bit integer nanoseconds")
             stamps[i] = stamp
         values = tuple(h["values"])
         if not all(v is None or isinstance(v, bool | int | float | str) for v in values):
@@ -389,16 +412,21 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
             if not all(_stamp_or_none(t) for t in (now, *last)):
                 raise HandoffError("a clock time is not integer nanoseconds")
             clock = (now, tuple(last))
+        cut, last_released, valuation = h["cut"], h["lastReleased"], h["valuation"]
+        if not _stamp(cut) or not _stamp_or_none(last_released):
+            raise HandoffError("the cut or the last release is not 64-bit integer nanoseconds")
+        if not (isinstance(valuation, int) and 0 <= valuation < 1 << bits):
+            raise HandoffError(f"valuation {valuation!r} does not fit {bits} placeholder bits")
         return Snapshot(
             monitor=str(h["monitor"]),
             epoch=int(h["epoch"]),
-            cut=int(h["cut"]),
+            cut=cut,
             state=int(h["state"]),
             step=int(h["step"]),
             halted=bool(h["halted"]),
             values=values,
-            valuation=int(h["valuation"]),
-            last_released=None if h["lastReleased"] is None else int(h["lastReleased"]),
+            valuation=valuation,
+            last_released=last_released,
             late_events=int(h["late"]),
             bits=bits,
             letters=letters,
@@ -408,5 +436,7 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
         )
     except HandoffError:
         raise
-    except (ValueError, KeyError, TypeError) as exc:
-        raise HandoffError(f"malformed snapshot: {exc}") from None
+    except (ValueError, KeyError, TypeError, OverflowError) as exc:  # Overflow: int(inf)
+        raise HandoffError(f"malformed snapshot: {exc}"[:300]) from None
+    except RecursionError:  # Python's JSON parser recurses per level
+        raise HandoffError("malformed snapshot: its header is nested too deep") from None

@@ -676,5 +676,5 @@ def header_stamp(msg: Any) -> int | None:
         else:
             ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
         return ns or None
-    except (KeyError, AttributeError, TypeError, ValueError):
+    except (KeyError, AttributeError, TypeError, ValueError, OverflowError):  # inf: Overflow
         return None

@@ -22,6 +22,7 @@ from edgerv.core.msgtypes import typestore
 from edgerv.core.pipeline import header_stamp
 
 Progress = Callable[[int], None]  # advance by n units (bytes or messages)
+STAMPS = range(-(2**63), 2**63)  # a stamp is signed 64-bit nanoseconds, as ROS time is
 
 
 @dataclass(frozen=True)
@@ -124,6 +125,16 @@ class Trace:
                 if progress:
                     progress(1)
                 stamp = log_time if (stamp := header_stamp(msg)) is None else stamp
+                if stamp not in STAMPS:
+                    raise InputError(
+                        [
+                            Diagnostic(
+                                Location(path, index),
+                                f"message {index} on {conn.topic} is stamped {stamp} ns, "
+                                "out of the range of 64-bit nanoseconds",
+                            )
+                        ]
+                    )
                 self._saw(stamp)
                 yield TraceEvent(conn.topic, stamp, msg, Location(path, index))
         finally:
@@ -173,6 +184,8 @@ def _jsonl_event(
         record = json.loads(text)
     except json.JSONDecodeError as exc:
         raise fail(f"invalid JSON: {exc.msg}", exc.pos + 1) from None
+    except ValueError:  # Python reads no integer of more than 4,300 digits
+        raise fail("invalid JSON: a number too long to read") from None
     except RecursionError:  # Python's parser recurses per level: thousands are too many
         raise fail("nested too deep to read (a message has a few levels)") from None
     if not isinstance(record, dict):
@@ -184,7 +197,7 @@ def _jsonl_event(
         other = record.get("msg")
         shown = header_stamp(other) if isinstance(other, dict) else None
         shown = record.get("stamp") if shown is None else shown
-        if isinstance(shown, int) and not isinstance(shown, bool):
+        if isinstance(shown, int) and not isinstance(shown, bool) and shown in STAMPS:
             saw(shown)
         return None
     msg = record.get("msg")
@@ -195,5 +208,7 @@ def _jsonl_event(
         stamp = record.get("stamp")
         if isinstance(stamp, bool) or not isinstance(stamp, int):
             raise fail("missing 'stamp' (integer nanoseconds) and msg has no header.stamp")
+    if stamp not in STAMPS:
+        raise fail(f"stamp {stamp} is out of the range of 64-bit nanoseconds")
     saw(stamp)
     return TraceEvent(topic, stamp, msg, Location(path, lineno))

@@ -70,6 +70,46 @@ def _message(status: int, text: str) -> web.Response:
     return web.json_response({"errors": [{"message": text}]}, status=status)
 
 
+def _integer(value: Any, what: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"{what} must be an integer, not {value!r}"[:200])
+    return value
+
+
+def _seconds(value: Any, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
+        raise ValueError(f"{what} must be a number of seconds, not {value!r}"[:200])
+    return min(float(value), 1e9)  # inf: never
+
+
+def _handoff_body(body: Any) -> tuple[dict[str, Any], int, list[str]]:
+    """A handoff step's JSON body, checked: an object with an integer ``epoch`` and a list
+    of monitor names (raises ValueError naming what is wrong: the answer is 400)."""
+    if not isinstance(body, dict):
+        raise ValueError("the body must be a JSON object")
+    names = body["monitors"]
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise ValueError("monitors must be a list of monitor names")
+    return body, _integer(body["epoch"], "epoch"), names
+
+
+def _release_body(
+    body: dict[str, Any], names: list[str]
+) -> tuple[dict[str, int], dict[str, list[str]], float, float]:
+    """The release step's fields: a cut for every monitor, the topics H2 vouched for,
+    the grace and how long to wait (seconds)."""
+    cuts, quiet = body["cuts"], body.get("quiet") or {}
+    if not isinstance(cuts, dict):
+        raise ValueError("cuts must map each monitor to its cut")
+    checked = {n: _integer(cuts[n], f"the cut of {n}") for n in names}
+    if not isinstance(quiet, dict) or not all(
+        isinstance(q, list) and all(isinstance(t, str) for t in q) for q in quiet.values()
+    ):
+        raise ValueError("quiet must map monitors to lists of topics")
+    grace = _seconds(body.get("grace", 1.0), "grace")
+    return checked, quiet, grace, _seconds(body.get("wait", 0), "wait")
+
+
 class ControlApi:
     def __init__(
         self,
@@ -229,17 +269,17 @@ class ControlApi:
                 names = e.adopt_many(epoch, unbundle(await request.read()))  # all or nothing
                 self.on_routes()
                 return web.json_response({"active": names})
-            body = await request.json()
-            epoch = int(body["epoch"])
-            names = [str(n) for n in body["monitors"]]
+            body, epoch, names = _handoff_body(await request.json())
             if step in ("hold", "receive"):
                 done: list[str] = []
                 peer = body.get("peer")
+                if peer is not None and not isinstance(peer, str):
+                    raise ValueError("peer must be a handler's address")
                 with e.lock:
                     try:
                         for name in names:
                             if step == "hold":
-                                e.hold(name, epoch, peer=None if peer is None else str(peer))
+                                e.hold(name, epoch, peer=peer)
                             else:
                                 e.receive(name, epoch)
                             done.append(name)
@@ -255,14 +295,13 @@ class ControlApi:
                     quiet = {n: list(e.slots[n].quiet) for n in names if cuts[n] is not None}
                 return web.json_response({"cuts": cuts, "quiet": quiet})
             if step == "release":
-                cuts, grace = body["cuts"], float(body.get("grace", 1.0))
-                quiet = body.get("quiet") or {}
+                at, quiet, grace, wait = _release_body(body, names)
                 # up to ``wait`` seconds for events past the cut here: no round trip a try
-                until = time.monotonic() + min(MAX_WAIT, max(0.0, float(body.get("wait", 0))))
+                until = time.monotonic() + min(MAX_WAIT, wait)
                 while True:
                     with e.lock:
                         released = {
-                            n: e.release(n, epoch, int(cuts[n]), grace, quiet=quiet.get(n, ()))
+                            n: e.release(n, epoch, at[n], grace, quiet=quiet.get(n, ()))
                             for n in names
                         }
                     waiting = [n for n, data in released.items() if data is None]

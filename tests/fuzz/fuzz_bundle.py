@@ -1,0 +1,139 @@
+"""Coverage-guided fuzzing (atheris, libFuzzer) of the handoff's wire form.
+
+A receiver takes a snapshot bundle (``ERVB``: one deflate stream of ``ERV3``
+frames) in ``POST /v1/handoff/adopt``, and ``edgerv migrate`` checks the one a
+sender released (docs/protocol.md, "Wire form"). Whatever the bytes:
+``unbundle``, ``frame_sizes``, ``decode`` and ``restore`` return, or raise
+``HandoffError``; and a snapshot that restores runs on (events, the sort,
+evaluation, clock steps) without any error. The first byte of an input picks the
+entry (0: a bundle; 1: one frame as it is; 2: frames deflated into a bundle here,
+so that mutations of the frames are not lost in the deflate stream; 3: a header
+and a body, framed here, see :func:`framed`), the second the monitor definition
+the snapshot is restored into (``bundle.dict``: the header's JSON words)::
+
+    python tests/fuzz/fuzz_bundle.py WORK_CORPUS tests/fuzz/corpus/bundle \
+        -dict=tests/fuzz/bundle.dict -max_total_time=60
+
+``make fuzz`` runs it (``FUZZ_SECONDS``); ``tests/unit/test_fuzz_targets.py`` runs
+it for a few thousand inputs and replays every input in
+``tests/fuzz/crashes/bundle/`` through :func:`fuzz_one_input`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import random
+import sys
+from typing import Any
+
+ASSERTIONS = [
+    "always (a -> x < 5)",
+    "always (a -> age(x) < 4ns)",
+    "always (historically[1ns..6ns] (x < 8) | a)",
+    "always ((once a) -> x > 1)",
+]
+DOCUMENT = """\
+apiVersion: edgerv.io/v1alpha1
+kind: Monitor
+metadata: {{name: m}}
+spec:
+  assertion: "{}"
+  signals:
+    a: {{topic: /a, type: std_msgs/msg/Bool}}
+    x: {{topic: /x, type: std_msgs/msg/Float64}}
+  sortThreshold: 8
+"""
+LIMIT = 1 << 20  # inflated bytes (the API allows 1 GiB: not for a fuzzer's memory)
+MAX_LETTERS = 1 << 16  # letters a snapshot may carry here (the default 16 Mi is slow to run)
+
+_monitors: list[Any] = []
+
+
+def events(
+    seed: int, n: int, start: int, only: int | None = None
+) -> list[tuple[int, int, list[tuple[int, Any]]]]:
+    """A run of ``n`` events on the two signals (``only``: on that one) from ``start``."""
+    rng, stamp, out = random.Random(seed), start, []
+    for seq in range(n):
+        stamp += rng.choice([0, 1, 3])
+        signal = (rng.random() < 0.5) if only is None else only == 0
+        out.append((stamp, seq, [(0, rng.random() < 0.6)] if signal else [(1, rng.uniform(0, 9))]))
+    return out
+
+
+def held(at: int) -> list[tuple[int, int, list[tuple[int, Any]]]]:
+    """What a receiver held when it adopts, from just before the cut ``at``: a batch that is
+    compressed column-wise, of one signal only (the other goes on from its snapshot value)."""
+    return events(1, 150, at - 6, only=0)
+
+
+def run_on(rt: Any, at: int) -> None:
+    """What a restored monitor goes through: events one by one, evaluation, clock steps.
+    ``at``: about the cut (64-bit stamps)."""
+    rt.evaluate()
+    for stamp, seq, updates in events(2, 20, at + 1000):
+        if rt.offer(stamp, seq, updates):
+            rt.evaluate()
+    rt.holding = False
+    rt.flush()
+    rt.advance(at + 10**4)
+    rt.evaluate()
+
+
+def framed(data: bytes) -> bytes:
+    """A frame of a header and a body given apart (``data``: the header's length, 2 bytes
+    big-endian, the header, the body), its lengths right: a mutation inside the header
+    reaches the checks behind the frame's."""
+    size = int.from_bytes(data[:2], "big")
+    header, body = data[2 : 2 + size], data[2 + size :]
+    return b"ERV3" + len(header).to_bytes(4, "big") + len(body).to_bytes(4, "big") + header + body
+
+
+def load() -> None:
+    from edgerv.core.documents import load_monitors_text
+    from edgerv.core.monitor import compile_monitor
+
+    for assertion in ASSERTIONS:
+        _monitors.append(compile_monitor(load_monitors_text("m", DOCUMENT.format(assertion))[0]))
+
+
+def fuzz_one_input(data: bytes) -> None:
+    from edgerv.core.handoff import HandoffError, bundle, decode, frame_sizes, restore, unbundle
+
+    if not _monitors:
+        load()
+    if len(data) < 2:
+        return
+    mode, monitor, rest = data[0] % 4, _monitors[data[1] % len(_monitors)], data[2:]
+    try:
+        if mode == 0:
+            frames = unbundle(rest, LIMIT)
+        elif mode == 1:
+            frames = [rest]
+        elif mode == 2:
+            frames = unbundle(bundle([rest]), LIMIT)
+        else:
+            frames = [framed(rest)]
+        for frame in frames:
+            frame_sizes(frame)
+            snap = decode(frame, MAX_LETTERS)
+            # the receiver's own events around the cut, then later ones (real stamps: 64 bits)
+            at = max(-(2**62), min(snap.cut, 2**62))
+            run_on(restore(monitor, snap, held(at)), at)
+    except HandoffError:
+        pass
+
+
+def main() -> None:
+    import atheris
+
+    with atheris.instrument_imports(include=["edgerv"]):
+        for module in ("edgerv.core.handoff", "edgerv.core.pipeline", "edgerv.core.past"):
+            importlib.import_module(module)
+        load()
+    atheris.Setup(sys.argv, fuzz_one_input)
+    atheris.Fuzz()
+
+
+if __name__ == "__main__":
+    main()
