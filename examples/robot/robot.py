@@ -363,7 +363,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="node", required=True)
     base = sub.add_parser("base")
     base.add_argument("--log", required=True, metavar="FILE")
-    base.add_argument("--corridor", type=float, default=0.2, metavar="METRES")
+    base.add_argument("--corridor", type=float, default=0.25, metavar="METRES")
     for p in (base, slam := sub.add_parser("slam")):
         p.add_argument(
             "--observers",
@@ -375,7 +375,7 @@ def main(argv: list[str] | None = None) -> int:
     slam.add_argument("--work", type=float, default=0.11, metavar="CPU_SECONDS")
     slam.add_argument("--calibrate", type=float, default=0.0, metavar="SECONDS")
     slam.add_argument("--target", type=float, default=0.115, metavar="SECONDS")
-    slam.add_argument("--gain", type=float, default=6.5, help="heading gain (rad/s per rad)")
+    slam.add_argument("--gain", type=float, default=5.0, help="heading gain (rad/s per rad)")
     slam.add_argument("--speed", type=float, default=1.0, metavar="M_PER_S")
     args = parser.parse_args(argv)
     rclpy.init()
