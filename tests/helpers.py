@@ -63,6 +63,16 @@ def run(monitors: Sequence[CompiledMonitor], evs: Iterable[TraceEvent]) -> list[
     return check.finish(max((e.stamp for e in evs), default=None))
 
 
+def truth_at(changes: list[tuple[int, bool]], t: int) -> bool:
+    """A truth given as (instant, value from then on) changes, at instant ``t``."""
+    value = changes[0][1]
+    for at, v in changes:
+        if at > t:
+            break
+        value = v
+    return value
+
+
 def verdicts(result: MonitorResult) -> list[tuple[str, int, int]]:
     return [(v.verdict, v.step, v.stamp) for v in result.verdicts]
 

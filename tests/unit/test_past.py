@@ -19,7 +19,7 @@ import pytest
 from edgerv.core.assertion import parse_assertion
 from edgerv.core.diagnostics import InputError
 from edgerv.core.pipeline import MonitorRuntime
-from helpers import compiled, events, run, spec_of, verdicts
+from helpers import compiled, events, run, spec_of, truth_at, verdicts
 
 MS = 1_000_000
 BOOLS = {"a": {"topic": "/a", "type": "std_msgs/msg/Bool", "initial": False},
@@ -177,15 +177,6 @@ def reelay_dense(
 
 def held_last(run_: list[tuple[str, int, bool]], topic: str) -> bool:
     return next((v for t, _, v in reversed(run_) if t == topic), False)
-
-
-def truth_at(changes: list[tuple[int, bool]], t: int) -> bool:
-    value = changes[0][1]
-    for at, v in changes:
-        if at > t:
-            break
-        value = v
-    return value
 
 
 def reelay_safe(rng: random.Random, depth: int) -> tuple[str, str, int]:

@@ -52,7 +52,7 @@ import pytest
 
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import MonitorRuntime
-from helpers import compiled, events, run, verdicts
+from helpers import compiled, events, run, truth_at, verdicts
 
 MS = 1_000_000
 SIGNALS = {
@@ -163,15 +163,6 @@ def rtamt_spec(formula: str) -> Any:
     spec.spec = formula
     spec.parse()
     return spec
-
-
-def truth_at(changes: list[tuple[int, bool]], t: int) -> bool:
-    value = changes[0][1]
-    for at, v in changes:
-        if at > t:
-            break
-        value = v
-    return value
 
 
 def edgerv_reset(m: CompiledMonitor, run_: Run, end: int) -> list[tuple[int, str | None]]:
