@@ -286,7 +286,6 @@ class PhaseResult:
     arrived: bool = False
     collided: bool = False
     monitors_on_edge: int = 0
-    monitors_on_edge_min: int | None = None
     goal_verdict: str = "n/a"
     handler_cpu: dict[str, float] = field(default_factory=dict)
     migrations: list[dict[str, Any]] = field(default_factory=list)
@@ -598,9 +597,6 @@ class Demo:
             load = api.get("/v1/load")
             active = sum(1 for m in load["monitors"].values() if m["active"])
             self.view.deadline = load.get("deadline")
-            if result.goal_time and time.time() >= result.goal_time:
-                low = result.monitors_on_edge_min
-                result.monitors_on_edge_min = active if low is None else min(low, active)
             if final or not result.goal_time:
                 result.monitors_on_edge = active
             self.view.on_edge = active
@@ -1007,10 +1003,8 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "logs").mkdir(exist_ok=True)
     demo = Demo(args)
-    stop = {"signal": False}
 
     def on_signal(signum: int, _frame: object) -> None:
-        stop["signal"] = True
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, on_signal)
