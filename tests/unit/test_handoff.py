@@ -43,6 +43,10 @@ ASSERTIONS = [
     "always ((a since (x > 3)) -> prev !a)",
     "always ((x < 7) since[0ns..5ns] a | x > 8)",
     "always ((a since[2ns..9ns] (x > 4)) -> x < 9)",
+    # time-bounded future: obligations pending at the cut (their past state moves)
+    "always (a -> F[2ns..7ns] (x > 6))",
+    "always ((x > 5) -> (a U[0ns..6ns] (x < 3)))",
+    "always (a -> ((x < 8) W[1ns..5ns] !a))",
 ]
 
 
@@ -125,7 +129,7 @@ def with_handoffs(
     return out + owner.evaluate()
 
 
-@pytest.mark.parametrize("seed", range(40))
+@pytest.mark.parametrize("seed", range(4 * len(ASSERTIONS)))
 def test_verdicts_with_handoffs_equal_verdicts_without(seed: int) -> None:
     rng = random.Random(seed)
     m = compiled(

@@ -17,6 +17,7 @@ import random
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 import spot
@@ -58,12 +59,15 @@ def test_durations_carry_their_unit(text: str, ns: int) -> None:
         ("always (age(limit) < 1s)", "age() takes a signal: 'limit' is a parameter"),
         ("always (age(a) > -1s)", "a duration cannot be negative: '-1s'"),
         ("always (age(a) < 1.5ns)", "'1.5ns' is not a whole number of nanoseconds"),
-        ("always (a U[0..1s] b)", "a time bound here (on U, W, R, M or a SERE) is not supported"),
+        ("always (a R[0..1s] b)", "a time bound here (on R, M or a SERE) is not supported"),
         ("always (a -> X[2s] b)", "'X' counts steps: it takes no duration"),
+        ("always (a -> (b U[0..3] a))", "'U' takes a time bound, not steps"),
+        ("a -> (b until[0..1s] a)", "a time-bounded W is supported as always (P -> R W[a..b] Q)"),
+        ("always (a -> (F b U[0..1s] a))", "'U' needs a formula without future operators"),
         ("a -> F[0..500ms] b", "a time-bounded F is supported as always (P -> F[a..b] Q)"),
         ("always (F[0..1s] a -> b)", "a time-bounded F is supported as always (P -> F[a..b] Q)"),
         ("always (a -> F[0..1s] G b)", "'F' needs a formula without future operators"),
-        ("always (a -> F[0..1s] b & G[0..1s] a)", "one time-bounded F or G an assertion"),
+        ("always (a U[0..1s] F[0..1s] b)", "a time-bounded operator inside the operand of U"),
         ("always (a -> F[2s..1s] b)", "the interval [2s..1s] ends before it starts"),
         ("always (age(a) & b)", "age(x) is a duration, not a proposition"),
         ("always (a -> 5ms)", "duration 5ms outside a comparison"),
@@ -306,6 +310,141 @@ def test_bounded_future_deadlines_fail_exactly_when_certain(seed: int) -> None:
                   and obligation_fails(kind, lo, hi, run_, t)
                   and not obligation_fails(kind, lo, hi, run_, t - 1)]  # fmt: skip
         assert set(starts) <= set(steps), (kind, lo, hi, sorted(set(starts) - set(steps)))
+
+
+# -- time-bounded until: always (P -> R U[a..b] Q), always (P -> R W[a..b] Q) ----------------
+# Brute force over every nanosecond: stamps and bounds are a few nanoseconds, so each
+# instant of the run is looked at, straight from the definition (docs/semantics.md).
+
+Trace = list[tuple[str, int, bool]]
+
+
+def obligation_met(kind: str, lo: int, hi: int, at: Any, tau: int) -> bool:
+    """The obligation opened at instant tau, signals read by ``at(topic, x)``: U needs Q
+    at some t' of [tau+lo, tau+hi] with R at every instant of [tau, t'); W also takes R
+    at every instant of [tau, tau+hi]."""
+    for t2 in range(tau + lo, tau + hi + 1):
+        if at("/q", t2) and all(at("/r", x) for x in range(tau, t2)):
+            return True
+    return kind == "W" and all(at("/r", x) for x in range(tau, tau + hi + 1))
+
+
+def first_certain_failure(kind: str, lo: int, hi: int, run_: Trace, end: int) -> int | None:
+    """LTL3: the first instant u up to which the run leaves no way out: with the most
+    favourable future after u (R and Q true, no new P), some obligation fails."""
+    t0 = run_[0][1]
+    for u in range(t0, end + 1):
+
+        def at(topic: str, x: int, u: int = u) -> bool:
+            return bool(held(run_, topic, x)) if x <= u else topic != "/p"
+
+        opened = (tau for tau in range(t0, u + 1) if at("/p", tau))
+        if any(not obligation_met(kind, lo, hi, at, tau) for tau in opened):
+            return u
+    return None
+
+
+def failure_shown_at(kind: str, lo: int, hi: int, run_: Trace, u: int) -> bool:
+    """Is some obligation's failure shown at instant u: its deadline u (U, no Q in its
+    window), or R failing at u while it waits for Q (U and W)? (semantics.md)"""
+    t0 = run_[0][1]
+
+    def at(topic: str, x: int) -> bool:
+        return bool(held(run_, topic, x))
+
+    def no_q(a: int, b: int) -> bool:
+        return not any(at("/q", x) for x in range(a, b + 1))
+
+    if kind == "U" and u - hi >= t0 and at("/p", u - hi) and no_q(u - hi + lo, u):
+        return True
+    return not at("/r", u) and any(
+        at("/p", tau) and no_q(tau + lo, u) for tau in range(max(t0, u - hi), u + 1)
+    )
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_bounded_until_fails_exactly_when_certain(seed: int) -> None:
+    rng = random.Random(seed)
+    kind = rng.choice(["U", "W"])
+    lo = rng.choice([0, 0, 1, 3, 6])
+    hi = lo + rng.choice([0, 1, 4, 9])
+    signals = {n: {"topic": f"/{n}", "type": "std_msgs/msg/Bool", "initial": False}
+               for n in "prq"}  # fmt: skip
+    assertion = f"always (p -> (r {kind}[{lo}ns..{hi}ns] q))"
+    reset, halt = compiled(assertion, signals), compiled(assertion, signals, onVerdict="halt")
+    for _ in range(4):
+        run_: Trace = []
+        stamp = rng.choice([0, 100])
+        for _ in range(rng.choice([10, 20, 30])):
+            stamp += rng.choice([1, 1, 2, 3, 5, 8])
+            run_.append((rng.choice(["/p", "/r", "/q", "/r"]), stamp, rng.random() < 0.5))
+        end = stamp + rng.choice([0, 3, 12])
+        rt = MonitorRuntime(reset)
+        for i, (topic, t, v) in enumerate(run_):
+            rt.offer(t, i, [(["/p", "/r", "/q"].index(topic), v)])
+        rt.advance(end)
+        steps = list(rt.stamps)
+        violated = {v.step for v in rt.evaluate() if v.verdict == "violated"}
+        got = [(t, i + 1 in violated) for i, t in enumerate(steps)]
+        why = (assertion, run_, end)
+        assert got == [(t, failure_shown_at(kind, lo, hi, run_, t)) for t in steps], why
+        # every instant at which a failure starts to show is a step (a clock step if no
+        # message comes then)
+        t0 = run_[0][1]
+        onsets = {u for u in range(t0 + 1, end + 1) if failure_shown_at(kind, lo, hi, run_, u)
+                  and not failure_shown_at(kind, lo, hi, run_, u - 1)}  # fmt: skip
+        assert onsets <= set(steps), (*why, sorted(onsets - set(steps)))
+        # onVerdict: halt: one verdict, where the failure became certain
+        (result,) = run([halt], events([*run_, ("/clock", end, 0)]))
+        first = first_certain_failure(kind, lo, hi, run_, end)
+        assert [t for _, _, t in verdicts(result)] == ([] if first is None else [first]), why
+
+
+def test_until_with_a_time_bound_reads_as_the_issue_says() -> None:
+    """busy until done within 1 s: done may come as busy ends (one message)."""
+    signals = {n: "bool" for n in ["go", "busy", "done"]}
+    m = compiled("always (go -> (busy U[0..1s] done))", signals)
+    ok = [("/go", 0, False), ("/busy", 0, False), ("/done", 0, False), ("/busy", 10 * MS, True),
+          ("/go", 10 * MS, True), ("/go", 20 * MS, False), ("/done", 600 * MS, True),
+          ("/busy", 600 * MS, False), ("/odom", 3000 * MS, 0)]  # fmt: skip
+    (result,) = run([m], events(ok))
+    assert verdicts(result) == []
+    # done never comes: violated at the deadline, 1 s after go (a clock step)
+    (result,) = run([m], events([*ok[:6], ("/odom", 3000 * MS, 0)]))
+    assert [(v, t) for v, _, t in verdicts(result)] == [("violated", 1010 * MS)]
+    # busy ends before done: violated there
+    broke = [*ok[:6], ("/busy", 300 * MS, False), ("/done", 600 * MS, True)]
+    (result,) = run([m], events(broke))
+    assert [(v, t) for v, _, t in verdicts(result)] == [("violated", 300 * MS)]
+    # weak: busy for the whole second and no done is fine; busy ending without done is not
+    w = compiled("always (go -> (busy until[0..1s] done))", signals)
+    (result,) = run([w], events([*ok[:6], ("/odom", 3000 * MS, 0)]))
+    assert verdicts(result) == []
+    (result,) = run([w], events(broke))
+    assert [(v, t) for v, _, t in verdicts(result)] == [("violated", 300 * MS)]
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_time_bounded_operators_combine_under_always(seed: int) -> None:
+    """Several in one assertion, each in its shape: the first failure of the whole is the
+    first of its parts', checked as monitors of their own. (``always`` binds loosely: the
+    second part is inside the first's ``always``, which changes nothing.)"""
+    rng = random.Random(seed)
+    parts = ["always (a -> F[0..20ms] b)", "always (b -> (a U[5ms..30ms] !b))",
+             "always (a -> G[0..10ms] !b)", "always (b -> (!a until[0..15ms] a))"]  # fmt: skip
+    chosen = rng.sample(parts, 2)
+    signals = {n: {"topic": f"/{n}", "type": "std_msgs/msg/Bool", "initial": False} for n in "ab"}
+    whole = compiled(" && ".join(chosen), signals, onVerdict="halt")
+    alone = [compiled(t, signals, name=f"part{k}", onVerdict="halt") for k, t in enumerate(chosen)]
+    for _ in range(5):
+        stamp, rows = 0, []
+        for _ in range(20):
+            stamp += rng.choice([1, 4, 9, 17]) * MS
+            rows.append((rng.choice(["/a", "/b"]), stamp, rng.random() < 0.5))
+        rows.append(("/clock", stamp + 40 * MS, 0))
+        firsts = [t for r in run(alone, events(rows)) for v, _, t in verdicts(r)]
+        (result,) = run([whole], events(rows))
+        assert [t for _, _, t in verdicts(result)] == sorted(firsts)[:1], (chosen, rows)
 
 
 def test_the_issues_deadline_is_violated_where_it_became_certain() -> None:

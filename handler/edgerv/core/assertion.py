@@ -43,6 +43,7 @@ from typing import Any, Literal, cast
 
 import spot
 
+from edgerv.core.bounded import BoundedKind, Obligation, as_past
 from edgerv.core.diagnostics import Diagnostic, InputError, did_you_mean
 from edgerv.core.documents import MonitorSpec, Value
 from edgerv.core.msgtypes import ValueKind
@@ -100,6 +101,7 @@ _TEMPORAL_BINOPS = {"U", "W", "R", "M"}
 _SPOT_WORDS = {"G", "F", "X", "U", "W", "R", "M", "xor", "true", "false"}
 _PSL_WORDS = {"always", "never", "eventually", "next", "next_e", "next_a", "until", "before"}
 _PAST_UNARY = {"once", "historically", "prev"}
+_TIMED_UNTIL = {"U": "U", "until!": "U", "W": "W", "until": "W"}  # with a time bound
 _TAKES_BRACKET = {"G", "F", "X", "next", "next!", "next_e", "next_e!", "next_a", "next_a!",
                   "once", "historically", "since"}  # fmt: skip
 _NUMBER = re.compile(r"(\d+\.?\d*(?:[eE][+-]?\d+)?|\.\d+(?:[eE][+-]?\d+)?)")
@@ -224,8 +226,19 @@ class _Out:
     text: str
     start: int
     end: int
-    role: str = "other"  # atom, unary, loose, tbin, bbin, pbin, past, open, close, other
-    window: tuple[int, int] | None = None  # a timed past operator's [lo, hi] in ns
+    role: str = "other"  # atom, unary, loose, tbin, bbin, pbin, past, future, futbin, open,
+    # close, other
+    window: tuple[int, int] | None = None  # a timed operator's [lo, hi] in ns
+
+
+@dataclass
+class _Cut:
+    """A time-bounded operator taken out of the formula: ``name`` stands for it there;
+    ``spans`` its operands' tokens (``[Q]``, or ``[R, Q]`` for U and W)."""
+
+    name: str
+    op: _Out
+    spans: list[list[_Out]]
 
 
 def tokenize(text: str, fail: Callable[[int, int, str, str | None], None]) -> list[Token]:
@@ -437,7 +450,10 @@ class _Parser:
                 op.end - op.start,
                 f"'{op.text}' needs a formula without future operators",
                 "past operators look back: their operands are atoms, boolean operators "
-                "and other past operators",
+                "and other past operators"
+                if op.role in ("past", "pbin")
+                else "the operands of a time-bounded operator are atoms, boolean operators "
+                "and past operators",
             )
             return None
         try:
@@ -450,67 +466,92 @@ class _Parser:
         self.fail(
             start,
             length,
-            "a time bound here (on U, W, R, M or a SERE) is not supported yet",
-            "write a deadline with F[a..b] or G[a..b] under always, or with age: "
+            "a time bound here (on R, M or a SERE) is not supported yet",
+            "write a deadline with F[a..b], G[a..b] or U[a..b] under always, or with age: "
             "always (go -> (age(go) < 500ms until done)); see docs/semantics.md, 'Time'",
         )
 
-    def cut_future(self, out: list[_Out]) -> tuple[list[_Out], tuple[_Out, list[_Out]] | None]:
-        """Take the time-bounded F or G and its operand out of ``out``: they stand as the
-        proposition ``fut`` until :meth:`pastify_future` rewrites the whole formula."""
-        found = [i for i, o in enumerate(out) if o.role == "future"]
-        for extra in found[1:]:
-            o = out[extra]
-            self.fail(o.start, o.end - o.start,
-                      "one time-bounded F or G an assertion, for now",
-                      "split the assertion into several monitors")  # fmt: skip
-        if not found or len(found) > 1:
-            return out, None
-        i = found[0]
-        end = _prefix_operand_end(out, i + 1)
-        cut = (out[i], out[i + 1 : end])
-        return [*out[:i], _Out("fut", out[i].start, out[end - 1].end, "atom"), *out[end:]], cut
+    def cut_future(self, out: list[_Out]) -> tuple[list[_Out], list[_Cut]]:
+        """Take each time-bounded operator and its operands out of ``out``: each stands
+        as a proposition ``fut<k>`` until :meth:`pastify_future` rewrites the formula.
+        The rightmost first, so that an operator inside another's operand is seen there."""
+        cuts: list[_Cut] = []
+        for i in reversed(range(len(out))):
+            o = out[i]
+            if o.role == "future":
+                lo, hi = i, _prefix_operand_end(out, i + 1)
+                spans = [out[i + 1 : hi]]
+            elif o.role == "futbin":
+                lo, hi = _operand_end(out, i, -1) + 1, _operand_end(out, i, +1)
+                spans = [out[lo:i], out[i + 1 : hi]]
+            else:
+                continue
+            inner = next((t for span in spans for t in span if t.text.startswith("fut")), None)
+            if inner is not None:
+                self.fail(o.start, o.end - o.start,
+                          f"a time-bounded operator inside the operand of {o.text}",
+                          "split the assertion into several monitors")  # fmt: skip
+            name = f"fut{len(cuts)}"
+            cuts.append(_Cut(name, o, spans))
+            out = [*out[:lo], _Out(name, out[lo].start, out[hi - 1].end, "atom"), *out[hi:]]
+        return out, cuts
 
-    def pastify_future(self, formula: Any, cut: tuple[_Out, list[_Out]]) -> Any:
-        """``always (P -> F[a..b] Q)`` and ``always (P -> G[a..b] Q)`` as past formulas that
-        are false exactly when the obligation is certain to fail (docs/semantics.md,
-        "Time"): ``always (once[b..b] P -> once[0..b-a] Q)`` (Q did not come in time:
-        certain b after P) and ``always (once[a..b] P -> Q)`` (Q failed inside a window
-        opened by P: certain there). Returns the new formula, or None on an error."""
-        op, operand = cut
-        fut = spot.formula.ap("fut")
-        shape = None
-        if formula.kind() == spot.op_G:
-            body = formula[0]
-            if body == fut:
-                shape = spot.formula.tt()
-            elif body.kind() == spot.op_Implies and body[1] == fut:
-                shape = body[0]
-            elif body.kind() == spot.op_Or and fut in list(body):
-                shape = spot.formula.Not(spot.formula.Or([g for g in body if g != fut]))
-        if shape is None or not shape.is_boolean() or "fut" in str(shape):
-            self.fail(
-                op.start,
-                op.end - op.start,
-                f"a time-bounded {op.text} is supported as always (P -> {op.text}[a..b] Q)",
-                "P and Q without future operators; or write the deadline with age",
-            )
-            return None
-        q = self._past_operand(op, operand)
+    def pastify_future(self, formula: Any, cuts: list[_Cut]) -> Any:
+        """The formula with each time-bounded operator's obligations judged by a past
+        formula (edgerv.core.bounded). Each must stand under a top-level ``always``, as
+        ``always (P -> op)``, ``always (op)`` or ``always (!P | op)``, alone or in a
+        conjunction with others. Returns the new formula, or None on an error."""
+        by_name = {c.name: c for c in cuts}
+        f = spot.formula
+        if formula.kind() == spot.op_And:
+            parts = [self.pastify_future(g, cuts) for g in formula]
+            return None if any(g is None for g in parts) else f.And(parts)
+        used = _futures(formula)
+        if not used:
+            return formula
+        if formula.kind() != spot.op_G:
+            return self._bad_shape(by_name[used[0]])
+        pieces = []
+        for part in _conjuncts(formula[0]):
+            names = _futures(part)
+            if not names or part.kind() == spot.op_G:  # always (x & always y): y as well
+                pieces.append(self.pastify_future(part, cuts) if names else part)
+                continue
+            shape = _antecedent(part, names[0])
+            cut = by_name[names[0]]
+            if len(names) > 1 or shape is None or _futures(shape):
+                return self._bad_shape(cut)
+            piece = self._judged(cut, shape)
+            if piece is None:
+                return None
+            pieces.append(piece)
+        return None if any(x is None for x in pieces) else f.G(f.And(pieces))
+
+    def _bad_shape(self, cut: _Cut) -> None:
+        op = cut.op
+        written = f"R {op.text}[a..b] Q" if op.role == "futbin" else f"{op.text}[a..b] Q"
+        operands = "P, R and Q" if op.role == "futbin" else "P and Q"
+        self.fail(op.start, op.end - op.start,
+                  f"a time-bounded {op.text} is supported as always (P -> {written})",
+                  f"{operands} without future operators, one time-bounded operator a "
+                  "conjunct; or write the deadline with age")  # fmt: skip
+
+    def _judged(self, cut: _Cut, shape: Any) -> Any:
+        """The past formula judging ``always (shape -> cut)``'s obligations."""
+        op = cut.op
+        operands = [self._past_operand(op, span) for span in cut.spans]
         p = self._past_operand(op, [_Out(str(shape), op.start, op.end, "atom")])
-        if q is None or p is None or op.window is None:
+        if any(x is None for x in operands) or p is None or op.window is None:
             return None
-        lo, hi = op.window
-        text = self.text[op.start : operand[-1].end]
-        bit = len(self.atoms) + len(self.past)
-        if op.text == "F":
-            self.past.append(PastOp("once", bit, (p,), (hi, hi), f"the antecedent of {text}"))
-            self.past.append(PastOp("once", bit + 1, (q,), (0, hi - lo), text))
-            then = spot.formula.ap(f"p{bit + 1}")
-        else:
-            self.past.append(PastOp("once", bit, (p,), (lo, hi), f"the antecedent of {text}"))
-            then = spot.parse_infix_psl(" ".join(o.text for o in operand)).f
-        return spot.formula.G(spot.formula.Implies(spot.formula.ap(f"p{bit}"), then))
+        end = cut.spans[-1][-1].end if cut.spans[-1] else op.end
+        begin = cut.spans[0][0].start if cut.spans[0] else op.start
+        text = self.text[min(begin, op.start) : end]
+        *r, q = [spot.parse_infix_psl(" ".join(o.text for o in span)).f for span in cut.spans]
+        kind = cast(BoundedKind, op.text)
+        ob = Obligation(kind, op.window, shape, q, r[0] if r else None, text)
+        piece, ops = as_past(ob, len(self.atoms) + len(self.past))
+        self.past.extend(ops)
+        return piece
 
     def _add_atom(self, atom: Atom) -> int:
         key = atom.key()
@@ -726,6 +767,17 @@ class _Parser:
                 op = "F" if w == "F" or w.startswith("next_e") else "G"
                 out.append(_Out(op, s, end, "future", window))
             return used
+        timed = bracket is not None and _TIMED_BOUND.search(bracket)
+        if bracket is not None and not timed and w in _TIMED_UNTIL and w not in self.spec.signals:
+            self.fail(e, len(bracket), f"'{w}' takes a time bound, not steps",
+                      f"give the bounds units, e.g. a {w}[0..500ms] b")  # fmt: skip
+            return 2
+        if timed and w in _TIMED_UNTIL and w not in self.spec.signals:
+            assert bracket is not None
+            window = self._past_window(bracket, e)
+            op = _TIMED_UNTIL[w]
+            out.append(_Out(op, s, e + len(bracket), "futbin", window))
+            return 2
         if w == "age" and nxt is not None and nxt.text == "(":
             self.fail(
                 s,
@@ -799,6 +851,33 @@ class _Parser:
         return used
 
 
+def _futures(formula: Any) -> list[str]:
+    """The time-bounded operators' propositions (``fut<k>``) in ``formula``."""
+    names = (ap.ap_name() for ap in spot.atomic_prop_collect(formula))
+    return sorted(n for n in names if n.startswith("fut"))
+
+
+def _conjuncts(body: Any) -> list[Any]:
+    """``body`` as a conjunction's parts, ``P -> (A & B)`` as ``P -> A`` and ``P -> B``."""
+    if body.kind() == spot.op_And:
+        return [part for g in body for part in _conjuncts(g)]
+    if body.kind() == spot.op_Implies and body[1].kind() == spot.op_And:
+        return [part for g in body[1] for part in _conjuncts(spot.formula.Implies(body[0], g))]
+    return [body]
+
+
+def _antecedent(part: Any, name: str) -> Any:
+    """P when ``part`` is ``P -> fut``, ``fut`` (P true) or ``!P | fut``; else None."""
+    fut = spot.formula.ap(name)
+    if part == fut:
+        return spot.formula.tt()
+    if part.kind() == spot.op_Implies and part[1] == fut:
+        return part[0]
+    if part.kind() == spot.op_Or and fut in list(part):
+        return spot.formula.Not(spot.formula.Or([g for g in part if g != fut]))
+    return None
+
+
 def _kind_name(kind: str) -> str:
     names = {"number": "a number", "bool": "a boolean", "string": "a string"}
     return names.get(kind, f"a {kind}")  # a duration
@@ -860,7 +939,9 @@ def _operand_end(out: list[_Out], i: int, step: int) -> int:
             if depth == 0:
                 break
             depth -= 1
-        elif depth == 0 and (role in ("bbin", "pbin") or (step < 0 and role in ("tbin", "loose"))):
+        elif depth == 0 and (
+            role in ("bbin", "pbin") or (step < 0 and role in ("tbin", "futbin", "loose"))
+        ):
             break
         j += step
     return j
@@ -950,7 +1031,7 @@ def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
     out = p.derive_past(out)
     if p.diagnostics:
         raise InputError(p.diagnostics)
-    out, future = p.cut_future(_wrap_loose(_rewrite_psl_binary(out)))
+    out, cuts = p.cut_future(_wrap_loose(_rewrite_psl_binary(out)))
     if p.diagnostics:
         raise InputError(p.diagnostics)
     pieces, offsets, pos = [], [], 0
@@ -967,8 +1048,8 @@ def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
     if p.diagnostics:
         raise InputError(p.diagnostics)
     formula = spot.parse_infix_psl(text).f
-    if future is not None:
-        formula = p.pastify_future(formula, future)
+    if cuts:
+        formula = p.pastify_future(formula, cuts)
         if p.diagnostics:
             raise InputError(p.diagnostics)
         text = str(formula)
