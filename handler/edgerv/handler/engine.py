@@ -42,9 +42,11 @@ log = logging.getLogger("edgerv.handler")
 HIGH_WATER = 0.5
 LOW_WATER = 0.25
 PRESSURE_SECONDS = 1.0
-# The scheduler evaluates every SCHEDULE_SECONDS (verdicts wait at most that long), and is
-# woken earlier only when a monitor has WAKE_LETTERS letters waiting: waking it for every
-# message would cost more than evaluating.
+# The scheduler evaluates every SCHEDULE_SECONDS while letters wait (verdicts wait at most
+# that long), and is woken earlier only when a monitor has WAKE_LETTERS letters waiting:
+# waking it for every message would cost more than evaluating. With none waiting it sleeps
+# until its next tick (an idle handler does not wake 500 times a second), and the first
+# letters to come wake it.
 SCHEDULE_SECONDS = 0.002
 WAKE_LETTERS = 512
 HANDOFF_EXPIRES = 120.0  # seconds a handoff may wait for its next step before it is undone
@@ -165,6 +167,7 @@ class Engine:
         self.drained_at: int | None = None
         self.lock = threading.RLock()
         self.ready = threading.Condition(self.lock)
+        self.dozing = False  # the scheduler sleeps until its tick: the next letters wake it
         self.slots: dict[str, MonitorSlot] = {}
         self.router = Router()
         self.routes_version = 0  # bumped whenever topics or their fields change
@@ -301,7 +304,8 @@ class Engine:
                     slots[runtime.name].pending_since = now if runtime.events else None
                     self.waiting[runtime.name] = runtime
                     woke = woke or len(runtime.letters) >= WAKE_LETTERS
-            if woke:
+            if woke or (self.dozing and self.waiting):
+                self.dozing = False
                 self.ready.notify()
         return True
 
@@ -405,7 +409,10 @@ class Engine:
         next_tick = time.monotonic()
         while not stop.is_set():
             with self.lock:
-                self.ready.wait(timeout=SCHEDULE_SECONDS)
+                self.dozing = not self.waiting and not self.in_handoff
+                doze = max(0.0, next_tick - time.monotonic())
+                self.ready.wait(timeout=doze if self.dozing else SCHEDULE_SECONDS)
+                self.dozing = False
                 verdicts = self._evaluate()
                 if self.in_handoff:
                     self._precompress()
@@ -667,6 +674,7 @@ class Engine:
                 rt.holding = False
                 if len(rt.events) >= rt.threshold and rt.flush():
                     self.waiting[name] = rt
+                    self.ready.notify()
                 self._set_handoff(slot, None)
                 return "resumed"
             if slot.handoff == "released":
