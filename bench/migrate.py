@@ -15,6 +15,12 @@ the time from the request to the monitors active on the cloud
 the snapshot bytes on the wire per buffered event, against 1 bit + a constant.
 The monitors differ (each its own cruise speed), so their letters do too.
 The round trip is measured on the link in the same run (TCP connect times).
+
+Two more rows move 10 monitors whose topics are silent (issue #13): "silent topics",
+each monitor also reading /estop (a publisher that never publishes) and /lift (no
+publisher at all) while /speed and /running stay busy; and "a parked robot", the same
+monitors once the publisher has stopped (it published 4,000 messages, then nothing:
+every topic silent, the events still buffered move with the state).
 """
 
 from __future__ import annotations
@@ -43,13 +49,14 @@ PUBLISHER = r"""
 import sys, time, rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Bool, Float64
-rate = float(sys.argv[1])
+rate, count = float(sys.argv[1]), int(sys.argv[2])  # count 0: for ever
 rclpy.init(); node = rclpy.create_node("bench_publisher")
 qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 speed = node.create_publisher(Float64, "/speed", qos)
 running = node.create_publisher(Bool, "/running", qos)
+estop = node.create_publisher(Bool, "/estop", qos)  # matched, never publishes
 period, i, t = 1.0 / rate, 0, time.monotonic()
-while True:
+while count == 0 or i < count:  # then silent: matched, publishing nothing
     if i % 2:
         m = Bool(); m.data = (i // 50) % 7 != 0; running.publish(m)
     else:
@@ -58,37 +65,59 @@ while True:
     i += 1
     t += period
     time.sleep(max(0.0, t - time.monotonic()))
+time.sleep(3600)
 """
 
 DRIVER = r"""
 import json, sys, time
 from edgerv.handler.migrate import Handler, migrate
 src, dst, token, names = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4].split(",")
-buffered = int(sys.argv[5])
+buffered, parked = int(sys.argv[5]), sys.argv[6] == "parked"
 edge, cloud = Handler(src, token), Handler(dst, token)
 deadline = time.monotonic() + 120
-while edge.get("/v1/monitors/" + names[-1])["buffer"]["events"] < buffered:
+def events():
+    return edge.get("/v1/monitors/" + names[-1])["buffer"]["events"]
+while events() < buffered:
     if time.monotonic() > deadline:
-        sys.exit("the monitors did not buffer enough events")
+        sys.exit(f"the monitors buffered {events()} events, not {buffered}, in 120 s")
     time.sleep(0.02)
+if parked:  # the robot has stopped: no event for half a second
+    last, since = events(), time.monotonic()
+    while time.monotonic() - since < 0.5:
+        time.sleep(0.05)
+        if events() != last:
+            last, since = events(), time.monotonic()
+held = events()
 moved = migrate(edge, cloud, names, 60.0, 1.0)
-print(json.dumps({"seconds": moved.seconds, "bytes": moved.snapshot_bytes,
+print(json.dumps({"seconds": moved.seconds, "bytes": moved.snapshot_bytes, "held": held,
                   "letters": moved.letters, "header": moved.header_bytes, "steps": moved.steps}))
 """
 
 
-def monitors_yaml(n: int) -> str:
+def monitors_yaml(n: int, kind: str) -> str:
+    condition, signals = (
+        "running & speed > cruise",
+        [
+            "running: {topic: /running, type: std_msgs/msg/Bool}",
+            "speed: {topic: /speed, type: std_msgs/msg/Float64}",
+        ],
+    )
+    if kind != "busy":  # silent, parked: an e-stop and a lift nobody presses
+        condition += " & !estop & !lift"
+        signals += [
+            "estop: {topic: /estop, type: std_msgs/msg/Bool, initial: false}",
+            "lift: {topic: /lift, type: std_msgs/msg/Bool, initial: false}",
+        ]
     docs = []
     for i in range(n):
         docs.append(
             "apiVersion: edgerv.io/v1alpha1\nkind: Monitor\n"
             f"metadata: {{name: m{i:03d}}}\n"
             "spec:\n"
-            '  assertion: "always ((running & speed > cruise) -> speed < limit)"\n'
+            f'  assertion: "always (({condition}) -> speed < limit)"\n'
             "  signals:\n"
-            "    running: {topic: /running, type: std_msgs/msg/Bool}\n"
-            "    speed: {topic: /speed, type: std_msgs/msg/Float64}\n"
-            f"  parameters: {{cruise: {60 + (i * 7) % 40}, limit: {100 + i % 5}}}\n"
+            + "".join(f"    {line}\n" for line in signals)
+            + f"  parameters: {{cruise: {60 + (i * 7) % 40}, limit: {100 + i % 5}}}\n"
             "  sortThreshold: 4000\n"
             "  bufferCapacity: 8192\n"
         )
@@ -131,32 +160,42 @@ def wait_ready(tmp: Path, host: str, timeout: float = 120) -> None:
     raise TimeoutError(f"{host} handler not ready:\n{text}")
 
 
-def one(n: int) -> dict[str, Any]:
+def one(n: int, kind: str) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as d, Lab(DELAY_MS, domain=91) as lab:
         tmp = Path(d)
         monitors = tmp / "monitors.yaml"
-        monitors.write_text(monitors_yaml(n))
+        monitors.write_text(monitors_yaml(n, kind))
         handler(lab, "edge", monitors, tmp, 8080)
         handler(lab, "cloud", monitors, tmp, 8080, "--active", "none")
         wait_ready(tmp, "edge")
         wait_ready(tmp, "cloud")
         rtt = lab.round_trip_ms("cloud", samples=5)
-        lab.popen("edge", [sys.executable, "-c", PUBLISHER, str(RATE)], stderr=subprocess.DEVNULL)
+        count = "4000" if kind == "parked" else "0"  # 4 s, then silent
+        lab.popen(
+            "edge", [sys.executable, "-c", PUBLISHER, str(RATE), count], stderr=subprocess.DEVNULL
+        )
         names = ",".join(f"m{i:03d}" for i in range(n))
         done = lab.run(
             "cloud",
             [sys.executable, "-c", DRIVER, f"{lab.addr['edge']}:8080",
-             f"{lab.addr['cloud']}:8080", TOKEN, names, str(BUFFERED)],
+             f"{lab.addr['cloud']}:8080", TOKEN, names, str(BUFFERED), kind],
             timeout=300,
         )  # fmt: skip
         if done.returncode != 0:
             raise RuntimeError(f"migration failed: {done.stderr}")
         result = json.loads(done.stdout)
-        print(f"  {n}: {result}", file=sys.stderr, flush=True)
+        print(f"  {n} {kind}: {result}", file=sys.stderr, flush=True)
         after = api(lab, "cloud", 8080, "/v1/monitors")
         active = sum(1 for m in after["monitors"] if m["active"])
         result.update(n=n, rtt_ms=min(rtt), active=active)
         return result
+
+
+KINDS = {
+    "busy": "",
+    "silent": ", two silent topics (/estop: a publisher that never publishes; /lift: none)",
+    "parked": ", a parked robot (every topic silent, the publisher stopped)",
+}
 
 
 def main() -> list[dict[str, str]]:
@@ -172,25 +211,33 @@ def main() -> list[dict[str, str]]:
             }
         ]
     rows = []
-    for n in COUNTS:
-        trials = sorted((one(n) for _ in range(TRIALS)), key=lambda t: float(t["seconds"]))
+    cases = [(n, "busy") for n in COUNTS] + [(10, "silent"), (10, "parked")]
+    for n, kind in cases:
+        trials = sorted((one(n, kind) for _ in range(TRIALS)), key=lambda t: float(t["seconds"]))
         r = trials[len(trials) // 2]  # the median run, reported whole
         low, high = (trials[i]["seconds"] * 1000 for i in (0, -1))
         target_ms = 3 * r["rtt_ms"] + 100
         ms = r["seconds"] * 1000
         st = {k: v * 1000 for k, v in r["steps"].items()}
         bits = 8 * r["bytes"] / max(1, r["letters"])
+        wire = (
+            f"wire {r['bytes']:,} bytes = {bits:.3f} bits/event, headers included "
+            f"(one deflated bundle; before deflating, {r['header'] // n} bytes of header a "
+            "monitor)"
+            if r["letters"]
+            else f"no event after the cut: the sender evaluated the {r['held']:,} it held "
+            f"(a monitor) before releasing; wire {r['bytes']:,} bytes, the states only"
+        )
         rows.append(
             {
-                "name": f"migration of {n} monitor{'s' if n > 1 else ''} over a 20 ms link",
+                "name": f"migration of {n} monitor{'s' if n > 1 else ''} over a 20 ms link"
+                + KINDS[kind],
                 "detail": (
-                    f"{r['letters']:,} buffered events ({r['letters'] // n:,} a monitor, "
+                    f"{r['letters']:,} buffered events moved ({r['letters'] // n:,} a monitor, "
                     f"in the sort window); {r['active']} of {n} active on the cloud after; "
                     f"link RTT {r['rtt_ms']:.1f} ms; steps done at: hold {st['hold']:.0f}, "
                     f"cut {st['cut']:.0f}, release {st['release']:.0f}, adopt {st['adopt']:.0f} "
-                    f"ms; wire {r['bytes']:,} bytes = {bits:.3f} bits/event, headers included "
-                    f"(one deflated bundle; before deflating, {r['header'] // n} bytes of "
-                    "header a monitor)"
+                    f"ms; {wire}"
                 ),
                 "baseline": f"target 3 RTT + 100 ms = {target_ms:.0f} ms",
                 "measured": (
