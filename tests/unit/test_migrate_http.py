@@ -121,7 +121,7 @@ def test_an_adoption_whose_answer_is_lost_leaves_one_copy_and_settles(pair: Pair
     def partition() -> None:
         pair.gate.mode = "mute"  # the adoption reaches the cloud; its answer does not come
 
-    with pytest.raises(Unsettled, match="did not say whether it adopted them"):
+    with pytest.raises(Unsettled, match="did not say whether it adopted m"):
         migrate(pair.source(), pair.destination(), ["m"], 1.0, 0.5, after_release=partition)
     assert pair.active() == ["cloud"]  # it adopted; the edge did not resume: one copy
     assert pair.edge.slots["m"].handoff == "released"
@@ -251,3 +251,81 @@ def test_a_request_nested_too_deep_gets_a_400_and_the_api_lives_on(
     )
     with urllib.request.urlopen(listing, timeout=10) as ok:
         assert ok.status == 200  # still there
+
+
+def cli(argv: list[str]) -> int:
+    """`edgerv migrate ARGV` in this process (its exit code; stderr to capsys)."""
+    import argparse
+
+    from edgerv.handler import migrate as command
+
+    parser = argparse.ArgumentParser()
+    command.add_arguments(parser)
+    return command.run(parser.parse_args(argv))
+
+
+def test_a_monitor_already_on_the_target_is_not_moved_and_that_is_no_failure(
+    pair: Pair, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Asked again after it moved: the sender's hold and the receiver's receive are both
+    refused. It used to say "m stays on EDGE: ... already runs here" (exit 1): m ran on
+    the cloud, not on the edge."""
+    monkeypatch.setenv("EDGERV_TOKEN", TOKEN)
+    edge, cloud = pair.source().base, pair.destination().base
+    argv = ["--from", edge, "--to", cloud, "--monitor", "m", "--timeout", "2"]
+    assert cli(argv) == 0 and pair.active() == ["cloud"]
+    assert "m runs on" in capsys.readouterr().err
+    assert cli(argv) == 0 and pair.active() == ["cloud"]
+    said = capsys.readouterr().err
+    assert said == f"edgerv migrate: m ran on {cloud} already (nothing to move)\n"
+
+
+def test_exit_3_says_the_move_is_unsettled_who_did_not_answer_and_what_to_run(
+    pair: Pair, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The edge takes the hold, then hears nothing more (the abort is lost): it holds m,
+    evaluated nowhere. Exit 3 (never "stays on the edge"), naming the edge and the
+    command to run; that command, run again once the edge answers, finishes the job."""
+    monkeypatch.setenv("EDGERV_TOKEN", TOKEN)
+    gate = Gate(pair.apis[0].port)  # in front of the edge
+    try:
+        edge, cloud = f"http://127.0.0.1:{gate.port}", pair.destination().base
+        argv = ["--from", edge, "--to", cloud, "--monitor", "m", "--timeout", "0.3"]
+        gate.mode = "mute"
+
+        def cut_once_held() -> None:  # then nothing reaches the edge: the abort is lost
+            while pair.edge.slots["m"].handoff != "sending":
+                time.sleep(0.001)
+            gate.mode = "black"
+
+        watcher = threading.Thread(target=cut_once_held, daemon=True)
+        watcher.start()
+        assert cli(argv) == 3
+        watcher.join()
+        err = capsys.readouterr().err
+        assert err.startswith("edgerv migrate: m: unsettled: the move failed")
+        assert f"{edge} did not confirm it resumed m" in err
+        again = f"edgerv migrate --from {edge} --to {cloud} --monitor m"
+        assert err.endswith(f"run `{again}` again once {edge} answer(s): "
+                            "it finishes the move or undoes it\n")  # fmt: skip
+        assert pair.edge.slots["m"].handoff == "sending" and not pair.cloud.slots["m"].active
+        gate.mode = "pass"
+        assert cli(argv) == 0
+        assert pair.active() == ["cloud"] and pair.edge.slots["m"].handoff is None
+    finally:
+        gate.close()
+
+
+def test_a_wrong_token_changes_nothing_and_says_so(
+    pair: Pair, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every call is refused (401), the abort and the listings too: nothing of the move
+    took effect, which is what it says (exit 1), not that m stays or is unsettled."""
+    monkeypatch.setenv("EDGERV_TOKEN", "wrong")
+    edge, cloud = pair.source().base, pair.destination().base
+    assert cli(["--from", edge, "--to", cloud, "--monitor", "m", "--timeout", "1"]) == 1
+    said = capsys.readouterr().err
+    assert said.startswith(
+        f"edgerv migrate: not moved: m: nothing of this move took effect on {edge}"
+    )
+    assert "(HTTP 401)" in said and pair.active() == ["edge"] and pair.edge.slots["m"].epoch == 0

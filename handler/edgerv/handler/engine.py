@@ -137,6 +137,22 @@ class MonitorSlot:
         }
 
 
+def _whereabouts(slot: MonitorSlot) -> str:
+    """What a monitor is doing here, for a refused ``hold`` or ``receive``: "already runs
+    here" only when it does; a monitor held for a handoff is evaluated nowhere here."""
+    epoch, peer = slot.epoch, slot.peer or "another handler"
+    if slot.handoff == "sending":
+        return f"is held here for a handoff to {peer} (epoch {epoch}), not evaluated"
+    if slot.handoff == "released":
+        return (
+            f"is held here, released to {peer} in a handoff not yet settled (epoch {epoch}), "
+            "not evaluated here: that handoff's edgerv migrate, run again, settles it"
+        )
+    if slot.handoff == "receiving":
+        return f"is being received here in another handoff (epoch {epoch}), not yet adopted"
+    return "already runs here" if slot.runtime is not None else "does not run here"
+
+
 class Engine:
     """All monitors of one handler. Thread-safe."""
 
@@ -452,7 +468,7 @@ class Engine:
             if epoch <= slot.epoch:
                 raise HandoffError(f"epoch {epoch} is not newer than {slot.epoch}")
             if slot.runtime is None or slot.handoff is not None:
-                raise HandoffError(f"monitor '{name}' is not running here")
+                raise HandoffError(f"monitor '{name}' {_whereabouts(slot)}")
             slot.epoch = epoch
             self._set_handoff(slot, "sending")
             slot.cut_known, slot.held_at, slot.peer = None, now, peer
@@ -471,7 +487,7 @@ class Engine:
             if epoch <= slot.epoch:
                 raise HandoffError(f"epoch {epoch} is not newer than {slot.epoch}")
             if slot.runtime is not None:
-                raise HandoffError(f"monitor '{name}' already runs here")
+                raise HandoffError(f"monitor '{name}' {_whereabouts(slot)}")
             slot.epoch, slot.first_stamps, slot.vouched = epoch, {}, {}
             self._set_handoff(slot, "receiving")
             self._activate(slot)
