@@ -168,3 +168,55 @@ def test_the_deadline_flags_set_the_policy_and_default_to_it() -> None:
         config_from(orchestrate_args("--deadline-low", "1.2"), targets)
     with pytest.raises(InputError, match="--deadline-shed: error: need 0 < deadline_shed"):
         config_from(orchestrate_args("--deadline-shed", "2"), targets)
+
+
+def test_an_unsettled_move_is_not_done_and_is_settled_before_the_monitor_moves_again(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """`edgerv migrate` ended unsettled (a handler did not answer: the edge may hold m
+    released): the record says so, not ok; each later round settles m on the edge first,
+    and the policy's moves of m wait until that succeeded."""
+    import edgerv.handler.orchestrate as orchestrate
+    from edgerv.core.placement import Move
+    from edgerv.handler.migrate import Moved, Unsettled
+
+    edge, cloud = Target("edge", "e:1"), Target("cloud", "c:1")
+    o = Orchestrator([edge, cloud], PolicyConfig(tiers=("edge", "cloud")), token=None)
+    cloud_load = load(1.0, 0.0, 0, active=False)
+    cloud_load["handler"] = "cloud-1"
+    edge_load = load(1.0, 0.0, 0)
+    edge_load["handler"] = "edge-1"
+    o.clients = {edge: Reports(edge_load), cloud: Reports(cloud_load)}  # type: ignore[dict-item]
+    monkeypatch.setattr(
+        orchestrate, "plan", lambda *_: [Move("m", "edge-1", "cloud-1", "pressure")]
+    )
+    moves: list[list[str]] = []
+    settles: list[object] = [Unsettled("http://c did not answer", ["m"], ["http://c"]), {}]
+
+    def migrate(src: object, dst: object, names: list[str], *_: object) -> Moved:
+        moves.append(names)
+        if len(moves) == 1:
+            raise Unsettled("http://c did not say whether it adopted m", ["m"], ["http://c"])
+        return Moved(0.1, 10, 5, 8, {})
+
+    asked: list[tuple[object, list[str]]] = []
+
+    def settle(client: object, names: list[str], deadline: float) -> object:
+        asked.append((client, names))
+        outcome = settles.pop(0)
+        if isinstance(outcome, Exception):
+            raise outcome
+        return outcome
+
+    monkeypatch.setattr(orchestrate, "migrate", migrate)
+    monkeypatch.setattr(orchestrate, "settle", settle)
+    (first,) = o.round()
+    assert (first["ok"], first["unsettled"]) == (False, ["m"]) and o.unsettled == {
+        "m": (edge, cloud)
+    }
+    (tried,) = o.round()  # the settle fails again: no move of m meanwhile
+    assert (tried["settle"], tried["ok"]) == (True, False) and asked == [(o.clients[edge], ["m"])]
+    assert moves == [["m"]] and "m" in o.unsettled
+    settled, moved = o.round()  # settled (the edge held nothing more): then it may move
+    assert (settled["settle"], settled["ok"], settled["monitors"]) == (True, True, ["m"])
+    assert (moved["ok"], moves, o.unsettled) == (True, [["m"], ["m"]], {})

@@ -7,7 +7,11 @@ a monitor that runs nowhere, the other moves run the handoff of
 :mod:`edgerv.handler.migrate`. Each action is printed as one JSON line on stdout.
 A handler that does not answer is left out of that round (its monitors are not
 moved: it may only be slow), and no monitor is started that round (it may run
-on the silent one). Authenticates with ``EDGERV_TOKEN`` like the handlers.
+on the silent one). A move that ends unsettled (``edgerv migrate``'s exit 3: a
+handler did not answer, so where its monitors run is not confirmed) is recorded
+with ``"ok": false`` and ``unsettled``; its monitors are settled at the start of
+each later round (a record with ``"settle": true``) and not moved again until
+that succeeds. Authenticates with ``EDGERV_TOKEN`` like the handlers.
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ from edgerv.core.placement import (
     placement_from_json,
     plan,
 )
-from edgerv.handler.migrate import Handler, MigrationFailed, migrate, settle
+from edgerv.handler.migrate import Handler, MigrationFailed, NotMoved, Unsettled, migrate, settle
 
 log = logging.getLogger("edgerv.orchestrate")
 
@@ -175,6 +179,9 @@ class Orchestrator:
         self.memory = PolicyMemory()
         self.timeout, self.grace = timeout, grace
         self.warned: set[str] = set()
+        # monitor -> (source, destination) of a move of ours that ended unsettled: it is
+        # settled at the start of each round, and not moved again until it is
+        self.unsettled: dict[str, tuple[Target, Target]] = {}
 
     def set_targets(self, targets: Sequence[Target]) -> None:
         """The handlers to poll from now on (the operator's change as pods come and go)."""
@@ -212,6 +219,7 @@ class Orchestrator:
             # elsewhere could make two active copies. Only moves between those that answered.
             # (And none when starting is someone else's job: the operator's.)
             moves = [m for m in moves if m.source]
+        moves = [m for m in moves if m.monitor not in self.unsettled]  # settled first
         for start in (m for m in moves if not m.source):
             client = self.clients[where[start.destination]]
             started = time.monotonic()
@@ -247,29 +255,67 @@ class Orchestrator:
             try:
                 moved = migrate(src, dst, names, self.timeout, self.grace)
                 record.update(ok=True, bytes=moved.snapshot_bytes, events=moved.letters)
-            except MigrationFailed as exc:
-                record["ok"], record["error"] = False, str(exc)
+                record.update({"already": moved.already} if moved.already else {})
+                record.update({"note": moved.note} if moved.note else {})
+            except Unsettled as exc:  # not done: settled before it moves again
+                unsettled = exc.names or names
+                record.update(ok=False, error=str(exc), unsettled=unsettled)
+                pair = (where[source], where[destination])
+                self.unsettled.update(dict.fromkeys(unsettled, pair))
+            except NotMoved as exc:
+                record.update(ok=False, error=str(exc), where=exc.where)
+            except MigrationFailed as exc:  # (not expected: migrate says where they run)
+                record.update(ok=False, error=str(exc), unsettled=names)
+                self.unsettled.update(dict.fromkeys(names, (where[source], where[destination])))
             record["ms"] = round((time.monotonic() - started) * 1000, 1)
             done.append(record)
         return done
 
+    def _client(self, target: Target) -> Handler:
+        return self.clients.get(target) or Handler(target.address, self.token)
+
     def _settle(self, loads: Mapping[Target, Mapping[str, Any]]) -> list[dict[str, Any]]:
-        """Monitors a handler still holds released for an interrupted handoff (a driver
-        that died, a receiver that did not answer): ask their receiver, commit or resume.
+        """First the moves of ours that ended unsettled: their sources settle what they
+        still hold of them (:func:`settle`: ask the receiver, commit or resume; resume
+        what sent nothing yet), retried each round until it is done. Then monitors any
+        handler holds released for another interrupted handoff (a driver that died).
         Until then they stay in the handoff, and the policy leaves them alone."""
         done = []
-        for target, load in loads.items():
-            names = [m for m, d in load["monitors"].items() if d.get("handoff") == "released"]
-            if not names:
-                continue
-            client = self.clients[target]
-            record: dict[str, Any] = {"monitors": names, "from": client.base, "settle": True}
-            try:
-                record.update(ok=True, moved=settle(client, names, time.monotonic() + self.timeout))
-            except MigrationFailed as exc:
-                record["ok"], record["error"] = False, str(exc)
+        pending: dict[tuple[Target, Target], list[str]] = {}
+        for name, pair in self.unsettled.items():
+            pending.setdefault(pair, []).append(name)
+        for (source, destination), names in pending.items():
+            client = self._client(source)
+            record = self._settled(client, names, {"to": self._client(destination).base})
+            if record["ok"]:
+                for name in names:
+                    del self.unsettled[name]
             done.append(record)
+        tried = {name for names in pending.values() for name in names}
+        for target, load in loads.items():
+            names = [
+                m
+                for m, d in load["monitors"].items()
+                if d.get("handoff") == "released" and m not in tried
+            ]
+            if names:
+                done.append(self._settled(self._client(target), names, {}))
         return done
+
+    def _settled(self, client: Handler, names: list[str], extra: dict[str, Any]) -> dict[str, Any]:
+        """Settle ``names`` on ``client``; the record of it."""
+        record: dict[str, Any] = {
+            "at": round(time.time(), 3),
+            "monitors": names,
+            "from": client.base,
+            **extra,
+            "settle": True,
+        }
+        try:
+            record.update(ok=True, moved=settle(client, names, time.monotonic() + self.timeout))
+        except MigrationFailed as exc:
+            record["ok"], record["error"] = False, str(exc)
+        return record
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
