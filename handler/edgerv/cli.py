@@ -15,6 +15,7 @@ from edgerv.core.checker import CheckRun, MonitorResult, check_types
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import load_monitors
 from edgerv.core.monitor import CompiledMonitor, compile_monitors
+from edgerv.core.spot_worker import add_budget_argument, worker
 from edgerv.core.traces import Trace
 from edgerv.report import print_table, to_json
 
@@ -47,6 +48,7 @@ def _emit(results: list[MonitorResult], as_json: bool) -> None:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
+    worker.budget = args.synthesis_budget
     try:
         monitors = load_compiled(args.monitors)
         run = CheckRun(monitors)
@@ -103,6 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     check.add_argument("--json", action="store_true", help="print the verdicts as JSON")
     check.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_budget_argument(check)
     check.set_defaults(func=cmd_check)
 
     from edgerv.handler.main import add_arguments, run

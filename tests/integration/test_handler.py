@@ -7,7 +7,10 @@ import random
 import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from rosprocs import (
@@ -224,6 +227,43 @@ def test_monitors_added_and_removed_at_run_time(tmp_path: Path, domain: int) -> 
         assert status == 404
     finally:
         assert handler.stop() == 0
+
+
+def test_a_monitor_spot_cannot_build_in_time_is_refused_and_the_others_run_meanwhile(
+    tmp_path: Path, domain: int
+) -> None:
+    """Spot holds the GIL while it builds an automaton; ``X[30]`` needs 2^30 states. The
+    handler builds in a child process: it takes messages and reports verdicts meanwhile,
+    and refuses the monitor with the reason once --synthesis-budget has passed."""
+    handler = Handler(tmp_path, write(tmp_path, "m.yaml", SPEED), domain, "--synthesis-budget", "8")
+    slow = SPEED.replace("speed-cap", "slow").replace(
+        "always (speed < 100)", "always (speed > 100 -> X[30] speed < 100)"
+    )
+    answer: list[tuple[int, Any]] = []
+    put = threading.Thread(
+        target=lambda: answer.append(handler.request("PUT", "/v1/monitors/slow", slow))
+    )
+    try:
+        started = time.monotonic()
+        put.start()
+        pub = publisher(domain, "/speed", "std_msgs/msg/Float64", [{"data": 50.0}, {"data": 150.0}])
+        assert pub.wait(timeout=60) == 0
+        assert wait_for(lambda: handler.verdicts(), timeout=30), handler.stderr
+        assert put.is_alive(), "the verdict came after the monitor was refused: not meanwhile"
+        put.join(timeout=60)
+        assert 8.0 <= time.monotonic() - started < 30.0
+        ((status, body),) = answer
+        assert status == 400, body
+        error = body["errors"][0]
+        assert "took more than 8 s" in error["message"], error
+        assert error["location"].startswith("request:5"), error
+        _, listing = handler.request("GET", "/v1/monitors")
+        assert [m["name"] for m in listing["monitors"]] == ["speed-cap"]
+        assert [(v["monitor"], v["verdict"], v["step"]) for v in handler.verdicts()] == [
+            ("speed-cap", "violated", 2)
+        ]
+    finally:
+        assert handler.stop() == 0, handler.stderr
 
 
 @pytest.mark.parametrize("token", [None, "wrong"])

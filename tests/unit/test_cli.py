@@ -293,3 +293,18 @@ def test_a_monitor_file_nested_too_deep_is_an_input_error_not_a_crash(tmp_path: 
     assert proc.returncode == 2, proc.stderr
     assert "error: nested more than 64 levels deep" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_an_assertion_spot_cannot_build_in_time_exits_2_with_a_hint(tmp_path: Path) -> None:
+    """``X[30]`` needs 2^30 states: Spot would run for ever (holding the GIL); the check
+    gives up after --synthesis-budget and says why, at the assertion."""
+    slow = tmp_path / "slow.yaml"
+    slow.write_text(MONITORS.replace("speed < limit", "speed > limit -> X[30] speed < limit"))
+    proc = edgerv(
+        "check", slow, write_jsonl(tmp_path / "run.jsonl", RUN), "--synthesis-budget", "0.5"
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert f"{slow}:5:" in proc.stderr
+    assert "error: building this monitor's automaton took more than 0.5 s" in proc.stderr
+    assert "hint: write the bound as a duration" in proc.stderr
+    assert "Traceback" not in proc.stderr and proc.stdout == ""

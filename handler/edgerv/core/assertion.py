@@ -48,6 +48,7 @@ from edgerv.core.diagnostics import Diagnostic, InputError, did_you_mean
 from edgerv.core.documents import MonitorSpec, Value
 from edgerv.core.msgtypes import ValueKind
 from edgerv.core.past import PastError, PastKind, PastOp, compile_boolean
+from edgerv.core.spot_worker import BudgetExceeded, worker
 
 CmpOp = Literal["<", "<=", ">", ">=", "==", "!="]
 
@@ -1072,7 +1073,10 @@ def _vacuity(formula_text: str, constraint_text: str) -> str | None:
 
 def _vacuity_warnings(spec: MonitorSpec, formula: Any, constraint: Any) -> list[Diagnostic]:
     loc = spec.locate_assertion(0, len(spec.assertion.rstrip()))
-    kind = _vacuity(str(formula), str(constraint))
+    try:
+        kind = worker.call(_vacuity, str(formula), str(constraint))
+    except BudgetExceeded as exc:
+        raise InputError([Diagnostic(loc, str(exc), hint=exc.hint)]) from None
     if kind == "unsatisfiable":
         return [
             Diagnostic(

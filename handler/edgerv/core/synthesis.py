@@ -26,6 +26,8 @@ from typing import Any
 import spot
 from spot import buddy
 
+from edgerv.core.spot_worker import BudgetExceeded, worker
+
 MAX_PLACEHOLDERS = 16
 MAX_TABLE_ENTRIES = 1 << 22
 
@@ -184,4 +186,7 @@ def synthesize(formula: Any, constraint: Any, bits: int) -> MonitorTable:
         raise SynthesisError(
             f"the assertion has {bits} distinct atoms; at most {MAX_PLACEHOLDERS} are supported"
         )
-    return _synthesize_cached(str(formula), str(constraint), bits)
+    try:
+        return worker.call(_synthesize_cached, str(formula), str(constraint), bits)
+    except BudgetExceeded as exc:
+        raise SynthesisError(f"{exc}; {exc.hint}") from None

@@ -21,6 +21,7 @@ from pathlib import Path
 from edgerv.core.deadline import MakespanWindow, parse_deadline
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
 from edgerv.core.documents import read_monitors
+from edgerv.core.spot_worker import add_budget_argument, worker
 from edgerv.handler.engine import Engine, VerdictSink
 from edgerv.handler.sinks import VerdictLog
 
@@ -116,6 +117,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(header.stamp) with the capture of its input; measure its makespan (publication "
         "minus stamp) against DURATION (e.g. /cmd_vel=125ms) and report it in /v1/load",
     )
+    add_budget_argument(p)
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
 
 
@@ -125,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
         stream=sys.stderr,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    worker.budget = args.synthesis_budget
     try:
         token = read_token(args)
         deadline = parse_deadline(args.deadline) if args.deadline is not None else None
