@@ -10,6 +10,7 @@ import pytest
 from edgerv.core.handoff import HandoffError
 from edgerv.core.pipeline import Verdict
 from edgerv.handler.engine import Engine
+from edgerv.handler.handoff_state import HandoffState, HandoffStateError, check_transition
 from helpers import compiled
 
 
@@ -308,3 +309,12 @@ def test_a_receiver_vouches_for_a_silent_topic_once_matched_a_window_long() -> N
     e.taken([(50 * ms, "/a", [True])])  # a message came: its stamp is exact
     assert e.cut("m", 1, wall=62 * ms) == 50 * ms
     assert Engine("no-ros").matched is None  # without a ROS layer a silent topic waits
+
+
+def test_the_handoff_state_machine_refuses_a_change_it_does_not_have() -> None:
+    check_transition(None, HandoffState.SENDING)
+    check_transition(HandoffState.RELEASED, None)
+    for old, new in [(None, HandoffState.RELEASED), (HandoffState.RECEIVING, HandoffState.SENDING),
+                     (HandoffState.RELEASED, HandoffState.SENDING), (None, None)]:  # fmt: skip
+        with pytest.raises(HandoffStateError):
+            check_transition(old, new)

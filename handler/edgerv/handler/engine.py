@@ -34,6 +34,7 @@ from edgerv.core.handoff import (
 from edgerv.core.monitor import CompiledMonitor, compile_monitor
 from edgerv.core.pipeline import MonitorRuntime, Router, TopicRoute, Verdict
 from edgerv.core.placement import placement_json
+from edgerv.handler.handoff_state import HandoffState, check_transition
 
 log = logging.getLogger("edgerv.handler")
 
@@ -49,6 +50,7 @@ PRESSURE_SECONDS = 1.0
 # letters to come wake it.
 SCHEDULE_SECONDS = 0.002
 WAKE_LETTERS = 512
+SENDING, RELEASED, RECEIVING = HandoffState.SENDING, HandoffState.RELEASED, HandoffState.RECEIVING
 HANDOFF_EXPIRES = 120.0  # seconds a handoff may wait for its next step before it is undone
 PREHOLD_SECONDS = 0.002  # a scheduler round's time for the buffers of monitors being handed off
 ADOPTIONS_KEPT = 64  # per monitor: the epochs of the latest handoffs a handler adopted
@@ -72,9 +74,7 @@ class MonitorSlot:
     migration_wanted: bool = False
     capacity: int = field(init=False)
     epoch: int = 0  # the newest handoff this handler took part in, for this monitor
-    # "sending" (H1 holds it), "released" (H1 sent its snapshot, keeps it and keeps holding
-    # until H2 confirms), "receiving" (H2 holds it)
-    handoff: str | None = None
+    handoff: HandoffState | None = None  # its handoff state here (handoff_state.py)
     released: bytes | None = None  # H1: the snapshot it sent, until the handoff commits
     first_stamps: dict[str, int] = field(default_factory=dict)  # H2: first stamp per topic
     # H2: per topic without a message yet, since when (wall ns) its subscription has been
@@ -101,7 +101,7 @@ class MonitorSlot:
     @property
     def active(self) -> bool:
         """The monitor is this handler's: it runs here, or is paused here for a handoff."""
-        return self.runtime is not None and self.handoff not in ("receiving", "released")
+        return self.runtime is not None and self.handoff not in (RECEIVING, RELEASED)
 
     @property
     def buffered(self) -> int:
@@ -141,14 +141,14 @@ def _whereabouts(slot: MonitorSlot) -> str:
     """What a monitor is doing here, for a refused ``hold`` or ``receive``: "already runs
     here" only when it does; a monitor held for a handoff is evaluated nowhere here."""
     epoch, peer = slot.epoch, slot.peer or "another handler"
-    if slot.handoff == "sending":
+    if slot.handoff == SENDING:
         return f"is held here for a handoff to {peer} (epoch {epoch}), not evaluated"
-    if slot.handoff == "released":
+    if slot.handoff == RELEASED:
         return (
             f"is held here, released to {peer} in a handoff not yet settled (epoch {epoch}), "
             "not evaluated here: that handoff's edgerv migrate, run again, settles it"
         )
-    if slot.handoff == "receiving":
+    if slot.handoff == RECEIVING:
         return f"is being received here in another handoff (epoch {epoch}), not yet adopted"
     return "already runs here" if slot.runtime is not None else "does not run here"
 
@@ -337,7 +337,7 @@ class Engine:
         """H2 notes its first stamp on each topic of a receiving monitor (for the cut)."""
         for slot in self.in_handoff.values():
             firsts, topics = slot.first_stamps, slot.compiled.spec.topics
-            if slot.handoff == "receiving" and len(firsts) < len(topics):
+            if slot.handoff == RECEIVING and len(firsts) < len(topics):
                 for item in batch:
                     topic = item[1]
                     if topic not in firsts and topic in topics:
@@ -470,7 +470,7 @@ class Engine:
             if slot.runtime is None or slot.handoff is not None:
                 raise HandoffError(f"monitor '{name}' {_whereabouts(slot)}")
             slot.epoch = epoch
-            self._set_handoff(slot, "sending")
+            self._set_handoff(slot, SENDING)
             slot.cut_known, slot.held_at, slot.peer = None, now, peer
             slot.runtime.holding = True
             # What the sort buffer holds now is all at or before any cut H2 can report
@@ -489,7 +489,7 @@ class Engine:
             if slot.runtime is not None:
                 raise HandoffError(f"monitor '{name}' {_whereabouts(slot)}")
             slot.epoch, slot.first_stamps, slot.vouched = epoch, {}, {}
-            self._set_handoff(slot, "receiving")
+            self._set_handoff(slot, RECEIVING)
             self._activate(slot)
             assert slot.runtime is not None
             # H2 holds its events raw: they are compressed after H1's, from H1's state
@@ -506,7 +506,7 @@ class Engine:
         reaches H2, so that moment plus ``settle`` stands for its first stamp."""
         wall = time.time_ns() if wall is None else wall
         with self.lock:
-            slot = self._handoff_slot(name, epoch, "receiving")
+            slot = self._handoff_slot(name, epoch, RECEIVING)
             topics, firsts = slot.compiled.spec.topics, dict(slot.first_stamps)
             quiet = []
             for topic in topics:
@@ -554,9 +554,9 @@ class Engine:
         now = time.monotonic() if now is None else now
         with self.lock:
             slot = self._slot(name)
-            if slot.handoff == "released" and slot.epoch == epoch and slot.released:
+            if slot.handoff == RELEASED and slot.epoch == epoch and slot.released:
                 return slot.released
-            slot = self._handoff_slot(name, epoch, "sending")
+            slot = self._handoff_slot(name, epoch, SENDING)
             rt = slot.runtime
             assert rt is not None
             # Never below what H1 compressed: what it released into the pipeline before it
@@ -585,7 +585,7 @@ class Engine:
             data = encode(export_snapshot(rt, cut, epoch))  # rt keeps the events after it
             rt.letters, rt.stamps = rt.letters[:0], rt.stamps[:0]
             slot.released = data
-            self._set_handoff(slot, "released")
+            self._set_handoff(slot, RELEASED)
             return data
 
     def _settled(self, stamp: int) -> bool:
@@ -604,7 +604,7 @@ class Engine:
                 raise HandoffError(f"no handoff of '{name}' with epoch {epoch} here")
             if slot.handoff is None and slot.runtime is None:
                 return "committed"  # a repeated commit
-            if slot.handoff != "released":
+            if slot.handoff != RELEASED:
                 raise HandoffError(f"the handoff of '{name}' is {slot.handoff or 'over'}")
             self._let_go(slot)
             return "committed"
@@ -640,7 +640,7 @@ class Engine:
                 slot = self._slot(name)
                 if slot.handoff is None and slot.epoch == epoch and slot.runtime is not None:
                     continue  # a repeated adoption (its answer was lost): already running
-                slot = self._handoff_slot(name, epoch, "receiving")
+                slot = self._handoff_slot(name, epoch, RECEIVING)
                 held = slot.runtime
                 assert held is not None  # a receiving slot holds what it received
                 try:
@@ -686,14 +686,14 @@ class Engine:
                 return "active" if slot.runtime is not None else "gone"
             rt = slot.runtime
             assert rt is not None
-            if slot.handoff == "sending":
+            if slot.handoff == SENDING:
                 rt.holding = False
                 if len(rt.events) >= rt.threshold and rt.flush():
                     self.waiting[name] = rt
                     self.ready.notify()
                 self._set_handoff(slot, None)
                 return "resumed"
-            if slot.handoff == "released":
+            if slot.handoff == RELEASED:
                 assert slot.released is not None
                 snap = decode(slot.released)
                 self._resume([(slot, restore(slot.compiled, snap, rt.events))])
@@ -723,7 +723,7 @@ class Engine:
         receiver that adopted nothing lets go (both safe: a late step is fenced). A
         released one waits to be settled: the receiver may have adopted it."""
         for slot in list(self.in_handoff.values()):
-            if slot.handoff in ("sending", "receiving") and now - slot.handoff_since > (
+            if slot.handoff in (SENDING, RECEIVING) and now - slot.handoff_since > (
                 HANDOFF_EXPIRES
             ):
                 log.warning(
@@ -747,18 +747,19 @@ class Engine:
     @staticmethod
     def _compress_prehold(slot: MonitorSlot) -> None:
         rt = slot.runtime
-        if slot.prehold and slot.handoff == "sending" and rt is not None:
+        if slot.prehold and slot.handoff == SENDING and rt is not None:
             rt.flush_prefix(slot.prehold)
         slot.prehold = 0
 
-    def _set_handoff(self, slot: MonitorSlot, role: str | None) -> None:
+    def _set_handoff(self, slot: MonitorSlot, role: HandoffState | None) -> None:
+        check_transition(slot.handoff, role)
         slot.handoff, slot.handoff_since = role, time.monotonic()
         if role is None:
             self.in_handoff.pop(slot.name, None)
         else:
             self.in_handoff[slot.name] = slot
 
-    def _handoff_slot(self, name: str, epoch: int, role: str) -> MonitorSlot:
+    def _handoff_slot(self, name: str, epoch: int, role: HandoffState) -> MonitorSlot:
         slot = self._slot(name)
         if slot.handoff != role or slot.epoch != epoch:
             raise HandoffError(f"no {role} handoff of '{name}' with epoch {epoch} here")
