@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import random
 from collections.abc import Sequence
+from dataclasses import replace
 
 import pytest
 
-from edgerv.core.handoff import HandoffError
+from edgerv.core.handoff import HandoffError, bundle, decode_frames, encode, unbundle
 from edgerv.core.pipeline import Verdict
 from edgerv.handler.engine import Engine
 from edgerv.handler.handoff_state import HandoffState, HandoffStateError, check_transition
@@ -83,8 +84,9 @@ def test_handoff_between_engines(seed: int, threshold: int) -> None:
         if received and cut is None:
             cut = dst.cut("m", epoch)
         if held and cut is not None:
-            data = src.release("m", epoch, cut, grace=1e9)
-            if data is not None:
+            snap = src.release("m", epoch, cut, grace=1e9)
+            if snap is not None:
+                (data,) = decode_frames(unbundle(bundle([encode(snap)])))  # over the wire
                 assert not src.slots["m"].active and not dst.slots["m"].active
                 fate = rng.random()
                 if fate < 0.25:  # H2 fails before adopting: undo on both sides
@@ -94,7 +96,7 @@ def test_handoff_between_engines(seed: int, threshold: int) -> None:
                         dst.adopt("m", epoch, data)  # a late adopt is fenced
                 else:
                     if fate < 0.5:  # the answers were lost: both calls come again
-                        assert src.release("m", epoch, cut, grace=1e9) == data
+                        assert src.release("m", epoch, cut, grace=1e9) is snap
                         dst.adopt("m", epoch, data)
                     dst.adopt("m", epoch, data)
                     assert dst.abort("m", epoch) == "active"  # too late to undo there
@@ -127,8 +129,8 @@ def test_epochs_fence_stale_and_duplicate_calls() -> None:
     other = Engine("h2")
     other.put(monitor(), active=False)
     other.receive("m", 7)
-    with pytest.raises(HandoffError, match="too short for a snapshot"):
-        other.adopt("m", 7, b"garbage")
+    with pytest.raises(HandoffError, match="snapshot 1 of 1: too short for a snapshot"):
+        decode_frames([b"garbage"])  # the API decodes, before the engine sees anything
     assert other.abort("m", 7) == "dropped"
     assert other.slots["m"].runtime is None
 
@@ -144,10 +146,8 @@ def test_the_sender_waits_for_every_topic_past_the_cut_or_the_grace() -> None:
     e.ingest([(16, "/a", [True])])
     snap = e.release("m", 1, cut=15, grace=5.0, now=102.0)
     assert snap is not None and not e.slots["m"].active
-    from edgerv.core.handoff import decode
-
-    assert len(decode(snap).letters) == 2  # 11 and 14 (10 made none: x had no value yet)
-    assert decode(snap).step == 0 and decode(snap).cut == 15
+    assert len(snap.letters) == 2  # 11 and 14 (10 made none: x had no value yet)
+    assert snap.step == 0 and snap.cut == 15
     quiet = Engine("q", flush_after=1e9)
     quiet.put(monitor(), active=True)
     quiet.hold("m", 1, now=90.0)
@@ -177,15 +177,14 @@ def test_the_sender_waits_for_every_topic_past_the_cut_or_the_grace() -> None:
 
 
 def test_the_cut_is_never_below_what_the_sender_already_evaluated() -> None:
-    from edgerv.core.handoff import decode
-
     e = Engine("h", flush_after=1e9)
     e.put(monitor(), active=True)
     # sortThreshold 2: 10 and 11 are released into the pipeline, 12 waits in the sort buffer
     e.ingest([(10, "/a", [True]), (11, "/x", [1.0]), (12, "/x", [2.0])])
     e.hold("m", 1)
     e.ingest([(30, "/a", [True]), (31, "/x", [3.0])])
-    snap = decode(e.release("m", 1, cut=5, grace=0.0, now=0.0) or b"")
+    snap = e.release("m", 1, cut=5, grace=0.0, now=0.0)
+    assert snap is not None
     # with H2's cut of 5, H2 would evaluate 10 and 11 a second time; and 12, which was in
     # the sort buffer at the hold: the sender compresses that buffer (no scheduler round
     # came between the hold and the release here)
@@ -237,8 +236,9 @@ def test_a_batch_is_adopted_all_or_nothing() -> None:
     h2.ingest([(1, "/a", [True]), (2, "/x", [1.0])])
     good = h1.release("a", 3, cut=2, grace=0.0, now=0.0)
     assert good is not None
-    with pytest.raises(HandoffError, match="snapshot 2 of 2: too short for a snapshot"):
-        h2.adopt_many(3, [good, b"garbage"])
+    stale = replace(good, monitor="b", epoch=2)  # b's, of an earlier handoff
+    with pytest.raises(HandoffError, match="b: the snapshot belongs to another handoff"):
+        h2.adopt_many(3, [good, stale])
     assert [h2.slots[n].handoff for n in ("a", "b")] == ["receiving", "receiving"]
     assert not h2.slots["a"].active  # nothing of the batch was adopted
     good_b = h1.release("b", 3, cut=2, grace=0.0, now=0.0)

@@ -298,6 +298,17 @@ def encode(snap: Snapshot) -> bytes:
     return _FRAME.pack(_MAGIC, len(header), len(body)) + header + body
 
 
+def decode_frames(frames: Sequence[bytes]) -> list[Snapshot]:
+    """Each frame's snapshot (:func:`decode`); a bad one is named by its place."""
+    snaps = []
+    for i, data in enumerate(frames, 1):
+        try:
+            snaps.append(decode(data))
+        except HandoffError as exc:
+            raise HandoffError(f"snapshot {i} of {len(frames)}: {exc}") from None
+    return snaps
+
+
 def bundle(frames: Iterable[bytes]) -> bytes:
     """Snapshot frames as they cross the wire: one deflate stream over all of them.
 

@@ -34,7 +34,7 @@ from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_l
 
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import MonitorSpec, parse_monitors_text
-from edgerv.core.handoff import HandoffError, bundle, unbundle
+from edgerv.core.handoff import HandoffError, bundle, decode_frames, encode, unbundle
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.handler.engine import Engine
 
@@ -266,7 +266,8 @@ class ControlApi:
         try:
             if step == "adopt":
                 epoch = int(request.query["epoch"])
-                names = e.adopt_many(epoch, unbundle(await request.read()))  # all or nothing
+                snaps = decode_frames(unbundle(await request.read()))  # outside the engine's lock
+                names = e.adopt_many(epoch, snaps)  # all or nothing
                 self.on_routes()
                 return web.json_response({"active": names})
             body, epoch, names = _handoff_body(await request.json())
@@ -310,7 +311,7 @@ class ControlApi:
                     await asyncio.sleep(RELEASE_POLL)
                 if waiting:
                     return web.json_response({"waiting": waiting}, status=202)
-                frames = (data for data in released.values() if data is not None)
+                frames = (encode(snap) for snap in released.values() if snap is not None)
                 return web.Response(body=bundle(frames), content_type="application/octet-stream")
             if step in ("commit", "abort"):
                 act = e.commit if step == "commit" else e.abort

@@ -26,8 +26,6 @@ from edgerv.core.handoff import (
     HandoffError,
     Snapshot,
     cut_point,
-    decode,
-    encode,
     export_snapshot,
     restore,
 )
@@ -75,7 +73,7 @@ class MonitorSlot:
     capacity: int = field(init=False)
     epoch: int = 0  # the newest handoff this handler took part in, for this monitor
     handoff: HandoffState | None = None  # its handoff state here (handoff_state.py)
-    released: bytes | None = None  # H1: the snapshot it sent, until the handoff commits
+    released: Snapshot | None = None  # H1: the snapshot it sent, until the handoff commits
     first_stamps: dict[str, int] = field(default_factory=dict)  # H2: first stamp per topic
     # H2: per topic without a message yet, since when (wall ns) its subscription has been
     # matched with every publisher of the topic (the cut's stamp for a silent topic)
@@ -531,8 +529,9 @@ class Engine:
         grace: float,
         now: float | None = None,
         quiet: Collection[str] = (),
-    ) -> bytes | None:
+    ) -> Snapshot | None:
         """H1, step 5: the snapshot, else None while events up to the cut may still come.
+        (The API encodes it, outside the lock: the ingest goes on meanwhile.)
 
         Each topic is its own channel: an event stamped at or before the cut can reach
         H1 after a later one on another topic. So H1 waits until every topic of the
@@ -582,11 +581,11 @@ class Engine:
                 or now - max(slot.cut_known[1], quiet_since) >= grace  # nothing comes
             ):
                 return None
-            data = encode(export_snapshot(rt, cut, epoch))  # rt keeps the events after it
+            snap = export_snapshot(rt, cut, epoch)  # rt keeps the events after it
             rt.letters, rt.stamps = rt.letters[:0], rt.stamps[:0]
-            slot.released = data
+            slot.released = snap
             self._set_handoff(slot, RELEASED)
-            return data
+            return snap
 
     def _settled(self, stamp: int) -> bool:
         """Nothing stamped up to ``stamp`` is still on its way to this handler: its stream
@@ -609,30 +608,16 @@ class Engine:
             self._let_go(slot)
             return "committed"
 
-    def adopt(self, name: str, epoch: int, data: bytes) -> None:
+    def adopt(self, name: str, epoch: int, snap: Snapshot) -> None:
         """H2, step 6: take the snapshot, merge the held events after the cut, schedule."""
-        try:
-            snap = decode(data)
-        except HandoffError as exc:
-            raise HandoffError(f"{name}: {exc}") from None
         if snap.monitor != name:
             raise HandoffError(f"{name}: the snapshot is of '{snap.monitor}'")
-        self._adopt(epoch, [snap])
+        self.adopt_many(epoch, [snap])
 
-    def adopt_many(self, epoch: int, frames: Sequence[bytes]) -> list[str]:
-        """:meth:`adopt` for a batch (snapshot frames), all or nothing: every snapshot is
-        checked and restored before any monitor is scheduled. Repeating an adoption is a
-        no-op. Returns the monitors' names."""
-        snaps = []
-        for i, data in enumerate(frames, 1):
-            try:
-                snaps.append(decode(data))  # outside the lock: the ingest goes on meanwhile
-            except HandoffError as exc:
-                raise HandoffError(f"snapshot {i} of {len(frames)}: {exc}") from None
-        self._adopt(epoch, snaps)
-        return [snap.monitor for snap in snaps]
-
-    def _adopt(self, epoch: int, snaps: Sequence[Snapshot]) -> None:
+    def adopt_many(self, epoch: int, snaps: Sequence[Snapshot]) -> list[str]:
+        """:meth:`adopt` for a batch, all or nothing: every snapshot is checked and
+        restored before any monitor is scheduled. Repeating an adoption is a no-op.
+        Returns the monitors' names. (The API decodes them, outside the lock.)"""
         with self.lock:
             restored = []
             for snap in snaps:
@@ -654,6 +639,7 @@ class Engine:
                 slot.adopted.append(epoch)
                 if len(slot.adopted) > ADOPTIONS_KEPT:
                     slot.forgotten = slot.adopted.pop(0)
+        return [snap.monitor for snap in snaps]
 
     def abort(self, name: str, epoch: int) -> str:
         """Undo a handoff on this side; what it did, as one word.
@@ -695,8 +681,7 @@ class Engine:
                 return "resumed"
             if slot.handoff == RELEASED:
                 assert slot.released is not None
-                snap = decode(slot.released)
-                self._resume([(slot, restore(slot.compiled, snap, rt.events))])
+                self._resume([(slot, restore(slot.compiled, slot.released, rt.events))])
                 return "resumed"
             self._let_go(slot)
             return "dropped"
