@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import time
 from collections.abc import Iterable, Iterator, Sequence
 from types import FrameType
 from typing import Any
@@ -96,3 +97,21 @@ def bounded(seconds: float) -> Iterator[None]:
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
+
+
+class ManualClock:
+    """An engine's clock (handler.engine.Clock) that moves only when told, or, with
+    ``running``, as the real one does plus what it was told."""
+
+    def __init__(self, running: bool = False) -> None:
+        self.running = running
+        self.offset = 0.0 if running else 1000.0
+
+    def monotonic(self) -> float:
+        return self.offset + (time.monotonic() if self.running else 0.0)
+
+    def wall_ns(self) -> int:
+        return int(self.offset * 1e9) + (time.time_ns() if self.running else 1_700_000_000 * 10**9)
+
+    def advance(self, seconds: float) -> None:
+        self.offset += seconds

@@ -65,7 +65,7 @@ from edgerv.handler.migrate import (
     migrate,
     settle,
 )
-from helpers import compiled
+from helpers import ManualClock, compiled
 
 TIMEOUT = 0.25  # the driver's --timeout under faults (its calls time out after as long)
 GRACE = 0.2
@@ -371,7 +371,10 @@ class World:
     def __init__(self, seed: int) -> None:
         self.net = Net(seed)
         self.sinks = {n: Sink() for n in ("edge", "cloud", "reference")}
-        self.engines = {n: Engine(n, [self.sinks[n]], flush_after=1e9) for n in self.sinks}
+        self.clock = ManualClock(running=True)  # the handlers' clock: expire moves it on
+        self.engines = {
+            n: Engine(n, [self.sinks[n]], flush_after=1e9, clock=self.clock) for n in self.sinks
+        }
         for m in monitors():
             for n, e in self.engines.items():
                 e.put(m, active=n != "cloud")
@@ -460,12 +463,12 @@ class World:
         """What the handlers' own timer does to a handoff with no next step for
         HANDOFF_EXPIRES seconds (sending: resumes; receiving: lets go), without the wait."""
         undone = []
+        self.clock.advance(HANDOFF_EXPIRES + 1)
         for e in (self.engines["edge"], self.engines["cloud"]):
             with e.lock:
                 for slot in e.slots.values():
                     if slot.handoff in ("sending", "receiving"):
                         undone.append(f"{slot.name} {slot.handoff} on {e.name}")
-                        slot.handoff_since -= HANDOFF_EXPIRES + 1
                 e.emit(e.tick())
         if undone:
             self.net.note(f"expired: {', '.join(undone)}")

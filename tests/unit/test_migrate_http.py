@@ -21,7 +21,7 @@ from prometheus_client import CollectorRegistry
 from edgerv.handler.api import ControlApi
 from edgerv.handler.engine import HANDOFF_EXPIRES, Engine
 from edgerv.handler.migrate import Handler, MigrationFailed, Unsettled, migrate
-from helpers import compiled
+from helpers import ManualClock, compiled
 
 TOKEN = "test-token"
 
@@ -154,14 +154,19 @@ def test_a_receiver_that_is_down_after_the_release_lets_the_sender_resume(pair: 
 
 
 def test_a_handoff_no_driver_finishes_is_undone_where_that_is_safe() -> None:
-    edge, cloud = Engine("edge"), Engine("cloud")
+    clock = ManualClock()
+    edge, cloud = Engine("edge", clock=clock), Engine("cloud", clock=clock)
     monitor = compiled("always (a -> x < 5)", {"a": "bool", "x": "float"})
     edge.put(monitor, active=True)
     cloud.put(monitor, active=False)
     edge.hold("m", 1)
     cloud.receive("m", 1)
+    clock.advance(HANDOFF_EXPIRES - 1)
     for e in (edge, cloud):
-        e.slots["m"].handoff_since -= HANDOFF_EXPIRES + 1  # its driver died long ago
+        e.tick()
+    assert edge.slots["m"].handoff == "sending" and cloud.slots["m"].handoff == "receiving"
+    clock.advance(2)  # its driver died HANDOFF_EXPIRES + 1 s ago
+    for e in (edge, cloud):
         e.tick()
     assert edge.slots["m"].active and edge.slots["m"].handoff is None  # resumed
     assert cloud.slots["m"].runtime is None and cloud.slots["m"].handoff is None  # dropped
@@ -169,7 +174,7 @@ def test_a_handoff_no_driver_finishes_is_undone_where_that_is_safe() -> None:
     cloud.receive("m", 2)
     edge.ingest([(1, "/a", [True]), (2, "/x", [1.0])])
     assert edge.release("m", 2, cut=0, grace=0.0, now=0.0) is not None
-    edge.slots["m"].handoff_since -= HANDOFF_EXPIRES + 1
+    clock.advance(HANDOFF_EXPIRES + 1)
     edge.tick()
     assert edge.slots["m"].handoff == "released"  # the cloud may have adopted: not undone
 

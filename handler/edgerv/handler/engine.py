@@ -151,6 +151,24 @@ def _whereabouts(slot: MonitorSlot) -> str:
     return "already runs here" if slot.runtime is not None else "does not run here"
 
 
+class Clock(Protocol):
+    """The time an engine reads: seconds on a monotonic clock (buffers, pressure,
+    handoff expiry) and wall nanoseconds (ROS time: clock steps, silent topics).
+    Injected, so that tests move time instead of waiting for it."""
+
+    def monotonic(self) -> float: ...
+
+    def wall_ns(self) -> int: ...
+
+
+class SystemClock:
+    def monotonic(self) -> float:
+        return time.monotonic()
+
+    def wall_ns(self) -> int:
+        return time.time_ns()
+
+
 class Engine:
     """All monitors of one handler. Thread-safe."""
 
@@ -163,8 +181,10 @@ class Engine:
         reorder_window: float = 0.02,
         matched: Callable[[str], bool] | None = None,
         deadline: MakespanWindow | None = None,
+        clock: Clock | None = None,
     ) -> None:
         self.name = name
+        self.clock: Clock = clock or SystemClock()
         self.sinks = list(sinks)
         self.flush_after = flush_after
         self.type_check = type_check  # message type -> error text if it cannot be subscribed
@@ -279,7 +299,7 @@ class Engine:
         caller reads the messages again for the new fields and retries."""
         if not batch:
             return True
-        now = time.monotonic() if now is None else now
+        now = self.clock.monotonic() if now is None else now
         woke = False
         with self.lock:
             if routes_version is not None and routes_version != self.routes_version:
@@ -369,11 +389,11 @@ class Engine:
 
     def tick(self, now: float | None = None) -> list[Verdict]:
         """Release event buffers that waited longer than ``flush_after``; update pressure."""
-        now = time.monotonic() if now is None else now
+        now = self.clock.monotonic() if now is None else now
         with self.lock:
             self._precompress()
-            self._expire_handoffs(time.monotonic())
-            self.advance_clocks(time.time_ns())
+            self._expire_handoffs(now)
+            self.advance_clocks(self.clock.wall_ns())
             for slot in self.slots.values():
                 rt = slot.runtime
                 if rt is None:
@@ -460,7 +480,7 @@ class Engine:
         """H1, step 2a: stop scheduling the monitor, keep buffering its events.
 
         ``peer`` names the receiver: whoever settles an interrupted handoff asks it."""
-        now = time.monotonic() if now is None else now
+        now = self.clock.monotonic() if now is None else now
         with self.lock:
             slot = self._slot(name)
             if epoch <= slot.epoch:
@@ -502,7 +522,7 @@ class Engine:
         its subscription was seen matched with every publisher of the topic (none at
         all: from its subscription): from then on every message published on it
         reaches H2, so that moment plus ``settle`` stands for its first stamp."""
-        wall = time.time_ns() if wall is None else wall
+        wall = self.clock.wall_ns() if wall is None else wall
         with self.lock:
             slot = self._handoff_slot(name, epoch, RECEIVING)
             topics, firsts = slot.compiled.spec.topics, dict(slot.first_stamps)
@@ -550,7 +570,7 @@ class Engine:
         aborted (H1 resumes from both: nothing lost).
         A repeated release (its answer was lost) gets the same snapshot again.
         """
-        now = time.monotonic() if now is None else now
+        now = self.clock.monotonic() if now is None else now
         with self.lock:
             slot = self._slot(name)
             if slot.handoff == RELEASED and slot.epoch == epoch and slot.released:
@@ -738,7 +758,7 @@ class Engine:
 
     def _set_handoff(self, slot: MonitorSlot, role: HandoffState | None) -> None:
         check_transition(slot.handoff, role)
-        slot.handoff, slot.handoff_since = role, time.monotonic()
+        slot.handoff, slot.handoff_since = role, self.clock.monotonic()
         if role is None:
             self.in_handoff.pop(slot.name, None)
         else:
@@ -753,11 +773,12 @@ class Engine:
     def load(self) -> dict[str, Any]:
         """The load report the orchestrator reads (``GET /v1/load``): counters, not rates;
         ``deadline`` is the makespan window's reading (null without ``--deadline``)."""
-        deadline = self.deadline.report(time.monotonic_ns()) if self.deadline else None
+        now_ns = int(self.clock.monotonic() * 1e9)
+        deadline = self.deadline.report(now_ns) if self.deadline else None
         with self.lock:
             return {
                 "handler": self.name,
-                "monotonic": time.monotonic(),
+                "monotonic": self.clock.monotonic(),
                 "cpuSeconds": time.process_time(),
                 "ingestLag": self.ingest_lag,
                 "deadline": deadline,
