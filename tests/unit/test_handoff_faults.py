@@ -56,7 +56,8 @@ from test_migrate_http import TOKEN, Pair, pair  # noqa: F401  (pair: a fixture)
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import Verdict
 from edgerv.handler.api import ControlApi
-from edgerv.handler.engine import HANDOFF_EXPIRES, Engine
+from edgerv.handler.engine import Engine
+from edgerv.handler.handoff_steps import HANDOFF_EXPIRES
 from edgerv.handler.migrate import (
     Handler,
     MigrationFailed,
@@ -742,9 +743,9 @@ def test_an_abort_that_overtook_its_hold_or_receive_fences_them() -> None:
 def test_a_receiver_answers_for_an_older_handoff_from_its_record_of_adoptions(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    import edgerv.handler.engine as engine_module
+    import edgerv.handler.handoff_steps as handoff_steps
 
-    monkeypatch.setattr(engine_module, "ADOPTIONS_KEPT", 2)
+    monkeypatch.setattr(handoff_steps, "ADOPTIONS_KEPT", 2)
     mon = compiled("always (a -> x < 5)", {"a": "bool", "x": "float"})
     edge, cloud = Engine("edge", flush_after=1e9), Engine("cloud", flush_after=1e9)
     edge.put(mon, active=True)

@@ -19,7 +19,8 @@ import pytest
 from prometheus_client import CollectorRegistry
 
 from edgerv.handler.api import ControlApi
-from edgerv.handler.engine import HANDOFF_EXPIRES, Engine
+from edgerv.handler.engine import Engine
+from edgerv.handler.handoff_steps import HANDOFF_EXPIRES
 from edgerv.handler.migrate import Handler, MigrationFailed, Unsettled, migrate
 from helpers import ManualClock, compiled
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 from edgerv.core.handoff import HandoffError, frame_sizes, unbundle
-from edgerv.handler.engine import HANDOFF_EXPIRES
+from edgerv.handler.handoff_steps import HANDOFF_EXPIRES
 
 EXIT_CODES = """\
 exit codes:

@@ -1,0 +1,92 @@
+"""One monitor on one handler: its definition, its runtime when active, its counters and
+its handoff's state (the steps that change it are in :mod:`edgerv.handler.handoff_steps`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from edgerv.core.handoff import Snapshot
+from edgerv.core.monitor import CompiledMonitor
+from edgerv.core.pipeline import MonitorRuntime
+from edgerv.core.placement import placement_json
+from edgerv.handler.handoff_state import HandoffState
+
+RECEIVING, RELEASED = HandoffState.RECEIVING, HandoffState.RELEASED
+
+
+@dataclass
+class MonitorSlot:
+    """One monitor of this handler: its definition and, when active, its runtime."""
+
+    compiled: CompiledMonitor
+    runtime: MonitorRuntime | None = None
+    events: int = 0
+    dropped: int = 0
+    verdicts: dict[str, int] = field(default_factory=lambda: {"violated": 0, "satisfied": 0})
+    pending_since: float | None = None  # when the event buffer got its oldest event
+    full_since: float | None = None  # when the buffer rose above HIGH_WATER
+    migration_wanted: bool = False
+    capacity: int = field(init=False)
+    epoch: int = 0  # the newest handoff this handler took part in, for this monitor
+    handoff: HandoffState | None = None  # its handoff state here (handoff_state.py)
+    released: Snapshot | None = None  # H1: the snapshot it sent, until the handoff commits
+    first_stamps: dict[str, int] = field(default_factory=dict)  # H2: first stamp per topic
+    # H2: per topic without a message yet, since when (wall ns) its subscription has been
+    # matched with every publisher of the topic (the cut's stamp for a silent topic)
+    vouched: dict[str, int] = field(default_factory=dict)
+    quiet: tuple[str, ...] = ()  # H2: the topics the cut it reported vouched for
+    cut_known: tuple[int, float] | None = None  # H1: the cut, and when it first heard of it
+    held_at: float = 0.0  # H1: when it began to hold
+    peer: str | None = None  # H1: the receiver, as the driver named it (to settle with)
+    handoff_since: float = 0.0  # when it entered its handoff state
+    # H2: the epochs of the handoffs it adopted (the newest ADOPTIONS_KEPT), and the newest
+    # one forgotten since: a settle may ask about a handoff after a newer one (see abort)
+    adopted: list[int] = field(default_factory=list)
+    forgotten: int = 0
+    prehold: int = 0  # H1: events buffered before the hold, not yet compressed (see hold)
+
+    @property
+    def name(self) -> str:
+        return self.compiled.name
+
+    def __post_init__(self) -> None:
+        self.capacity = self.compiled.spec.buffer_capacity
+
+    @property
+    def active(self) -> bool:
+        """The monitor is this handler's: it runs here, or is paused here for a handoff."""
+        return self.runtime is not None and self.handoff not in (RECEIVING, RELEASED)
+
+    @property
+    def buffered(self) -> int:
+        return self.runtime.buffered if self.runtime else 0
+
+    def describe(self, handler: str) -> dict[str, Any]:
+        rt = self.runtime
+        spec = self.compiled.spec
+        return {
+            "name": self.name,
+            "handler": handler,
+            "active": self.active,
+            "state": rt.status if rt and self.active else "inactive",
+            "assertion": spec.assertion,
+            "topics": spec.topics,
+            "automatonState": rt.state if rt else None,
+            "step": rt.step if rt else 0,
+            "buffer": {
+                "events": len(rt.events) if rt else 0,
+                "letters": len(rt.letters) if rt else 0,
+                "capacity": self.capacity,
+                "fill": round(self.buffered / self.capacity, 4),
+            },
+            "events": self.events,
+            "droppedEvents": self.dropped,
+            "lateEvents": rt.late_events if rt else 0,
+            "verdicts": dict(self.verdicts),
+            "migrationWanted": self.migration_wanted,
+            "handoff": self.handoff,
+            "epoch": self.epoch,
+            "peer": self.peer if self.handoff else None,
+            "placement": placement_json(spec.placement),
+        }
