@@ -2,14 +2,22 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Sequence
 from dataclasses import dataclass, field
+from itertools import chain, compress, count
 from typing import Any
 
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.monitor import CompiledMonitor
-from edgerv.core.pipeline import MonitorRuntime, MonitorState, Router, ValueTypeError, Verdict
-from edgerv.core.traces import TraceEvent
+from edgerv.core.pipeline import (
+    Arrivals,
+    MonitorRuntime,
+    MonitorState,
+    Router,
+    ValueTypeError,
+    Verdict,
+)
+from edgerv.core.traces import EventChunk, TraceEvent, TraceEvents, chunks_of
 
 EVALUATE_BATCH = 1024  # letters a monitor collects before the check evaluates them
 
@@ -47,6 +55,42 @@ class CheckRun:
         return set(self.router.routes)
 
     def feed(self, events: Iterable[TraceEvent]) -> None:
+        """Check these events, a chunk at a time (a trace's own chunks when they come from
+        :meth:`Trace.events`)."""
+        chunks = events.chunks() if isinstance(events, TraceEvents) else chunks_of(events)
+        for chunk in chunks:
+            self.feed_chunk(chunk)
+
+    def feed_chunk(self, chunk: EventChunk) -> None:
+        """Check a chunk of events: each topic's fields read for the whole chunk, each
+        monitor handed its events column by column (:meth:`MonitorRuntime.offer_arrivals`).
+        A message that lacks a field or holds a value of another kind sends the chunk
+        through :meth:`_feed_events`, which stops at it with its place."""
+        columns: dict[str, tuple[list[int], list[list[Any]]]] = {}
+        for topic, indexes in _indexes_by_topic(chunk.topics, self.router.routes).items():
+            msgs = list(map(chunk.msgs.__getitem__, indexes))
+            values = self.router.routes[topic].extract_all(msgs, chunk.parsed_json)
+            if values is None:
+                self._feed_events(chunk)
+                return
+            columns[topic] = (indexes, values)
+        self.router.seq += len(chunk)
+        for name, reads in self._reads().items():
+            runtime = self.router.runtimes[name]
+            here = [(columns[t], binding) for t, binding in reads if t in columns]
+            if here and runtime.offer_arrivals(_arrivals(chunk, here, len(runtime.values))):
+                self.results[name].verdicts += runtime.evaluate()
+
+    def _reads(self) -> dict[str, list[tuple[str, Binding]]]:
+        """Each monitor's topics, and which field each of its signals reads there."""
+        reads: dict[str, list[tuple[str, Binding]]] = {}
+        for topic, route in self.router.routes.items():
+            for runtime, b in route.readers:
+                reads.setdefault(runtime.name, []).append((topic, route.bindings[b]))
+        return reads
+
+    def _feed_events(self, events: Iterable[TraceEvent]) -> None:
+        """Check these events one by one."""
         for event in events:
             try:
                 ready = self.router.dispatch(event.topic, event.stamp, event.msg)
@@ -108,3 +152,39 @@ def check_types(monitors: Sequence[CompiledMonitor], msgtypes: dict[str, str]) -
                     )
                 )
     return errors
+
+
+Binding = tuple[tuple[int, int], ...]  # (signal index in the monitor, field index) pairs
+Column = tuple[list[int], list[list[Any]]]  # a topic's events in a chunk, its fields' values
+FEW_TOPICS = 6  # up to this many topics, a chunk is split by one pass over it for each
+
+
+def _indexes_by_topic(topics: list[str], wanted: Collection[str]) -> dict[str, list[int]]:
+    """The positions in ``topics`` of each wanted topic present."""
+    if len(wanted) <= FEW_TOPICS:  # a C loop over the chunk per topic
+        found = {t: list(compress(range(len(topics)), map(t.__eq__, topics))) for t in wanted}
+        return {t: i for t, i in found.items() if i}
+    out: dict[str, list[int]] = {}
+    for i, topic in enumerate(topics):
+        if topic in wanted:
+            out.setdefault(topic, []).append(i)
+    return out
+
+
+def _arrivals(chunk: EventChunk, reads: list[tuple[Column, Binding]], signals: int) -> Arrivals:
+    """A monitor's events of the chunk, from the columns of the topics it reads."""
+    changes: list[tuple[Sequence[int], Sequence[Any]]] = [((), ())] * signals
+    groups: list[tuple[Sequence[int], tuple[int, ...]]] = []
+    if len(reads) == 1:  # one topic: its events are the monitor's, in order
+        keys: Sequence[int] = reads[0][0][0]
+        rank: Any = None
+    else:
+        keys = sorted(chain.from_iterable(indexes for (indexes, _), _ in reads))
+        rank = range(len(keys)) if len(keys) == len(chunk) else dict(zip(keys, count()))
+    for (indexes, values), binding in reads:
+        positions = range(len(indexes)) if rank is None else list(map(rank.__getitem__, indexes))
+        for s, f in binding:
+            changes[s] = (positions, values[f])
+        groups.append((positions, tuple(s for s, _ in binding)))
+    stamps = chunk.stamps if len(keys) == len(chunk) else list(map(chunk.stamps.__getitem__, keys))
+    return Arrivals(stamps, changes, groups)

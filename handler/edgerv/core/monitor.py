@@ -7,6 +7,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from edgerv.core.assertion import (
+    _CMP_FUNCS,  # the comparisons compile_atom makes: a batch applies the same ones
+    Atom,
     ParsedAssertion,
     compile_atom,
     compile_atom_columns,
@@ -28,6 +30,28 @@ class TimedAtom:
     duration: int  # nanoseconds
 
 
+@dataclass(frozen=True)
+class AtomRead:
+    """An atom as a batch reads it, along its signals' updates: ``compare(values[left],
+    const)``, or ``compare(values[left], values[right])`` -- compile_atom's comparison,
+    applied to a column of values at once (a C loop: no Python call per value)."""
+
+    bit: int
+    left: int  # signal index
+    right: int | None  # signal index, or None: compared with ``const``
+    compare: Callable[[Any, Any], bool]
+    const: Any = None
+
+
+def _read(bit: int, atom: Atom, index_of: dict[str, int]) -> AtomRead:
+    left, right = atom.lhs.signal, atom.rhs.signal
+    assert left is not None  # constants go right
+    compare = _CMP_FUNCS[atom.op]
+    if right is None:
+        return AtomRead(bit, index_of[left], None, compare, atom.rhs.value)
+    return AtomRead(bit, index_of[left], index_of[right], compare)
+
+
 def _by_the_clock(values: list[Any]) -> bool:
     """The value function of a timed atom: never called; the clock sets its bit."""
     raise AssertionError("a timed atom is evaluated by the clock")
@@ -44,6 +68,7 @@ class CompiledMonitor:
     atom_columns: tuple[Callable[[list[Any]], Any], ...]  # the same over columns of values
     timed: tuple[TimedAtom, ...] = ()  # the atoms time changes: age(x) < 200ms
     past: tuple[PastOp, ...] = ()  # the past operators' placeholders, inner first
+    reads: tuple[AtomRead, ...] = ()  # the atoms that are not timed, as a batch reads them
 
     @property
     def stateful(self) -> bool:
@@ -83,7 +108,10 @@ def compile_monitor(spec: MonitorSpec) -> CompiledMonitor:
         for i, a in enumerate(atoms)
         if a.timed
     )
-    return CompiledMonitor(spec, parsed, table, names, funcs, readers, columns, timed, parsed.past)
+    reads = tuple(_read(i, a, index_of) for i, a in enumerate(atoms) if not a.timed)
+    return CompiledMonitor(
+        spec, parsed, table, names, funcs, readers, columns, timed, parsed.past, reads
+    )
 
 
 def compile_monitors(

@@ -149,6 +149,9 @@ class Past:
         self.ops = tuple(ops)
         # per op: prev: [the operand at the last step]; untimed: [its value]; timed: runs
         self.state: list[Any] = [self._initial(op) for op in self.ops]
+        self._prevs = [
+            (i, op.bit) for i, op in enumerate(self.ops) if op.window is None and op.kind == "prev"
+        ]
 
     @staticmethod
     def _initial(op: PastOp) -> Any:
@@ -186,6 +189,32 @@ class Past:
         runs.step(now, holds)
         runs.prune(now, hi)
         return runs.once(now, lo, hi)
+
+    def settled(self, bits: int) -> bool:
+        """Would a step with the atoms of ``bits`` (the last step's letter) at the same
+        instant give ``bits`` again and leave the state as it is? Then so does every
+        later step with the same atoms, up to the first instant at which a timed one
+        may change (:meth:`next_change`): a run of equal messages is a run of equal
+        letters, and a batch takes it whole.
+
+        Only ``prev`` can answer no: it gives the operand of the step before, which the
+        next step replaces by the last one. ``once``, ``historically`` and ``since``
+        already hold what a repeated operand gives them, and a timed one's runs do not
+        change while its operand does not (its truth then changes with time only).
+        """
+        state = self.state
+        return all(state[i][0] == bool(bits >> bit & 1) for i, bit in self._prevs)
+
+    def prune(self, now: int) -> None:
+        """Forget the runs no window reaching back from ``now`` can see, as a step at
+        ``now`` does (a batch that takes a run of equal letters whole prunes once)."""
+        for op, state in zip(self.ops, self.state, strict=True):
+            if op.window is None:
+                continue
+            if op.kind != "since":
+                state.prune(now, op.window[1])
+            elif state.live:
+                state.runs.prune(now, op.window[1])
 
     def time_changes(self, now: int, bits: int) -> bool:
         """Does a timed one's truth at ``now`` differ from its bit in ``bits`` (the

@@ -17,15 +17,13 @@ from array import array
 from bisect import bisect_left, bisect_right
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from itertools import chain
-from operator import itemgetter
-from typing import Any, Literal
-
-import numpy as np
+from itertools import accumulate, chain, compress, islice, repeat
+from operator import itemgetter, lt, ne
+from typing import Any, Literal, NamedTuple
 
 from edgerv.core.documents import QosSpec
-from edgerv.core.monitor import CompiledMonitor, TimedAtom
-from edgerv.core.msgtypes import ValueKind, make_getter
+from edgerv.core.monitor import AtomRead, CompiledMonitor, TimedAtom
+from edgerv.core.msgtypes import ValueKind, make_getter, parse_field_path
 from edgerv.core.past import Past
 
 VerdictKind = Literal["violated", "satisfied"]
@@ -36,12 +34,13 @@ _UNSET = object()
 _STAMP = itemgetter(0)
 _UPDATES = itemgetter(2)
 _VALUE = itemgetter(1)
-_LETTER_DTYPE: dict[str, Any] = {"B": np.uint8, "H": np.uint16, "L": np.dtype("L")}  # typecode
 COLUMNS_FROM = 128  # batches this long are compressed column-wise (NumPy), shorter one by one
 
 
-@dataclass(frozen=True)
-class Verdict:
+class Verdict(NamedTuple):
+    """A verdict a monitor reached. (A named tuple: a check can reach one at each of
+    100,000 steps, and a tuple is made in half the time of a frozen dataclass.)"""
+
     monitor: str
     verdict: VerdictKind
     stamp: int  # nanoseconds: the timestamp of the event whose letter decided it
@@ -49,6 +48,45 @@ class Verdict:
 
     def as_dict(self) -> dict[str, Any]:
         return {"verdict": self.verdict, "stamp": self.stamp, "step": self.step}
+
+
+@dataclass
+class Arrivals:
+    """A monitor's events in arrival order, column by column: what a check hands it a
+    chunk of a trace at a time (:meth:`MonitorRuntime.offer_arrivals`), with no tuple
+    made per event."""
+
+    stamps: Sequence[int]
+    # per signal index: the events (positions, ascending) that update it and the values
+    # they give it, one each
+    changes: list[tuple[Sequence[int], Sequence[Any]]]
+    # per topic: its events (positions, ascending) and the signals each of them updates
+    groups: list[tuple[Sequence[int], tuple[int, ...]]]
+
+    def held(self, signal: int, k: int, before: Any) -> Any:
+        """The signal's value after the ``k``-th event (``before``: its value before any)."""
+        positions, values = self.changes[signal]
+        i = bisect_right(positions, k) - 1
+        return values[i] if i >= 0 else before
+
+    def updates(self, k: int) -> tuple[Update, ...]:
+        """The ``k``-th event's updates, as :meth:`MonitorRuntime.offer` takes them."""
+        for positions, signals in self.groups:
+            i = bisect_left(positions, k)
+            if i < len(positions) and positions[i] == k:
+                return tuple((s, self.changes[s][1][i]) for s in signals)
+        raise IndexError(k)
+
+    def every_update(self) -> list[tuple[Update, ...]]:
+        """Each event's updates, in order (made a topic at a time)."""
+        out: list[tuple[Update, ...]] = [()] * len(self.stamps)
+        for positions, signals in self.groups:
+            each = zip(*[zip(repeat(s), self.changes[s][1]) for s in signals], strict=True)
+            if len(positions) == len(out):
+                return list(each)
+            for k, updates in zip(positions, each, strict=True):
+                out[k] = updates
+        return out
 
 
 def letter_typecode(bits: int) -> str:
@@ -163,7 +201,8 @@ class MonitorRuntime:
     # steps by the clock too (clock steps); None without any.
     clock: Clock | None = field(init=False)
     past: Past | None = field(init=False)  # its past operators' placeholders and state
-    # (a monitor with either compresses its events one by one, never ahead nor column-wise)
+    # (a monitor with either compresses its events one by one, never ahead nor with NumPy;
+    # a check's chunk a run of equal letters at a time, :meth:`offer_arrivals`)
 
     def __post_init__(self) -> None:
         spec = self.monitor.spec
@@ -240,6 +279,146 @@ class MonitorRuntime:
         if len(events) >= self.threshold and not self.holding:
             return self.flush()
         return False
+
+    def offer_arrivals(self, arrivals: Arrivals) -> bool:
+        """:meth:`offer` each of these events in turn; the same letters, stamps and state,
+        made a run of equal letters at a time where the monitor takes its events as they
+        come (``sortThreshold`` 1, no handoff holding them).
+
+        Returns True when letters were produced and :meth:`evaluate` has work.
+        """
+        stamps = arrivals.stamps
+        if not stamps:
+            return False
+        if self.threshold != 1 or self.holding or self.halted or min(stamps) <= self.floor:
+            for stamp, updates in zip(stamps, arrivals.every_update(), strict=True):
+                self.offer(stamp, 0, updates)
+            return len(self.letters) > 0
+        late = sum(map(lt, islice(stamps, 1, None), stamps))  # each older than the one before
+        last = self.last_released
+        if last is not None and stamps[0] < last:
+            late += 1
+        self.late_events += late
+        self.last_released = stamps[-1]
+        self._compress_arrivals(arrivals, in_order=not late)
+        return len(self.letters) > 0
+
+    def _compress_arrivals(self, arrivals: Arrivals, in_order: bool) -> None:
+        """What :meth:`_compress_one` does event by event, a run of equal letters at once.
+
+        An event changes the letter only if it changes an atom's truth, or, in a monitor
+        with past operators, if the last step left a ``prev`` unsettled or a timed
+        operator's truth changes with time before it (:meth:`Past.settled`, the clock's
+        deadline). Only those events are compressed one by one, with the state they
+        would have; each event between two of them makes the letter of the last one
+        again, and the stamps are the events' own (docs/semantics.md, section 3: how,
+        not what). Timed atoms (ages) change with each message on their topic: a monitor
+        with them takes its events one by one.
+        """
+        stamps, n = arrivals.stamps, len(arrivals.stamps)
+        before = list(self.values)
+        clock, past = self.clock, self.past
+        nows = self._nows(stamps, in_order) if clock is not None else stamps
+        k = 0
+        if self.missing or self.monitor.timed:  # no letter before every signal has a value
+            k = self._compress_while_missing(arrivals)
+        if k == n:
+            return
+        letters, out_stamps = self.letters, self.stamps
+        changes = iter(self._atom_changes(arrivals, k, before))
+        change = next(changes, n)
+        synced = k - 1  # the events up to it have the state a step leaves
+        while k < n:
+            if synced < k - 1:  # the run before it left the values and the time behind
+                self._sync(arrivals, k - 1, before, nows)
+            self._compress_one(stamps[k], arrivals.updates(k), letters, out_stamps)
+            synced = k
+            while change <= k:
+                change = next(changes, n)
+            end = change
+            if past is not None and not past.settled(self.valuation):
+                end = k + 1
+            elif clock is not None and clock.deadline is not None:
+                end = bisect_left(nows, clock.deadline, k + 1, end)
+            if end > k + 1:  # the same letter again, up to the next event that may change it
+                letters.extend(array(letters.typecode, [self.valuation]) * (end - k - 1))
+                out_stamps.extend(stamps[k + 1 : end])
+            k = end
+        if synced < n - 1:
+            self._sync(arrivals, n - 1, before, nows)
+            if past is not None:
+                past.prune(nows[n - 1])
+
+    def _compress_while_missing(self, arrivals: Arrivals) -> int:
+        """Compress events one by one while a signal has no value yet (or for good, in a
+        monitor with timed atoms); return how many were."""
+        stamps, k = arrivals.stamps, 0
+        while k < len(stamps) and (self.missing or self.monitor.timed):
+            self._compress_one(stamps[k], arrivals.updates(k), self.letters, self.stamps)
+            k += 1
+        return k
+
+    def _nows(self, stamps: Sequence[int], in_order: bool) -> Sequence[int]:
+        """The monitor's time after each event: the latest stamp so far (a late event
+        counts at the time of the step before it)."""
+        now = self.clock.now if self.clock is not None else None
+        if in_order and (now is None or stamps[0] >= now):
+            return stamps
+        if now is None:
+            return list(accumulate(stamps, max))
+        return list(accumulate(stamps, max, initial=now))[1:]
+
+    def _atom_changes(self, arrivals: Arrivals, k: int, before: list[Any]) -> list[int]:
+        """The events after the ``k``-th that may change an atom's truth, in order: the
+        first update of its signals after it, then each update that changes its truth."""
+        out: set[int] = set()
+        for read in self.monitor.reads:
+            if read.right is None:
+                positions, values = arrivals.changes[read.left]
+                truths = list(map(read.compare, values, repeat(read.const)))
+            else:
+                positions, truths = self._pair_truths(arrivals, read, k, before)
+            start = bisect_right(positions, k)
+            if start < len(positions):
+                out.add(positions[start])
+                changed = map(ne, islice(truths, start + 1, None), islice(truths, start, None))
+                out.update(compress(islice(positions, start + 1, None), changed))
+        return sorted(out)
+
+    @staticmethod
+    def _pair_truths(
+        arrivals: Arrivals, read: AtomRead, k: int, before: list[Any]
+    ) -> tuple[list[int], list[bool]]:
+        """An atom comparing two signals, at each update of either after the ``k``-th event
+        (from which on both have a value)."""
+        assert read.right is not None
+        left, right = arrivals.changes[read.left][0], arrivals.changes[read.right][0]
+        after = {*islice(left, bisect_right(left, k), None)}
+        positions = sorted(after.union(islice(right, bisect_right(right, k), None)))
+        truths = [
+            read.compare(
+                arrivals.held(read.left, p, before[read.left]),
+                arrivals.held(read.right, p, before[read.right]),
+            )
+            for p in positions
+        ]
+        return positions, truths
+
+    def _sync(self, arrivals: Arrivals, k: int, before: list[Any], nows: Sequence[int]) -> None:
+        """The state after the ``k``-th event, which a run of equal letters took whole:
+        its values, its time, the time of each signal's last message. (The letter, the
+        past operators and the clock's deadline are those the run began with.)"""
+        values = self.values
+        for s in range(len(values)):
+            values[s] = arrivals.held(s, k, before[s])
+        clock = self.clock
+        if clock is not None:
+            clock.now = nows[k]
+            for s in range(len(values)):
+                positions = arrivals.changes[s][0]
+                i = bisect_right(positions, k) - 1
+                if i >= 0:
+                    clock.last[s] = nows[positions[i]]
 
     def _compress_ahead(self) -> None:
         """Compress the buffered events not compressed ahead yet: the new one, and those
@@ -417,6 +596,8 @@ class MonitorRuntime:
         columns are object arrays: each element is compared as the Python value it
         holds, so the letters are those of the scalar path (tested side by side).
         """
+        import numpy as np  # here: a check that never compresses a long batch does without it
+
         n = len(batch)
         values = self.values
         stamps = np.fromiter(map(_STAMP, batch), np.int64, n)
@@ -457,7 +638,7 @@ class MonitorRuntime:
             for atom, compare in enumerate(self.monitor.atom_columns):
                 letters |= np.asarray(compare(columns), dtype=bool).astype(np.int64) << atom
         self.valuation = int(letters[-1])
-        self.letters.frombytes(letters.astype(_LETTER_DTYPE[self.letters.typecode]).tobytes())
+        self.letters.frombytes(letters.astype(self.letters.typecode).tobytes())
         self.stamps.frombytes(stamps[first:].tobytes())
 
     def _compress_one(
@@ -509,7 +690,12 @@ class MonitorRuntime:
         stamps.append(stamp)
 
     def evaluate(self) -> list[Verdict]:
-        """Consume every compressed letter; return the verdicts they decided."""
+        """Consume every compressed letter; return the verdicts they decided.
+
+        A run of equal letters is taken whole once the automaton stays in one state on
+        it (a transition back to the state it left): then every step left in the run
+        ends in that state, a verdict each if it is one.
+        """
         letters = self.letters
         if not letters or self.halted:
             return []
@@ -517,17 +703,25 @@ class MonitorRuntime:
         rows, bits, live = table.table, table.bits, table.live
         halt = self.monitor.spec.on_verdict == "halt"
         verdicts: list[Verdict] = []
-        state = self.state
-        consumed = len(letters)
-        for i, letter in enumerate(letters):
-            state = rows[(state << bits) | letter]
-            if state >= live:
-                kind: VerdictKind = "violated" if state == live else "satisfied"
-                verdicts.append(Verdict(self.name, kind, self.stamps[i], self.step + i + 1))
-                if halt:
-                    self.halted = True
-                    consumed = i + 1
-                    break
+        state, start, n = self.state, 0, len(letters)
+        consumed = n
+        for end in [*compress(range(1, n), map(ne, islice(letters, 1, None), letters)), n]:
+            letter, i = letters[start], start
+            while i < end:
+                new = rows[(state << bits) | letter]
+                stays = new == state
+                state = new
+                if state >= live:
+                    last = end if stays and not halt else i + 1
+                    verdicts += self._verdicts(state == live, i, last)
+                    if halt:
+                        self.halted = True
+                        consumed = i + 1
+                        break
+                i = end if stays else i + 1
+            if self.halted:
+                break
+            start = end
         self.state = state
         self.step += consumed
         del letters[:]
@@ -536,6 +730,19 @@ class MonitorRuntime:
             self.unspeculate()
             self.events.clear()
         return verdicts
+
+    def _verdicts(self, violated: bool, first: int, end: int) -> list[Verdict]:
+        """The verdicts of the letters ``first`` to ``end`` (excluded) of this evaluation."""
+        step = self.step + 1
+        return list(
+            map(
+                Verdict,
+                repeat(self.name),
+                repeat("violated" if violated else "satisfied"),
+                self.stamps[first:end],
+                range(step + first, step + end),
+            )
+        )
 
 
 class ValueTypeError(Exception):
@@ -566,6 +773,7 @@ class TopicRoute:
     kinds: list[ValueKind] = field(default_factory=list)
     getters: list[Callable[[Any], Any]] = field(default_factory=list)
     checks: list[Callable[[Any], bool]] = field(default_factory=list)
+    plain: list[Callable[[Any], Any]] = field(default_factory=list)  # for parsed JSON only
     # the distinct bindings, each ((signal index, field index), ...): the monitors that
     # share one get one event tuple per message
     bindings: list[tuple[tuple[int, int], ...]] = field(default_factory=list)
@@ -577,7 +785,26 @@ class TopicRoute:
             self.kinds.append(kind)
             self.getters.append(make_getter(path))
             self.checks.append(_checker(kind))
+            self.plain.append(_plain_getter(path))
         return self.fields.index(path)
+
+    def extract_all(self, msgs: Sequence[Any], parsed_json: bool) -> list[list[Any]] | None:
+        """Each field's values in these messages (one list per field), or None if one of
+        them lacks a field or holds a value of another kind: :meth:`extract` then says
+        which, message by message. ``parsed_json``: the messages are what json.loads
+        gives (dicts, lists, strings, numbers), read with plain indexing."""
+        out = []
+        getters = self.plain if parsed_json else self.getters
+        for get, ok in zip(getters, self.checks, strict=True):
+            try:
+                values = list(map(get, msgs))
+            except Exception:  # extract raises it again, at its message
+                return None
+            for kind in set(map(type, values)):  # ok depends on the type alone
+                if not ok(next(v for v in values if type(v) is kind)):
+                    return None
+            out.append(values)
+        return out
 
     def extract(self, msg: Any) -> list[Any]:
         """The value of each field; raises LookupError/AttributeError/ValueTypeError."""
@@ -660,6 +887,22 @@ class Router:
             if runtime.offer_event(event):
                 ready.append(runtime)
         return ready
+
+
+def _plain_getter(path: str) -> Callable[[Any], Any]:
+    """``path`` read with plain indexing: what the message's getter does on parsed JSON,
+    where every message is a dict and no value has ``item`` (a NumPy scalar's); on
+    anything else it raises, and the getter itself reads it."""
+    keys = [key for step in parse_field_path(path) for key in (step.name, *step.indexes)]
+    if len(keys) == 1:
+        return itemgetter(keys[0])
+
+    def get(msg: Any) -> Any:
+        for key in keys:
+            msg = msg[key]
+        return msg
+
+    return get
 
 
 def header_stamp(msg: Any) -> int | None:

@@ -11,11 +11,12 @@ handler: a message's own header stamp, else when it was published).
 
 from __future__ import annotations
 
+import itertools
 import json
-from collections.abc import Callable, Collection, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Collection, Iterable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
 from edgerv.core.msgtypes import typestore
@@ -23,6 +24,13 @@ from edgerv.core.pipeline import header_stamp
 
 Progress = Callable[[int], None]  # advance by n units (bytes or messages)
 STAMPS = range(-(2**63), 2**63)  # a stamp is signed 64-bit nanoseconds, as ROS time is
+BLOCK_BYTES = 1 << 17  # a JSON trace is read this much at a time (about 9,000 short lines)
+CHUNK_EVENTS = 4096  # a bag's (or any stream's) events are handed on this many at a time
+# json.loads' own parser (the C scanner that JSONDecoder.raw_decode calls), without the checks
+# and the whitespace matching around it: a line is parsed exactly as json.loads parses it
+_SCAN: Callable[[str, int], tuple[Any, int]] = json.JSONDecoder().scan_once  # type: ignore[attr-defined]
+_FIRST_STAMP, _LAST_STAMP = STAMPS[0], STAMPS[-1]
+_UNREAD = object()  # a line the quick reading did not parse
 
 
 @dataclass(frozen=True)
@@ -31,6 +39,95 @@ class TraceEvent:
     stamp: int
     msg: Any
     where: Location  # the line of a JSON trace, or the message's index in a bag
+
+
+@dataclass
+class EventChunk:
+    """Consecutive events of a trace, column by column: a check takes them in one go,
+    with no object made per event (200,000 events: 0.2 s less than one each)."""
+
+    path: str
+    topics: list[str] = field(default_factory=list)
+    stamps: list[int] = field(default_factory=list)
+    msgs: list[Any] = field(default_factory=list)
+    places: list[int] = field(default_factory=list)  # lines of a JSON trace, indexes in a bag
+    locations: list[Location] | None = None  # given instead of path and places
+    parsed_json: bool = False  # the messages are what json.loads gives (dicts, lists, ...)
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    def where(self, i: int) -> Location:
+        if self.locations is not None:
+            return self.locations[i]
+        return Location(self.path, self.places[i])
+
+    def __iter__(self) -> Iterator[TraceEvent]:
+        for i, (topic, stamp, msg) in enumerate(
+            zip(self.topics, self.stamps, self.msgs, strict=True)
+        ):
+            yield TraceEvent(topic, stamp, msg, self.where(i))
+
+    def add(self, event: TraceEvent) -> None:
+        self.topics.append(event.topic)
+        self.stamps.append(event.stamp)
+        self.msgs.append(event.msg)
+        self.places.append(event.where.line or 0)
+
+
+class TraceEvents(Iterator[TraceEvent]):
+    """A trace's events, one by one, or (:meth:`chunks`) a chunk at a time."""
+
+    def __init__(self, chunks: Iterator[EventChunk]) -> None:
+        self._chunks = chunks
+        self._events: Iterator[TraceEvent] = itertools.chain.from_iterable(chunks)
+
+    def __next__(self) -> TraceEvent:
+        return next(self._events)
+
+    def chunks(self) -> Iterator[EventChunk]:
+        """The events not taken yet, a chunk at a time (do not mix with :meth:`__next__`)."""
+        return self._chunks
+
+
+def chunks_of(events: Iterable[TraceEvent], size: int = CHUNK_EVENTS) -> Iterator[EventChunk]:
+    """Events gathered into chunks; an error in ``events`` comes after the chunk before it."""
+    chunk, stream = EventChunk("", locations=[]), iter(events)
+    while True:
+        try:
+            event = next(stream)
+        except StopIteration:
+            break
+        except Exception:
+            if len(chunk):
+                yield chunk
+            raise
+        chunk.add(event)
+        chunk.locations.append(event.where)  # type: ignore[union-attr]
+        if len(chunk) >= size:
+            yield chunk
+            chunk = EventChunk("", locations=[])
+    if len(chunk):
+        yield chunk
+
+
+def _blocks(handle: BinaryIO, progress: Progress | None) -> Iterator[bytes]:
+    """The file's bytes a block of whole lines at a time, each ending with a newline (the
+    last line gets one if it has none)."""
+    rest = b""
+    while block := handle.read(BLOCK_BYTES):
+        cut = block.rfind(b"\n") + 1
+        if not cut:  # no line ends in it: read on
+            rest += block
+            continue
+        data, rest = rest + block[:cut], block[cut:]
+        if progress:
+            progress(len(data))
+        yield data
+    if rest:
+        if progress:
+            progress(len(rest))
+        yield rest + b"\n"
 
 
 class Trace:
@@ -49,18 +146,27 @@ class Trace:
         if self.end is None or stamp > self.end:
             self.end = stamp
 
-    def events(
-        self, topics: Collection[str], progress: Progress | None = None
-    ) -> Iterator[TraceEvent]:
+    def events(self, topics: Collection[str], progress: Progress | None = None) -> TraceEvents:
         if self.is_bag:
-            return self._bag_events(topics, progress)
-        return self._jsonl_events(topics, progress)
+            return TraceEvents(self._bag_chunks(topics, progress))
+        return TraceEvents(self._jsonl_chunks(topics, progress))
 
     # -- JSON Lines --------------------------------------------------------------------------
 
-    def _jsonl_events(
+    def _jsonl_chunks(
         self, topics: Collection[str], progress: Progress | None
-    ) -> Iterator[TraceEvent]:
+    ) -> Iterator[EventChunk]:
+        """The trace's events, a block of lines at a time.
+
+        Each block is decoded at once and each line parsed by the JSON scanner itself
+        (json.loads costs twice as much a line: it checks its argument's type, decodes
+        bytes and matches the whitespace around the document). A line of the usual
+        shape (an object, nothing around it; topic, integer stamp, msg without a
+        header) is taken as it is; any other goes through :func:`_jsonl_event`, which
+        reads every line the same way this reader always did and names the place of
+        what is wrong. Both read a line alike: a block is the lines it holds, decoded
+        as each would be alone (no UTF-8 sequence spans a newline).
+        """
         path = str(self.path)
         try:
             handle = self.path.open("rb")
@@ -69,20 +175,78 @@ class Trace:
                 [Diagnostic(Location(path), f"cannot read trace: {exc.strerror}")]
             ) from None
         with handle:
-            for lineno, raw in enumerate(handle, start=1):
-                if progress:
-                    progress(len(raw))
-                if not raw.strip():
-                    continue
-                event = _jsonl_event(path, lineno, raw, topics, self._saw)
-                if event is not None:
-                    yield event
+            lineno = 0
+            for data in _blocks(handle, progress):
+                chunk = EventChunk(path, parsed_json=True)
+                try:
+                    lineno = self._read_lines(chunk, lineno, data, topics)
+                except InputError:  # a bad line: the events before it are still checked
+                    if len(chunk):
+                        yield chunk
+                    raise
+                if len(chunk):
+                    yield chunk
+
+    def _read_lines(
+        self, chunk: EventChunk, lineno: int, data: bytes, topics: Collection[str]
+    ) -> int:
+        """Read the lines of ``data`` (each ending with a newline) into ``chunk``; return
+        the number of the last one. Raises :class:`InputError` at a bad line, ``chunk``
+        holding the events before it."""
+        scan, path = _SCAN, chunk.path
+        tops, stamps, msgs, places = chunk.topics, chunk.stamps, chunk.msgs, chunk.places
+        latest = self.end
+        lines = data.decode("utf-8", errors="replace").split("\n")
+        lines.pop()  # after the last newline
+        lineno += 1  # the first line's number
+        raws: list[bytes] | None = None  # the lines as bytes, for the careful reading
+        for i, line in enumerate(lines):
+            try:
+                record, end = scan(line, 0)
+            except (StopIteration, ValueError, RecursionError):
+                record = _UNREAD
+            else:
+                if end != len(line) or type(record) is not dict:
+                    record = _UNREAD  # more than one JSON object, or not one at all
+                else:
+                    topic, msg, stamp = record.get("topic"), record.get("msg"), record.get("stamp")
+                    if (
+                        type(topic) is str
+                        and topic in topics
+                        and type(msg) is dict
+                        and "header" not in msg
+                        and type(stamp) is int
+                        and _FIRST_STAMP <= stamp <= _LAST_STAMP
+                    ):
+                        tops.append(topic)
+                        stamps.append(stamp)
+                        msgs.append(msg)
+                        places.append(lineno + i)
+                        if latest is None or stamp > latest:
+                            latest = stamp
+                        continue
+            # not the usual shape: read as this reader always did, errors named at their place
+            self.end = latest
+            try:
+                if record is not _UNREAD:
+                    event = _record_event(path, lineno + i, line, record, topics, self._saw)
+                else:
+                    raws = data.split(b"\n") if raws is None else raws
+                    if not raws[i].strip():
+                        continue
+                    event = _jsonl_event(path, lineno + i, raws[i], topics, self._saw)
+            finally:
+                latest = self.end
+            if event is not None:
+                chunk.add(event)
+        self.end = latest
+        return lineno + len(lines) - 1
 
     # -- rosbag2 -----------------------------------------------------------------------------
 
-    def _bag_events(
+    def _bag_chunks(
         self, topics: Collection[str], progress: Progress | None
-    ) -> Iterator[TraceEvent]:
+    ) -> Iterator[EventChunk]:
         from rosbags.highlevel import AnyReader
 
         path = str(self.path)
@@ -99,6 +263,7 @@ class Trace:
                     )
                 ]
             ) from None
+        chunk = EventChunk(path)
         try:
             self._saw(reader.end_time - 1)  # rosbags: the instant after the last message
             conns = [c for c in reader.connections if c.topic in topics]
@@ -136,7 +301,19 @@ class Trace:
                         ]
                     )
                 self._saw(stamp)
-                yield TraceEvent(conn.topic, stamp, msg, Location(path, index))
+                chunk.topics.append(conn.topic)
+                chunk.stamps.append(stamp)
+                chunk.msgs.append(msg)
+                chunk.places.append(index)
+                if len(chunk) >= CHUNK_EVENTS:
+                    yield chunk
+                    chunk = EventChunk(path)
+            if len(chunk):
+                yield chunk
+        except InputError:  # a damaged bag: the messages before it are still checked
+            if len(chunk):
+                yield chunk
+            raise
         finally:
             reader.close()
 
@@ -174,20 +351,41 @@ class Trace:
 def _jsonl_event(
     path: str, lineno: int, raw: bytes, topics: Collection[str], saw: Callable[[int], None]
 ) -> TraceEvent | None:
+    """One line read with care: the event, None for a topic not read, or the located error."""
     text = raw.decode("utf-8", errors="replace").rstrip("\r\n")
-
-    def fail(message: str, col: int | None = None) -> InputError:
-        loc = Location(path, lineno, col, 1, text if col else None)
-        return InputError([Diagnostic(loc, message)])
-
     try:
         record = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise fail(f"invalid JSON: {exc.msg}", exc.pos + 1) from None
+        raise _bad_line(path, lineno, text, f"invalid JSON: {exc.msg}", exc.pos + 1) from None
     except ValueError:  # Python reads no integer of more than 4,300 digits
-        raise fail("invalid JSON: a number too long to read") from None
+        raise _bad_line(path, lineno, text, "invalid JSON: a number too long to read") from None
     except RecursionError:  # Python's parser recurses per level: thousands are too many
-        raise fail("nested too deep to read (a message has a few levels)") from None
+        raise _bad_line(
+            path, lineno, text, "nested too deep to read (a message has a few levels)"
+        ) from None
+    return _record_event(path, lineno, text, record, topics, saw)
+
+
+def _bad_line(
+    path: str, lineno: int, text: str, message: str, col: int | None = None
+) -> InputError:
+    loc = Location(path, lineno, col, 1, text if col else None)
+    return InputError([Diagnostic(loc, message)])
+
+
+def _record_event(
+    path: str,
+    lineno: int,
+    text: str,
+    record: Any,
+    topics: Collection[str],
+    saw: Callable[[int], None],
+) -> TraceEvent | None:
+    """The event a parsed line holds, None for a topic not read, or the located error."""
+
+    def fail(message: str) -> InputError:
+        return _bad_line(path, lineno, text, message)
+
     if not isinstance(record, dict):
         raise fail("each line must be a JSON object with topic, stamp and msg")
     topic = record.get("topic")
