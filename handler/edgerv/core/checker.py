@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from collections.abc import Collection, Iterable, Sequence
 from dataclasses import dataclass, field
-from itertools import chain, compress, count
+from itertools import chain, compress, count, repeat
+from operator import eq
 from typing import Any
 
 from edgerv.core.diagnostics import Diagnostic, InputError
@@ -162,7 +163,7 @@ FEW_TOPICS = 6  # up to this many topics, a chunk is split by one pass over it f
 def _indexes_by_topic(topics: list[str], wanted: Collection[str]) -> dict[str, list[int]]:
     """The positions in ``topics`` of each wanted topic present."""
     if len(wanted) <= FEW_TOPICS:  # a C loop over the chunk per topic
-        found = {t: list(compress(range(len(topics)), map(t.__eq__, topics))) for t in wanted}
+        found = {t: list(compress(range(len(topics)), map(eq, topics, repeat(t)))) for t in wanted}
         return {t: i for t, i in found.items() if i}
     out: dict[str, list[int]] = {}
     for i, topic in enumerate(topics):

@@ -11,12 +11,15 @@ handler: a message's own header stamp, else when it was published).
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 from collections.abc import Callable, Collection, Iterable, Iterator
 from dataclasses import dataclass, field
+from itertools import islice, repeat
+from operator import contains, itemgetter
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, cast
 
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
 from edgerv.core.msgtypes import typestore
@@ -31,6 +34,8 @@ CHUNK_EVENTS = 4096  # a bag's (or any stream's) events are handed on this many 
 _SCAN: Callable[[str, int], tuple[Any, int]] = json.JSONDecoder().scan_once  # type: ignore[attr-defined]
 _FIRST_STAMP, _LAST_STAMP = STAMPS[0], STAMPS[-1]
 _UNREAD = object()  # a line the quick reading did not parse
+_FIRST, _SECOND = itemgetter(0), itemgetter(1)
+_HAS: Callable[[Any, str], bool] = contains
 
 
 @dataclass(frozen=True)
@@ -109,6 +114,22 @@ def chunks_of(events: Iterable[TraceEvent], size: int = CHUNK_EVENTS) -> Iterato
             chunk = EventChunk("", locations=[])
     if len(chunk):
         yield chunk
+
+
+def _scan_lines(lines: list[str]) -> list[tuple[Any, int] | None]:
+    """Each line parsed by the scanner (the JSON value at its start, and where it ends),
+    None for a line it cannot parse: the lines are mapped through it in C, a run of
+    parseable ones at a time (a failing line stops the map; the next run starts after
+    it). What is made of a result is for the caller to check."""
+    out: list[tuple[Any, int] | None] = []
+    while len(out) < len(lines):
+        # a StopIteration from the scanner ends the map as if the lines had; an error
+        # leaves the results before it in ``out``
+        with contextlib.suppress(ValueError, RecursionError):
+            out.extend(map(_SCAN, islice(lines, len(out), None), repeat(0)))
+        if len(out) < len(lines):
+            out.append(None)
+    return out
 
 
 def _blocks(handle: BinaryIO, progress: Progress | None) -> Iterator[bytes]:
@@ -193,38 +214,37 @@ class Trace:
         """Read the lines of ``data`` (each ending with a newline) into ``chunk``; return
         the number of the last one. Raises :class:`InputError` at a bad line, ``chunk``
         holding the events before it."""
-        scan, path = _SCAN, chunk.path
-        tops, stamps, msgs, places = chunk.topics, chunk.stamps, chunk.msgs, chunk.places
-        latest = self.end
         lines = data.decode("utf-8", errors="replace").split("\n")
         lines.pop()  # after the last newline
         lineno += 1  # the first line's number
+        parsed = _scan_lines(lines)
+        if self._take_block(chunk, lineno, lines, parsed, topics):
+            return lineno + len(lines) - 1
+        path, latest = chunk.path, self.end
+        tops, stamps, msgs, places = chunk.topics, chunk.stamps, chunk.msgs, chunk.places
         raws: list[bytes] | None = None  # the lines as bytes, for the careful reading
         for i, line in enumerate(lines):
-            try:
-                record, end = scan(line, 0)
-            except (StopIteration, ValueError, RecursionError):
-                record = _UNREAD
-            else:
-                if end != len(line) or type(record) is not dict:
-                    record = _UNREAD  # more than one JSON object, or not one at all
-                else:
-                    topic, msg, stamp = record.get("topic"), record.get("msg"), record.get("stamp")
-                    if (
-                        type(topic) is str
-                        and topic in topics
-                        and type(msg) is dict
-                        and "header" not in msg
-                        and type(stamp) is int
-                        and _FIRST_STAMP <= stamp <= _LAST_STAMP
-                    ):
-                        tops.append(topic)
-                        stamps.append(stamp)
-                        msgs.append(msg)
-                        places.append(lineno + i)
-                        if latest is None or stamp > latest:
-                            latest = stamp
-                        continue
+            scanned = parsed[i]
+            record: Any = _UNREAD if scanned is None else scanned[0]
+            if scanned is not None and (scanned[1] != len(line) or type(record) is not dict):
+                record = _UNREAD  # more than one JSON object, or not one at all
+            elif record is not _UNREAD:
+                topic, msg, stamp = record.get("topic"), record.get("msg"), record.get("stamp")
+                if (
+                    type(topic) is str
+                    and topic in topics
+                    and type(msg) is dict
+                    and "header" not in msg
+                    and type(stamp) is int
+                    and _FIRST_STAMP <= stamp <= _LAST_STAMP
+                ):
+                    tops.append(topic)
+                    stamps.append(stamp)
+                    msgs.append(msg)
+                    places.append(lineno + i)
+                    if latest is None or stamp > latest:
+                        latest = stamp
+                    continue
             # not the usual shape: read as this reader always did, errors named at their place
             self.end = latest
             try:
@@ -241,6 +261,44 @@ class Trace:
                 chunk.add(event)
         self.end = latest
         return lineno + len(lines) - 1
+
+    def _take_block(
+        self,
+        chunk: EventChunk,
+        lineno: int,
+        lines: list[str],
+        parsed: list[tuple[Any, int] | None],
+        topics: Collection[str],
+    ) -> bool:
+        """Take the whole block into ``chunk`` if every line is of the usual shape (one
+        object, nothing around it, a topic read, an integer stamp in range, a msg without
+        a header), checked a column at a time (no Python code per line); else leave it."""
+        if None in parsed:
+            return False
+        scanned = cast(list[tuple[Any, int]], parsed)
+        if list(map(_SECOND, scanned)) != list(map(len, lines)):
+            return False
+        records: list[Any] = list(map(_FIRST, scanned))
+        if set(map(type, records)) != {dict}:
+            return False
+        tops: list[Any] = list(map(dict.get, records, repeat("topic")))
+        try:
+            if not all(map(topics.__contains__, set(tops))):
+                return False
+        except TypeError:  # a topic that is not a string: not even hashable
+            return False
+        msgs: list[Any] = list(map(dict.get, records, repeat("msg")))
+        if set(map(type, msgs)) != {dict} or any(map(_HAS, msgs, repeat("header"))):
+            return False
+        stamps: list[Any] = list(map(dict.get, records, repeat("stamp")))
+        if set(map(type, stamps)) != {int}:
+            return False
+        if min(stamps) < _FIRST_STAMP or max(stamps) > _LAST_STAMP:
+            return False
+        chunk.topics, chunk.stamps, chunk.msgs = tops, stamps, msgs
+        chunk.places = list(range(lineno, lineno + len(lines)))
+        self._saw(max(stamps))
+        return True
 
     # -- rosbag2 -----------------------------------------------------------------------------
 
