@@ -17,12 +17,18 @@ Open: ``GET /healthz``, ``GET /metrics`` (Prometheus text). Everything under
 
 A body with bad documents changes nothing and gets 400 with every error located
 in the body (``request:LINE:COL``).
+
+What one client may take is bounded (:class:`Limits`, docs/handler.md "Limits on
+input"): connections open at once (one more gets 503), the time to send a request
+(head and body) and to read its answer, idle kept-alive connections, monitors defined.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hmac
+import json
 import logging
 import threading
 import time
@@ -30,6 +36,7 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 from aiohttp import web
+from aiohttp.http_exceptions import HttpProcessingError
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 
 from edgerv.core.diagnostics import Diagnostic, InputError
@@ -37,13 +44,161 @@ from edgerv.core.documents import MonitorSpec, parse_monitors_text
 from edgerv.core.handoff import HandoffError, bundle, decode_frames, encode, unbundle
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.handler.engine import Engine
+from edgerv.handler.limits import Limits
 
 log = logging.getLogger("edgerv.handler.api")
+http_log = logging.getLogger("edgerv.handler.api.http")  # aiohttp's server logs here
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 MAX_BODY = 1 << 20  # Monitor documents
 MAX_HANDOFF_BODY = 64 << 20  # a bundle of snapshots (deflated)
 MAX_WAIT = 5.0  # seconds a release call may wait for events past the cut
 RELEASE_POLL = 0.002  # how often it looks again meanwhile
+MAX_HEADERS = 32  # a request's header lines (our clients send 5); each at most 8,190 bytes
+REFUSED_LINGER = 1.0  # seconds a connection beyond the cap stays open to read its answer
+DEADLINE = web.RequestKey("deadline", float)  # the request's body is in by then (loop time)
+
+
+class _ClientFault(logging.Filter):
+    """aiohttp logs a request it cannot parse at ERROR with a traceback: a client's fault
+    (garbage, too many headers), so one line at DEBUG, not a flood a client can cause."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        if isinstance(exc, HttpProcessingError):
+            record.msg, record.args = "%s: %s", (record.getMessage(), exc.message)
+            record.levelno, record.levelname = logging.DEBUG, "DEBUG"
+            record.exc_info = record.exc_text = None
+            return http_log.isEnabledFor(logging.DEBUG)  # the level was checked as ERROR
+        return True
+
+
+http_log.addFilter(_ClientFault())
+
+
+class _Connection(asyncio.Protocol):
+    """One client's connection, around aiohttp's protocol: it counts toward the cap and
+    is closed when a request's head does not arrive within ``read_seconds`` of its first
+    byte, or an answer waits that long for the client to read it. (The body's deadline is
+    kept by ``ControlApi._limit``; aiohttp keeps the idle one.)"""
+
+    def __init__(self, pool: _Connections, inner: asyncio.Protocol) -> None:
+        self.pool = pool
+        self.inner = inner
+        self.transport: asyncio.Transport | None = None
+        self.busy = False  # a request is under way: its bytes came, its answer is not out
+        self.deadline = 0.0  # for the request under way (the loop's clock)
+        self.reading: asyncio.TimerHandle | None = None  # its head is on its way
+        self.writing: asyncio.TimerHandle | None = None  # an answer waits to be read
+
+    def _soon(self) -> float:
+        return asyncio.get_running_loop().time() + self.pool.limits.read_seconds
+
+    def _cut_at(self, deadline: float, why: str) -> asyncio.TimerHandle:
+        return asyncio.get_running_loop().call_at(deadline, self._cut, why)
+
+    def _cut(self, why: str) -> None:
+        log.info("closed a connection: %s within %g s", why, self.pool.limits.read_seconds)
+        if self.transport is not None:
+            self.transport.abort()
+
+    def request_arrived(self) -> float:
+        """The head is in (aiohttp parsed it): the deadline for its body. A request whose
+        bytes came while the one before was answered gets the whole time for its body."""
+        if self.reading is None:
+            self.deadline = self._soon()
+        else:
+            self.reading.cancel()
+            self.reading = None
+        self.busy = True
+        return self.deadline
+
+    def answered(self) -> None:
+        self.busy = False
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+        self.inner.connection_made(transport)
+
+    def data_received(self, data: bytes) -> None:
+        if not self.busy and self.reading is None:
+            self.busy = True
+            self.deadline = self._soon()
+            self.reading = self._cut_at(self.deadline, "a request's head did not arrive")
+        self.inner.data_received(data)
+
+    def eof_received(self) -> bool | None:
+        return self.inner.eof_received()
+
+    def pause_writing(self) -> None:  # the client does not read what it asked for
+        if self.writing is None:
+            self.writing = self._cut_at(self._soon(), "an answer was not read")
+        self.inner.pause_writing()
+
+    def resume_writing(self) -> None:
+        if self.writing is not None:
+            self.writing.cancel()
+            self.writing = None
+        self.inner.resume_writing()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        for timer in (self.reading, self.writing):
+            if timer is not None:
+                timer.cancel()
+        self.transport = None
+        self.pool.open -= 1
+        self.inner.connection_lost(exc)
+
+
+class _Refused(asyncio.Protocol):
+    """A connection beyond the cap: answered 503 at once, closed once the client is done
+    (or after ``REFUSED_LINGER``; closing before its request was read could reset the
+    connection under the answer)."""
+
+    def __init__(self, answer: bytes) -> None:
+        self.answer = answer
+        self.timer: asyncio.TimerHandle | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        transport.write(self.answer)
+        try:
+            transport.write_eof()
+        except OSError:  # the client is gone already
+            transport.abort()
+            return
+        self.timer = asyncio.get_running_loop().call_later(REFUSED_LINGER, transport.abort)
+
+    def data_received(self, data: bytes) -> None:
+        pass  # the request: it is not served
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+
+
+class _Connections:
+    """The protocol factory the API listens with: aiohttp's, counted and capped."""
+
+    def __init__(self, make: Callable[[], asyncio.Protocol], limits: Limits) -> None:
+        self.make = make
+        self.limits = limits
+        self.open = 0
+        text = (
+            f"this handler serves at most {limits.connections} connections at once "
+            "(--api-max-connections): try again in a moment"
+        )
+        body = json.dumps({"errors": [{"message": text}]}).encode()
+        self.refusal = (
+            "HTTP/1.1 503 Service Unavailable\r\nContent-Type: application/json\r\n"
+            f"Content-Length: {len(body)}\r\nRetry-After: 1\r\nConnection: close\r\n\r\n"
+        ).encode() + body
+
+    def __call__(self) -> asyncio.Protocol:
+        if self.open >= self.limits.connections:  # counted here: accepts come in bursts
+            return _Refused(self.refusal)
+        self.open += 1
+        return _Connection(self, self.make())
 
 
 def _active(request: web.Request) -> bool:
@@ -118,14 +273,17 @@ class ControlApi:
         token: str | None,
         on_change: Callable[[], None],
         on_routes: Callable[[], None] | None = None,
+        limits: Limits | None = None,
     ) -> None:
         self.engine = engine
+        self.limits = limits or Limits()
         self.registry = registry
         self.token = token
         self.on_change = on_change  # monitors defined or removed
         self.on_routes = on_routes or on_change  # only the topics to read changed
         self._loop: asyncio.AbstractEventLoop | None = None
         self._runner: web.AppRunner | None = None
+        self._server: asyncio.Server | None = None
         self._thread: threading.Thread | None = None
         self.port: int | None = None
 
@@ -146,6 +304,49 @@ class ControlApi:
                     status=401,
                     headers={"WWW-Authenticate": 'Bearer realm="edgerv"'},
                 )
+        return await handler(request)
+
+    # -- limits ----------------------------------------------------------------------------
+
+    @web.middleware
+    async def _limit(self, request: web.Request, handler: Handler) -> web.StreamResponse:
+        """Outermost: the request's head is in; its body must be by the deadline."""
+        transport = request.transport
+        conn = transport.get_protocol() if transport is not None else None
+        if not isinstance(conn, _Connection):  # served some other way (aiohttp's test client)
+            return await handler(request)
+        request[DEADLINE] = conn.request_arrived()
+        try:
+            return await handler(request)
+        finally:
+            conn.answered()
+
+    @web.middleware
+    async def _body(self, request: web.Request, handler: Handler) -> web.StreamResponse:
+        """After the token is checked: read the body of a call that takes one, by its
+        deadline and within its size (the handlers then read it from memory)."""
+        if not request.body_exists or request.match_info.http_exception is not None:
+            return await handler(request)  # nothing to read, or a 404/405: left unread
+        limit = MAX_HANDOFF_BODY if request.path.startswith("/v1/handoff/") else MAX_BODY
+        if (request.content_length or 0) > limit:
+            answer = _message(413, f"body larger than {limit} bytes")
+            answer.force_close()  # not read: the connection cannot carry another request
+            return answer
+        try:
+            async with asyncio.timeout_at(request.get(DEADLINE)):
+                await request.read()  # chunked: bounded by the app's client_max_size
+        except TimeoutError:
+            answer = _message(
+                408,
+                f"the request's body did not arrive within {self.limits.read_seconds:g} s "
+                "(--api-read-timeout); the connection is closed",
+            )
+            with contextlib.suppress(ConnectionError):  # said now, not after aiohttp has
+                await answer.prepare(request)  # waited as long again for the rest
+                await answer.write_eof()
+            if request.transport is not None:
+                request.transport.close()
+            return answer
         return await handler(request)
 
     # -- routes ----------------------------------------------------------------------------
@@ -177,12 +378,9 @@ class ControlApi:
     async def _read_specs(
         self, request: web.Request
     ) -> tuple[list[CompiledMonitor], web.Response | None]:
-        too_big = _message(413, f"body larger than {MAX_BODY} bytes")
-        if (request.content_length or 0) > MAX_BODY:
-            return [], too_big
-        raw = await request.read()  # chunked: bounded by the app's client_max_size
+        raw = await request.read()  # read by ``_body``, within the app's client_max_size
         if len(raw) > MAX_BODY:
-            return [], too_big
+            return [], _message(413, f"body larger than {MAX_BODY} bytes")
         try:
             text = raw.decode()
         except UnicodeDecodeError:
@@ -211,12 +409,14 @@ class ControlApi:
         compiled, problem = await self._read_specs(request)
         if problem is not None:
             return problem
-        existing = {m["name"] for m in self.engine.snapshot()}
+        existing = self.engine.slots.keys()
         clash = [c.name for c in compiled if c.name in existing]
         if clash:
             return _message(
                 409, f"monitor '{clash[0]}' exists; PUT /v1/monitors/{clash[0]} replaces it"
             )
+        if len(existing) + len(compiled) > self.limits.monitors:
+            return _message(403, self.limits.full(len(existing)))
         active = _active(request)
         for c in compiled:
             self.engine.put(c, active=active)
@@ -231,6 +431,9 @@ class ControlApi:
             return problem
         if [c.name for c in compiled] != [name]:
             return _message(400, f"the body must hold exactly one Monitor named '{name}'")
+        defined = len(self.engine.slots)
+        if name not in self.engine.slots and defined >= self.limits.monitors:
+            return _message(403, self.limits.full(defined))
         created = self.engine.put(compiled[0], active=_active(request))
         self.on_change()
         log.info("%s %s", "added" if created else "replaced", name)
@@ -336,7 +539,9 @@ class ControlApi:
     # -- serving ---------------------------------------------------------------------------
 
     def app(self) -> web.Application:
-        app = web.Application(middlewares=[self._auth], client_max_size=MAX_HANDOFF_BODY)
+        app = web.Application(
+            middlewares=[self._limit, self._auth, self._body], client_max_size=MAX_HANDOFF_BODY
+        )
         app.add_routes(
             [
                 web.get("/healthz", self.healthz),
@@ -363,18 +568,28 @@ class ControlApi:
             loop = asyncio.new_event_loop()
             self._loop = loop
             try:
-                self._runner = web.AppRunner(self.app(), access_log=None)
+                self._runner = web.AppRunner(
+                    self.app(),
+                    access_log=None,
+                    keepalive_timeout=self.limits.idle_seconds,
+                    lingering_time=self.limits.read_seconds,  # reading an unwanted body
+                    max_headers=MAX_HEADERS,
+                    logger=http_log,
+                )
                 loop.run_until_complete(self._runner.setup())
-                site = web.TCPSite(self._runner, host, port)
-                loop.run_until_complete(site.start())
-                server: Any = site._server  # the bound port, when 0 was asked for
-                self.port = server.sockets[0].getsockname()[1] if server else port
+                assert self._runner.server is not None
+                connections = _Connections(self._runner.server, self.limits)
+                self._server = loop.run_until_complete(
+                    loop.create_server(connections, host, port)  # in place of a TCPSite
+                )
+                self.port = self._server.sockets[0].getsockname()[1]  # when 0 was asked for
             except BaseException as exc:
                 failure.append(exc)
                 started.set()
                 return
             started.set()
             loop.run_forever()
+            self._server.close()
             loop.run_until_complete(self._runner.cleanup())
             loop.close()
 

@@ -10,8 +10,10 @@ event is evaluated, the verdict log is flushed, and it exits 0.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import logging
+import math
 import os
 import signal
 import sys
@@ -20,9 +22,10 @@ from pathlib import Path
 
 from edgerv.core.deadline import MakespanWindow, parse_deadline
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
-from edgerv.core.documents import read_monitors
+from edgerv.core.documents import MonitorSpec, read_monitors
 from edgerv.core.spot_worker import add_budget_argument, worker
 from edgerv.handler.engine import Engine, VerdictSink
+from edgerv.handler.limits import Limits
 from edgerv.handler.sinks import VerdictLog
 
 log = logging.getLogger("edgerv.handler")
@@ -47,6 +50,21 @@ def parse_listen(value: str) -> tuple[str, int]:
     if not sep or not port.isdigit() or not 0 <= int(port) <= 65535:
         raise argparse.ArgumentTypeError(f"'{value}' is not HOST:PORT, e.g. 127.0.0.1:8470")
     return host.strip("[]") or "0.0.0.0", int(port)
+
+
+def whole_number(text: str) -> int:
+    """A count of 1 or more (connections, monitors)."""
+    if not (text.isascii() and text.isdigit()) or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number above 0")
+    return int(text)
+
+
+def time_limit(text: str) -> float:
+    """SECONDS above 0, finite (a time limit of the API)."""
+    with contextlib.suppress(ValueError):
+        if 0 < (value := float(text)) < math.inf:
+            return value
+    raise argparse.ArgumentTypeError(f"'{text}' is not a number of seconds above 0")
 
 
 def read_token(args: argparse.Namespace) -> str | None:
@@ -118,7 +136,62 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "minus stamp) against DURATION (e.g. /cmd_vel=125ms) and report it in /v1/load",
     )
     add_budget_argument(p)
+    given = Limits()
+    p.add_argument(
+        "--max-monitors",
+        type=whole_number,
+        default=given.monitors,
+        metavar="N",
+        help="define at most N monitors here, active or not: more from --monitors are "
+        f"refused at start, more through the API get 403 (default {given.monitors:,}; "
+        "each idle one takes ~10 KiB)",
+    )
+    p.add_argument(
+        "--api-max-connections",
+        type=whole_number,
+        default=given.connections,
+        metavar="N",
+        help="serve at most N connections at once; one more is answered 503 and closed "
+        f"(default {given.connections})",
+    )
+    p.add_argument(
+        "--api-read-timeout",
+        type=time_limit,
+        default=given.read_seconds,
+        metavar="SECONDS",
+        help="close a connection whose request (head and body) has not all arrived this "
+        "long after its first byte, or whose answer waits this long to be read "
+        f"(default {given.read_seconds:g})",
+    )
+    p.add_argument(
+        "--api-idle-timeout",
+        type=time_limit,
+        default=given.idle_seconds,
+        metavar="SECONDS",
+        help="close a kept-alive connection that sends no request for this long "
+        f"(default {given.idle_seconds:g})",
+    )
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
+
+
+def load(engine: Engine, specs: list[MonitorSpec], active: set[str], most: int) -> list[Diagnostic]:
+    """Define the monitors of --monitors, at most ``most`` of them (--max-monitors): a
+    monitor beyond is refused at its place, with the number of those after it."""
+    diagnostics = []
+    for i, spec in enumerate(specs):
+        if len(engine.slots) >= most:
+            more = f" and the {len(specs) - i - 1} after it" if i + 1 < len(specs) else ""
+            refused = (
+                f"monitor '{spec.name}'{more} not loaded: this handler holds at most {most} "
+                "(--max-monitors): raise it, or run the others on another handler"
+            )
+            diagnostics.append(Diagnostic(spec.location, refused))
+            break
+        try:
+            engine.put(engine.compile(spec), active=spec.name in active)
+        except InputError as exc:
+            diagnostics += exc.diagnostics
+    return diagnostics
 
 
 def run(args: argparse.Namespace) -> int:
@@ -183,11 +256,7 @@ def run(args: argparse.Namespace) -> int:
     ros = ros_node.RosIngest(engine, args.name, reorder_window=window)
     engine.sinks.append(ros)
     engine.matched = ros.matched
-    for spec in specs:
-        try:
-            engine.put(engine.compile(spec), active=spec.name in active)
-        except InputError as exc:
-            diagnostics += exc.diagnostics
+    diagnostics += load(engine, specs, active, args.max_monitors)
     for d in diagnostics:
         print(d.render(), file=sys.stderr)
     if any(d.severity == "error" for d in diagnostics):
@@ -218,6 +287,12 @@ def run(args: argparse.Namespace) -> int:
             token,
             on_change=on_change,
             on_routes=ros.wake,
+            limits=Limits(
+                connections=args.api_max_connections,
+                read_seconds=args.api_read_timeout,
+                idle_seconds=args.api_idle_timeout,
+                monitors=args.max_monitors,
+            ),
         )
         try:
             api.start(*args.listen)
