@@ -13,12 +13,13 @@ once per message and hands every monitor that reads the topic its updates.
 
 from __future__ import annotations
 
+import math
 from array import array
 from bisect import bisect_left, bisect_right
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from itertools import accumulate, chain, compress, islice, repeat
-from operator import itemgetter, lt, ne
+from operator import add, and_, eq, ge, gt, itemgetter, le, lt, ne, sub
 from typing import Any, Literal, NamedTuple
 
 from edgerv.core.documents import QosSpec
@@ -94,13 +95,7 @@ def letter_typecode(bits: int) -> str:
     return "B" if bits <= 8 else "H" if bits <= 16 else "L"
 
 
-_AGE_CMP: dict[str, Callable[[int, int], bool]] = {
-    "<": lambda age, d: age < d,
-    "<=": lambda age, d: age <= d,
-    ">": lambda age, d: age > d,
-    ">=": lambda age, d: age >= d,
-    "==": lambda age, d: age == d,
-}
+_AGE_CMP: dict[str, Callable[[Any, Any], bool]] = {"<": lt, "<=": le, ">": gt, ">=": ge, "==": eq}
 # For each comparison of an age with d: the instants, after the message at ``last``,
 # at which its truth changes (age is d at last + d): ``age < d`` turns false at last + d.
 _EDGES: dict[str, tuple[int, ...]] = {"<": (0,), ">=": (0,), "<=": (1,), ">": (1,), "==": (0, 1)}
@@ -202,7 +197,7 @@ class MonitorRuntime:
     clock: Clock | None = field(init=False)
     past: Past | None = field(init=False)  # its past operators' placeholders and state
     # (a monitor with either compresses its events one by one, never ahead nor with NumPy;
-    # a check's chunk a run of equal letters at a time, :meth:`offer_arrivals`)
+    # a check's chunks, a run of equal letters at a time: :meth:`offer_arrivals`)
 
     def __post_init__(self) -> None:
         spec = self.monitor.spec
@@ -306,27 +301,30 @@ class MonitorRuntime:
     def _compress_arrivals(self, arrivals: Arrivals, in_order: bool) -> None:
         """What :meth:`_compress_one` does event by event, a run of equal letters at once.
 
-        An event changes the letter only if it changes an atom's truth, or, in a monitor
+        An event changes the letter only if it changes an atom's truth (a timed atom's
+        too: its age starts again at each message on its topic and grows with time),
+        if time alone changes a timed atom before it (a clock step), or, in a monitor
         with past operators, if the last step left a ``prev`` unsettled or a timed
-        operator's truth changes with time before it (:meth:`Past.settled`, the clock's
-        deadline). Only those events are compressed one by one, with the state they
-        would have; each event between two of them makes the letter of the last one
-        again, and the stamps are the events' own (docs/semantics.md, section 3: how,
-        not what). Timed atoms (ages) change with each message on their topic: a monitor
-        with them takes its events one by one.
+        operator may change with time before it (:meth:`Past.settled`,
+        :meth:`Past.next_change`). Only those events are compressed one by one, with
+        the state they would have; each event between two of them makes the letter of
+        the last one again, with its own stamp (docs/semantics.md, section 3: how, not
+        what).
         """
         stamps, n = arrivals.stamps, len(arrivals.stamps)
         before = list(self.values)
         clock, past = self.clock, self.past
         nows = self._nows(stamps, in_order) if clock is not None else stamps
-        k = 0
-        if self.missing or self.monitor.timed:  # no letter before every signal has a value
-            k = self._compress_while_missing(arrivals)
+        last = [] if clock is None else list(clock.last)
+        k = self._compress_while_missing(arrivals) if self.missing else 0
         if k == n:
             return
         letters, out_stamps = self.letters, self.stamps
-        changes = iter(self._atom_changes(arrivals, k, before))
-        change = next(changes, n)
+        changes = self._atom_changes(arrivals, k, before)
+        if self.monitor.timed:
+            changes = sorted({*changes, *self._timed_changes(arrivals, k, nows, last)})
+        pending = iter(changes)
+        change = next(pending, n)
         synced = k - 1  # the events up to it have the state a step leaves
         while k < n:
             if synced < k - 1:  # the run before it left the values and the time behind
@@ -334,12 +332,12 @@ class MonitorRuntime:
             self._compress_one(stamps[k], arrivals.updates(k), letters, out_stamps)
             synced = k
             while change <= k:
-                change = next(changes, n)
+                change = next(pending, n)
             end = change
             if past is not None and not past.settled(self.valuation):
                 end = k + 1
-            elif clock is not None and clock.deadline is not None:
-                end = bisect_left(nows, clock.deadline, k + 1, end)
+            elif (later := self._past_change()) is not None:
+                end = bisect_left(nows, later, k + 1, end)
             if end > k + 1:  # the same letter again, up to the next event that may change it
                 letters.extend(array(letters.typecode, [self.valuation]) * (end - k - 1))
                 out_stamps.extend(stamps[k + 1 : end])
@@ -349,14 +347,52 @@ class MonitorRuntime:
             if past is not None:
                 past.prune(nows[n - 1])
 
+    def _past_change(self) -> int | None:
+        """The first instant after now at which a timed past operator may change."""
+        clock, past = self.clock, self.past
+        if clock is None or past is None:
+            return None
+        if not self.monitor.timed:  # the clock's deadline is the past operators' alone
+            return clock.deadline
+        return past.next_change(clock.now) if clock.now is not None else None
+
     def _compress_while_missing(self, arrivals: Arrivals) -> int:
-        """Compress events one by one while a signal has no value yet (or for good, in a
-        monitor with timed atoms); return how many were."""
+        """Compress events one by one while a signal has no value yet; return how many were."""
         stamps, k = arrivals.stamps, 0
-        while k < len(stamps) and (self.missing or self.monitor.timed):
+        while k < len(stamps) and self.missing:
             self._compress_one(stamps[k], arrivals.updates(k), self.letters, self.stamps)
             k += 1
         return k
+
+    def _timed_changes(
+        self, arrivals: Arrivals, k: int, nows: Sequence[int], last: list[int | None]
+    ) -> list[int]:
+        """The events after the ``k``-th before which a timed atom changes: by a message
+        (the age starts again) or by time (a clock step comes before the event).
+
+        Each computed for every event, a column at a time: the time of the signal's
+        last message (``last``: before these events; none is an infinite age, -inf
+        here), the age, the atom's truth, and whether one of the instants its truth
+        changes at (``_EDGES``) falls after the event's time and before the next
+        event's stamp.
+        """
+        n, stamps = len(nows), arrivals.stamps
+        out: set[int] = set()
+        for atom in self.monitor.timed:
+            held = last[atom.signal]
+            marks: list[float] = [-math.inf if held is None else held] * n
+            for p in arrivals.changes[atom.signal][0]:
+                marks[p] = nows[p]
+            lasts = list(accumulate(marks, max))  # times only grow: the latest is the last
+            truths = list(map(_AGE_CMP[atom.op], map(sub, nows, lasts), repeat(atom.duration)))
+            changed = map(ne, islice(truths, k + 1, None), islice(truths, k, None))
+            out.update(compress(range(k + 1, n), changed))
+            for edge in _EDGES[atom.op]:
+                at = list(map(add, islice(lasts, k, n - 1), repeat(atom.duration + edge)))
+                after = map(lt, islice(nows, k, n - 1), at)
+                before_next = map(lt, at, islice(stamps, k + 1, None))
+                out.update(compress(range(k + 1, n), map(and_, after, before_next)))
+        return sorted(out)
 
     def _nows(self, stamps: Sequence[int], in_order: bool) -> Sequence[int]:
         """The monitor's time after each event: the latest stamp so far (a late event
@@ -406,8 +442,9 @@ class MonitorRuntime:
 
     def _sync(self, arrivals: Arrivals, k: int, before: list[Any], nows: Sequence[int]) -> None:
         """The state after the ``k``-th event, which a run of equal letters took whole:
-        its values, its time, the time of each signal's last message. (The letter, the
-        past operators and the clock's deadline are those the run began with.)"""
+        its values, its time, the time of each signal's last message, and the clock's
+        deadline, which the ages' messages move. (The letter and the past operators are
+        those the run began with.)"""
         values = self.values
         for s in range(len(values)):
             values[s] = arrivals.held(s, k, before[s])
@@ -419,6 +456,8 @@ class MonitorRuntime:
                 i = bisect_right(positions, k) - 1
                 if i >= 0:
                     clock.last[s] = nows[positions[i]]
+            if self.monitor.timed:  # the ages' deadlines moved with the messages
+                clock.deadline = clock.next_deadline()
 
     def _compress_ahead(self) -> None:
         """Compress the buffered events not compressed ahead yet: the new one, and those
