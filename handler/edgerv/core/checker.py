@@ -176,16 +176,22 @@ def _arrivals(chunk: EventChunk, reads: list[tuple[Column, Binding]], signals: i
     """A monitor's events of the chunk, from the columns of the topics it reads."""
     changes: list[tuple[Sequence[int], Sequence[Any]]] = [((), ())] * signals
     groups: list[tuple[Sequence[int], tuple[int, ...]]] = []
-    if len(reads) == 1:  # one topic: its events are the monitor's, in order
-        keys: Sequence[int] = reads[0][0][0]
-        rank: Any = None
-    else:
-        keys = sorted(chain.from_iterable(indexes for (indexes, _), _ in reads))
-        rank = range(len(keys)) if len(keys) == len(chunk) else dict(zip(keys, count()))
-    for (indexes, values), binding in reads:
-        positions = range(len(indexes)) if rank is None else list(map(rank.__getitem__, indexes))
+    keys, positions = _positions([indexes for (indexes, _), _ in reads], len(chunk))
+    for ((_, values), binding), at in zip(reads, positions, strict=True):
         for s, f in binding:
-            changes[s] = (positions, values[f])
-        groups.append((positions, tuple(s for s, _ in binding)))
+            changes[s] = (at, values[f])
+        groups.append((at, tuple(s for s, _ in binding)))
     stamps = chunk.stamps if len(keys) == len(chunk) else list(map(chunk.stamps.__getitem__, keys))
     return Arrivals(stamps, changes, groups)
+
+
+def _positions(indexes: list[list[int]], chunk: int) -> tuple[Sequence[int], list[Sequence[int]]]:
+    """The chunk positions of a monitor's events, in order, and where the events of each
+    of its topics (at these chunk positions) stand among them."""
+    if len(indexes) == 1:  # one topic: its events are the monitor's, in order
+        return indexes[0], [range(len(indexes[0]))]
+    if sum(map(len, indexes)) == chunk:  # every event of the chunk is the monitor's
+        return range(chunk), list(indexes)
+    keys = sorted(chain.from_iterable(indexes))
+    rank = dict(zip(keys, count()))
+    return keys, [list(map(rank.__getitem__, mine)) for mine in indexes]

@@ -445,17 +445,17 @@ class MonitorRuntime:
         its values, its time, the time of each signal's last message, and the clock's
         deadline, which the ages' messages move. (The letter and the past operators are
         those the run began with.)"""
-        values = self.values
-        for s in range(len(values)):
-            values[s] = arrivals.held(s, k, before[s])
-        clock = self.clock
+        values, clock = self.values, self.clock
+        for s, (positions, given) in enumerate(arrivals.changes):
+            i = bisect_right(positions, k) - 1
+            if i < 0:  # no message on it up to the k-th event
+                values[s] = before[s]
+                continue
+            values[s] = given[i]
+            if clock is not None:
+                clock.last[s] = nows[positions[i]]
         if clock is not None:
             clock.now = nows[k]
-            for s in range(len(values)):
-                positions = arrivals.changes[s][0]
-                i = bisect_right(positions, k) - 1
-                if i >= 0:
-                    clock.last[s] = nows[positions[i]]
             if self.monitor.timed:  # the ages' deadlines moved with the messages
                 clock.deadline = clock.next_deadline()
 
