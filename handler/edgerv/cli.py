@@ -8,9 +8,11 @@ from __future__ import annotations
 import argparse
 import contextlib
 import gc
+import os
 import sys
 from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import NoReturn
 
 from edgerv import __version__
 from edgerv.core.checker import CheckRun, MonitorResult, check_types
@@ -181,6 +183,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """The command line (``argv``: its words, else the process's own)."""
+    whole_process = argv is None
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(argv[0] if argv else None).parse_args(argv)
     try:
@@ -189,7 +193,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return EXIT_OK
+    if whole_process and args.command == "check":
+        _exit_now(code)
     return code
+
+
+def _exit_now(code: int) -> NoReturn:
+    """End the process once its output is out, without the interpreter's teardown (as
+    mypy does): it frees every object one by one (Spot's automata, the message type
+    store, the verdicts) and collects cycles once more, 40 ms of a 0.6 s check, for
+    nothing a finished check needs. (Spot's child process sees its pipe close and ends.)"""
+    with contextlib.suppress(BrokenPipeError):  # the reader is gone: nothing to tell it
+        sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 if __name__ == "__main__":
