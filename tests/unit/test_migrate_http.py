@@ -123,7 +123,7 @@ def test_an_adoption_whose_answer_is_lost_leaves_one_copy_and_settles(pair: Pair
         pair.gate.mode = "mute"  # the adoption reaches the cloud; its answer does not come
 
     with pytest.raises(Unsettled, match="did not say whether it adopted m"):
-        migrate(pair.source(), pair.destination(), ["m"], 1.0, 0.5, after_release=partition)
+        migrate(pair.source(), pair.destination(), ["m"], 0.5, 0.5, after_release=partition)
     assert pair.active() == ["cloud"]  # it adopted; the edge did not resume: one copy
     assert pair.edge.slots["m"].handoff == "released"
     pair.gate.mode = "pass"
@@ -137,7 +137,7 @@ def test_an_adoption_that_never_arrived_leaves_none_and_settles(pair: Pair) -> N
         pair.gate.mode = "black"
 
     with pytest.raises(Unsettled):
-        migrate(pair.source(), pair.destination(), ["m"], 1.0, 0.5, after_release=partition)
+        migrate(pair.source(), pair.destination(), ["m"], 0.5, 0.5, after_release=partition)
     assert pair.active() == []  # held on the edge, received on the cloud: active nowhere
     pair.gate.mode = "pass"
     moved = migrate(pair.source(), pair.destination(), ["m"], 5.0, 0.5)
@@ -149,7 +149,7 @@ def test_a_receiver_that_is_down_after_the_release_lets_the_sender_resume(pair: 
     destination = Handler(f"127.0.0.1:{pair.apis[1].port}", TOKEN)  # no gate: refused
 
     with pytest.raises(MigrationFailed, match="down: the sender resumed") as failed:
-        migrate(pair.source(), destination, ["m"], 1.0, 0.5, after_release=pair.apis[1].stop)
+        migrate(pair.source(), destination, ["m"], 0.5, 0.5, after_release=pair.apis[1].stop)
     assert not isinstance(failed.value, Unsettled)
     assert pair.active() == ["edge"] and pair.edge.slots["m"].handoff is None
 
