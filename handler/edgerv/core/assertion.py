@@ -52,7 +52,7 @@ from edgerv.core.spot_worker import BudgetExceeded, worker
 
 CmpOp = Literal["<", "<=", ">", ">=", "==", "!="]
 
-_CMP_FUNCS: dict[str, Callable[[Any, Any], bool]] = {
+CMP_FUNCS: dict[str, Callable[[Any, Any], bool]] = {
     "<": operator.lt,
     "<=": operator.le,
     ">": operator.gt,
@@ -1161,7 +1161,7 @@ def feasible_letters(spec: MonitorSpec, atoms: Sequence[Atom]) -> Any:
 
 def _compare(value: Any, op: str, const: Any) -> bool:
     try:
-        return bool(_CMP_FUNCS[op](value, const))
+        return bool(CMP_FUNCS[op](value, const))
     except TypeError:
         return False
 
@@ -1172,7 +1172,7 @@ def compile_atom_columns(atom: Atom, index_of: dict[str, int]) -> Callable[[list
     The same comparison as :func:`compile_atom`, applied elementwise (the columns are
     NumPy object arrays, so each element is compared as the Python values it holds).
     """
-    func = _CMP_FUNCS[atom.op]
+    func = CMP_FUNCS[atom.op]
     if atom.lhs.signal is None or atom.timed:  # timed atoms are the clock's (pipeline.Clock)
         raise ValueError(atom)
     li = index_of[atom.lhs.signal]
@@ -1185,7 +1185,7 @@ def compile_atom_columns(atom: Atom, index_of: dict[str, int]) -> Callable[[list
 
 def compile_atom(atom: Atom, index_of: dict[str, int]) -> Callable[[list[Any]], bool]:
     """A function from the signal values (by index) to the atom's truth value."""
-    func = _CMP_FUNCS[atom.op]
+    func = CMP_FUNCS[atom.op]
     if atom.lhs.signal is None or atom.timed:  # never: constants go right; timed: the clock's
         raise ValueError(atom)
     li = index_of[atom.lhs.signal]

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from edgerv.core.assertion import (
-    _CMP_FUNCS,  # the comparisons compile_atom makes: a batch applies the same ones
+    CMP_FUNCS,  # the comparisons compile_atom makes: a batch applies the same ones
     Atom,
     ParsedAssertion,
     compile_atom,
@@ -46,7 +46,7 @@ class AtomRead:
 def _read(bit: int, atom: Atom, index_of: dict[str, int]) -> AtomRead:
     left, right = atom.lhs.signal, atom.rhs.signal
     assert left is not None  # constants go right
-    compare = _CMP_FUNCS[atom.op]
+    compare = CMP_FUNCS[atom.op]
     if right is None:
         return AtomRead(bit, index_of[left], None, compare, atom.rhs.value)
     return AtomRead(bit, index_of[left], index_of[right], compare)
