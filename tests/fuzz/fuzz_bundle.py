@@ -98,7 +98,8 @@ def load() -> None:
 
 
 def fuzz_one_input(data: bytes) -> None:
-    from edgerv.core.handoff import HandoffError, bundle, decode, frame_sizes, restore, unbundle
+    from edgerv.core.handoff import HandoffError, bundle, decode, frame_sizes, unbundle
+    from edgerv.core.pipeline import MonitorRuntime
 
     if not _monitors:
         load()
@@ -119,7 +120,7 @@ def fuzz_one_input(data: bytes) -> None:
             snap = decode(frame, MAX_LETTERS)
             # the receiver's own events around the cut, then later ones (real stamps: 64 bits)
             at = max(-(2**62), min(snap.cut, 2**62))
-            run_on(restore(monitor, snap, held(at)), at)
+            run_on(MonitorRuntime.restored(monitor, snap, held(at)), at)
     except HandoffError:
         pass
 

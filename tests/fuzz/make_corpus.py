@@ -74,7 +74,7 @@ def write(directory: Path, data: bytes) -> None:
 
 
 def main() -> None:
-    from edgerv.core.handoff import bundle, encode, export_snapshot
+    from edgerv.core.handoff import bundle, encode
     from edgerv.core.msgtypes import typestore
     from edgerv.core.pipeline import MonitorRuntime
 
@@ -92,7 +92,7 @@ def main() -> None:
         rt.holding = True
         for stamp, seq, updates in fuzz_bundle.events(i, 40, 100):
             rt.offer(stamp, seq, updates)
-        frame = encode(export_snapshot(rt, cut=140, epoch=7))
+        frame = encode(rt.snapshot(cut=140, epoch=7))
         write(bundle_dir, bytes([0, i]) + bundle([frame]))
         write(bundle_dir, bytes([1, i]) + frame)
         write(bundle_dir, bytes([2, i]) + frame + frame)

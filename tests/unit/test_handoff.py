@@ -21,8 +21,6 @@ from edgerv.core.handoff import (
     cut_point,
     decode,
     encode,
-    export_snapshot,
-    restore,
     unbundle,
 )
 from edgerv.core.monitor import CompiledMonitor
@@ -119,10 +117,10 @@ def with_handoffs(
         if cut is None:  # the run ended before H2 saw every topic: H1 keeps the monitor
             owner.holding = False
             break
-        wire = bundle([encode(export_snapshot(owner, cut, epoch))])  # 5b
+        wire = bundle([encode(owner.snapshot(cut, epoch))])  # 5b
         sizes.append(len(wire))
         (frame,) = unbundle(wire)
-        owner = restore(m, decode(frame), held2)  # 6: H2 merges and schedules
+        owner = MonitorRuntime.restored(m, decode(frame), held2)  # 6: H2 merges and schedules
         out += owner.evaluate()
     owner.holding = False
     owner.flush()
@@ -165,7 +163,7 @@ def test_the_wire_form_round_trips_and_is_checked() -> None:
         bufferCapacity=10**5,
     )
     rt = held_runtime(m, trace(random.Random(1), 1000))
-    snap = export_snapshot(rt, cut=10**9, epoch=3)
+    snap = rt.snapshot(cut=10**9, epoch=3)
     wire = encode(snap)
     assert decode(wire) == snap
     assert len(snap.letters) > 900
@@ -177,7 +175,7 @@ def test_the_wire_form_round_trips_and_is_checked() -> None:
     ]:
         with pytest.raises(HandoffError, match=reason):
             decode(bad)
-    other = encode(export_snapshot(held_runtime(m, trace(random.Random(5), 10)), 10**9, 3))
+    other = encode(held_runtime(m, trace(random.Random(5), 10)).snapshot(10**9, 3))
     wire2 = bundle([wire, other])
     assert len(wire2) < (len(wire) + len(other)) // 2  # deflated together
     assert unbundle(wire2) == [wire, other]
@@ -195,7 +193,7 @@ def test_the_wire_form_round_trips_and_is_checked() -> None:
 
 def test_damaged_snapshots_raise_only_handoff_errors() -> None:
     m = compiled("always (a -> x < 5)", {"a": "bool", "x": "float"}, sortThreshold=4096)
-    wire = encode(export_snapshot(held_runtime(m, trace(random.Random(2), 300)), 10**9, 1))
+    wire = encode(held_runtime(m, trace(random.Random(2), 300)).snapshot(10**9, 1))
     rng = random.Random(3)
     for _ in range(2000):
         bad = bytearray(wire)
@@ -238,14 +236,14 @@ def test_a_slowly_changing_trace_costs_under_a_bit_an_event_on_the_wire() -> Non
         )
         run.append((topic, stamp, value))
     rt = held_runtime(m, run)
-    snap = export_snapshot(rt, cut=stamp, epoch=1)
+    snap = rt.snapshot(cut=stamp, epoch=1)
     wire = bundle([encode(snap)])
     assert decode(unbundle(wire)[0]) == snap
     n = len(snap.letters)
     assert n > 19_000 and 10 <= len(snap.stamps) < 100
     assert len(wire) * 8 < n + 8 * 512, f"{len(wire) * 8 / n:.3f} bits an event"
     # and the stamps that a verdict can report survive the trip
-    back = restore(m, decode(unbundle(wire)[0]), [])
+    back = MonitorRuntime.restored(m, decode(unbundle(wire)[0]), [])
     reference = held_runtime(m, run)
     reference.holding = False
     reference.flush()
@@ -257,9 +255,9 @@ def test_a_slowly_changing_trace_costs_under_a_bit_an_event_on_the_wire() -> Non
 def test_restore_refuses_a_snapshot_of_another_definition() -> None:
     a = compiled("always (a -> x < 5)", {"a": "bool", "x": "float"})
     b = compiled("always (a -> (x < 5 & x > 1))", {"a": "bool", "x": "float"})
-    snap = export_snapshot(MonitorRuntime(a), cut=0, epoch=1)
+    snap = MonitorRuntime(a).snapshot(cut=0, epoch=1)
     with pytest.raises(HandoffError, match="does not fit this definition"):
-        restore(b, snap, [])
+        MonitorRuntime.restored(b, snap, [])
 
 
 def test_events_up_to_the_cut_that_reach_h2_after_the_adoption_are_ignored() -> None:
@@ -268,7 +266,7 @@ def test_events_up_to_the_cut_that_reach_h2_after_the_adoption_are_ignored() -> 
     h1.holding = True
     for i, (topic, stamp, value) in enumerate([("/x", 1, 1.0), ("/a", 2, True), ("/x", 3, 9.0)]):
         h1.offer(stamp, i, update(m, topic, value))
-    h2 = restore(m, decode(encode(export_snapshot(h1, cut=3, epoch=1))), [])
+    h2 = MonitorRuntime.restored(m, decode(encode(h1.snapshot(cut=3, epoch=1))), [])
     assert [v.step for v in h2.evaluate()] == [2]  # x=9 while a: violated at step 2
     assert h2.offer(3, 9, update(m, "/x", 9.0)) is False  # stamped at the cut: H1's, not again
     assert h2.offer(4, 10, update(m, "/x", 1.0)) is True

@@ -54,8 +54,6 @@ from edgerv.core.handoff import (
     bundle,
     decode,
     encode,
-    export_snapshot,
-    restore,
     unbundle,
 )
 from edgerv.core.monitor import CompiledMonitor, compile_monitor, compile_monitors
@@ -602,7 +600,7 @@ def real_frame(i: int, seed: int) -> bytes:
     rt.holding = True
     for stamp, seq, updates in _events(seed, 60):
         rt.offer(stamp, seq, updates)
-    return encode(export_snapshot(rt, cut=100 + 40 * (seed % 3 + 1), epoch=7))
+    return encode(rt.snapshot(cut=100 + 40 * (seed % 3 + 1), epoch=7))
 
 
 def _reframe(header: Any, body: bytes) -> bytes:
@@ -640,7 +638,9 @@ def check_frames(i: int, wire: bytes) -> None:
         for frame in unbundle(wire, limit=1 << 20):
             snap = decode(frame)
             at = max(-(2**62), min(snap.cut, 2**62))  # real stamps: 64 bits
-            fuzz_bundle.run_on(restore(handoff_monitor(i), snap, fuzz_bundle.held(at)), at)
+            fuzz_bundle.run_on(
+                MonitorRuntime.restored(handoff_monitor(i), snap, fuzz_bundle.held(at)), at
+            )
             event("restored and ran on")
     except HandoffError:
         event("refused")
@@ -759,7 +759,7 @@ def adoptable(api: Api, epoch: int) -> bytes:
     rt.holding = True
     for stamp, seq, updates in _events(3, 40):
         rt.offer(stamp, seq, updates)
-    return bundle([encode(export_snapshot(rt, cut=150, epoch=epoch))])
+    return bundle([encode(rt.snapshot(cut=150, epoch=epoch))])
 
 
 @props(150)

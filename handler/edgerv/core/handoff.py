@@ -19,7 +19,7 @@ from H1 to H2. This module is its data side:
   one may reach H1 after a later one on another. (The paper's cut,
   the oldest event H2 holds, loses the events of a topic on which H2 has not yet
   received anything.)
-* **The snapshot** (:func:`export_snapshot`): H1 compresses its held events
+* **The snapshot** (``MonitorRuntime.snapshot``): H1 compresses its held events
   ``<= T`` and sends the automaton state (one integer), the step counter, the
   signal values as of the cut (the next letter needs the last value of every
   signal), and the letters not yet evaluated. The paper's compression drops the
@@ -27,7 +27,7 @@ from H1 to H2. This module is its data side:
   names the stamp of its deciding event): H1 walks the letters through the
   table from the current state, reporting nothing, and keeps the stamps of the
   steps that reach a verdict state.
-* :func:`restore` builds H2's runtime: the snapshot's letters first, then H2's
+* ``MonitorRuntime.restored`` builds H2's runtime: the snapshot's letters first, then H2's
   own events ``> T``. It ignores every later event stamped ``<= T`` too: H2 may
   not have taken all of its own events ``<= T`` yet when it adopts. H1 uses it
   as well, on its own snapshot, to resume when the handoff is undone after it
@@ -48,22 +48,15 @@ import json
 import struct
 import zlib
 from array import array
-from bisect import bisect_right
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from edgerv.core.monitor import CompiledMonitor
-from edgerv.core.pipeline import (
-    _STAMP,
-    _UNSET,
-    Event,
-    MonitorRuntime,
-    _checker,
-    letter_typecode,
-)
+from edgerv.core.pipeline import letter_typecode
+from edgerv.core.snapshot import HandoffError as HandoffError
+from edgerv.core.snapshot import Snapshot as Snapshot
+from edgerv.core.snapshot import runs_of
 
 WIRE_VERSION = 3
 _FRAME = struct.Struct("!4sII")  # magic, header length, body length
@@ -71,33 +64,6 @@ _MAGIC = b"ERV3"
 _BUNDLE = struct.Struct("!4sI")  # magic, length of the frames once inflated
 _BUNDLE_MAGIC = b"ERVB"
 MAX_BUNDLE = 1 << 30  # inflated bytes a bundle may announce
-
-
-class HandoffError(Exception):
-    """A snapshot that cannot be used: what is wrong with it."""
-
-
-@dataclass(frozen=True)
-class Snapshot:
-    monitor: str
-    epoch: int  # fences stale handoffs: a handler ignores an epoch it has seen
-    cut: int
-    state: int
-    step: int
-    halted: bool
-    values: tuple[Any, ...]  # per signal, None for "no value yet"
-    valuation: int
-    last_released: int | None
-    late_events: int
-    bits: int
-    letters: array  # type: ignore[type-arg]  # the letter typecode of ``bits``
-    stamps: Mapping[int, int]  # letter index -> stamp, only where a verdict can be reported
-    # a monitor with timed atoms: its clock (the time of its last step, and of the last
-    # message on each signal's topic); None for one without
-    clock: tuple[int | None, tuple[int | None, ...]] | None = None
-    past: Any = None  # its past operators' state (Past.save), None for a monitor without
-    # the letters' runs (runs_of), when the sender computed them already
-    runs: Any = field(default=None, compare=False, repr=False)
 
 
 def cut_point(first_stamps: Mapping[str, int], topics: Iterable[str]) -> int | None:
@@ -108,124 +74,6 @@ def cut_point(first_stamps: Mapping[str, int], topics: Iterable[str]) -> int | N
             return None
         firsts.append(first_stamps[topic])
     return max(firsts) if firsts else None
-
-
-def export_snapshot(rt: MonitorRuntime, cut: int, epoch: int) -> Snapshot:
-    """H1's side: compress the held events up to the cut, take the state.
-
-    Afterwards ``rt`` holds only the events after the cut, raw; it must not run
-    any more: the monitor belongs to H2 (H1 keeps those events in case it resumes).
-    """
-    rt.cover(cut)
-    stamps, runs = rt.stamps, runs_of(rt.letters)
-    return Snapshot(
-        monitor=rt.name,
-        epoch=epoch,
-        cut=cut,
-        state=rt.state,
-        step=rt.step,
-        halted=rt.halted,
-        values=tuple(None if v is _UNSET else v for v in rt.values),
-        valuation=rt.valuation,
-        last_released=rt.last_released,
-        late_events=rt.late_events,
-        bits=rt.monitor.table.bits,
-        letters=rt.letters[:],
-        stamps={i: stamps[i] for i in deciding_steps(rt.monitor, rt.state, runs)},
-        clock=None if rt.clock is None else rt.clock.snapshot(),
-        past=None if rt.past is None else rt.past.save(),
-        runs=runs,
-    )
-
-
-def deciding_steps(monitor: CompiledMonitor, state: int, runs: tuple[Any, Any, Any]) -> list[int]:
-    """The indices of the letters that take the automaton to a verdict, from ``state``.
-
-    Walks the letters' runs (:func:`runs_of`) run by run: within a run of one letter,
-    once a step leaves a state that is not a verdict unchanged, the rest of the run
-    stays there.
-    """
-    table = monitor.table
-    rows, bits, live = table.table, table.bits, table.live
-    found = []
-    starts, values, lengths = runs
-    for start, letter, length in zip(
-        starts.tolist(), values.tolist(), lengths.tolist(), strict=True
-    ):
-        for j in range(length):
-            nxt = rows[(state << bits) | letter]
-            if nxt >= live:
-                found.append(start + j)
-            elif nxt == state:
-                break  # a loop on this letter: no verdict in the rest of the run
-            state = nxt
-    return found
-
-
-def runs_of(letters: Sequence[int]) -> tuple[Any, Any, Any]:
-    """Run-length form of the letters: the start, letter and length of each run (arrays)."""
-    arr = (
-        np.frombuffer(letters, dtype=letters.typecode)
-        if isinstance(letters, array)
-        else np.asarray(letters, dtype=np.int64)
-    )
-    starts = np.flatnonzero(arr[1:] != arr[:-1]) + 1
-    if len(arr):
-        starts = np.concatenate((np.zeros(1, starts.dtype), starts))
-    return starts, arr[starts], np.diff(starts, append=len(arr))
-
-
-def restore(monitor: CompiledMonitor, snap: Snapshot, held: list[Event]) -> MonitorRuntime:
-    """H2's side: the monitor as H1 left it, then H2's own held events after the cut
-    (``held``: a sort buffer, in stamp order)."""
-    if snap.monitor != monitor.name:
-        raise HandoffError(f"snapshot of '{snap.monitor}' given for '{monitor.name}'")
-    table = monitor.table
-    if snap.bits != table.bits or len(snap.values) != len(monitor.signal_names):
-        raise HandoffError(
-            f"snapshot of '{snap.monitor}' does not fit this definition "
-            "(placeholders or signals differ): the handlers disagree on it"
-        )
-    if not 0 <= snap.state < table.states:
-        raise HandoffError(f"automaton state {snap.state} out of range")
-    for name, value in zip(monitor.signal_names, snap.values, strict=True):
-        kind = monitor.spec.signals[name].kind
-        if value is not None and not _checker(kind)(value):
-            raise HandoffError(f"signal '{name}' is {value!r} in the snapshot, not a {kind} value")
-    clock_fits = (
-        not monitor.clocked
-        if snap.clock is None
-        else monitor.clocked and len(snap.clock[1]) == len(monitor.signal_names)
-    )
-    if not clock_fits or (snap.past is None) != (not monitor.past):
-        raise HandoffError(
-            f"snapshot of '{snap.monitor}' does not fit this definition (timed atoms or "
-            "past operators differ): the handlers disagree on it"
-        )
-    rt = MonitorRuntime(monitor)
-    if rt.past is not None:
-        try:
-            rt.past.load(snap.past)
-        except (ValueError, TypeError, KeyError, OverflowError) as exc:  # Overflow: int(inf)
-            raise HandoffError(f"snapshot of '{snap.monitor}': {exc}") from None
-    if rt.clock is not None and snap.clock is not None:
-        rt.clock.restore(*snap.clock)
-    rt.state, rt.step, rt.halted = snap.state, snap.step, snap.halted
-    rt.values = [_UNSET if v is None else v for v in snap.values]
-    rt.missing = sum(v is None for v in snap.values)
-    rt.valuation = snap.valuation
-    rt.last_released, rt.late_events = snap.last_released, snap.late_events
-    rt.letters.extend(snap.letters)
-    base = len(rt.stamps)
-    rt.stamps.frombytes(bytes(8 * len(snap.letters)))  # unreported steps need none
-    for i, stamp in snap.stamps.items():
-        rt.stamps[base + i] = stamp
-    # Events up to the cut are H1's, also those H2 has not taken yet (still in its queues)
-    rt.floor = snap.cut
-    rt.events = held[bisect_right(held, snap.cut, key=_STAMP) :]  # held is in stamp order
-    if len(rt.events) >= rt.threshold:
-        rt.flush()
-    return rt
 
 
 # -- wire form -------------------------------------------------------------------------------

@@ -26,6 +26,7 @@ from edgerv.core.documents import QosSpec
 from edgerv.core.monitor import AtomRead, CompiledMonitor, TimedAtom
 from edgerv.core.msgtypes import ValueKind, make_getter, parse_field_path
 from edgerv.core.past import Past
+from edgerv.core.snapshot import HandoffError, Snapshot, deciding_steps, runs_of
 
 VerdictKind = Literal["violated", "satisfied"]
 MonitorState = Literal["pending", "violated", "satisfied", "halted"]
@@ -782,6 +783,92 @@ class MonitorRuntime:
                 range(step + first, step + end),
             )
         )
+
+    # -- the handoff's snapshot (docs/protocol.md): taken at the cut, restored from it --
+
+    def snapshot(self, cut: int, epoch: int) -> Snapshot:
+        """H1's side: compress the held events up to the cut, take the state.
+
+        Afterwards it holds only the events after the cut, raw; it must not run
+        any more: the monitor belongs to H2 (H1 keeps those events in case it resumes).
+        """
+        self.cover(cut)
+        stamps, runs = self.stamps, runs_of(self.letters)
+        return Snapshot(
+            monitor=self.name,
+            epoch=epoch,
+            cut=cut,
+            state=self.state,
+            step=self.step,
+            halted=self.halted,
+            values=tuple(None if v is _UNSET else v for v in self.values),
+            valuation=self.valuation,
+            last_released=self.last_released,
+            late_events=self.late_events,
+            bits=self.monitor.table.bits,
+            letters=self.letters[:],
+            stamps={i: stamps[i] for i in deciding_steps(self.monitor, self.state, runs)},
+            clock=None if self.clock is None else self.clock.snapshot(),
+            past=None if self.past is None else self.past.save(),
+            runs=runs,
+        )
+
+    @classmethod
+    def restored(
+        cls, monitor: CompiledMonitor, snap: Snapshot, held: list[Event]
+    ) -> MonitorRuntime:
+        """H2's side: the monitor as H1 left it, then H2's own held events after the cut
+        (``held``: a sort buffer, in stamp order)."""
+        if snap.monitor != monitor.name:
+            raise HandoffError(f"snapshot of '{snap.monitor}' given for '{monitor.name}'")
+        table = monitor.table
+        if snap.bits != table.bits or len(snap.values) != len(monitor.signal_names):
+            raise HandoffError(
+                f"snapshot of '{snap.monitor}' does not fit this definition "
+                "(placeholders or signals differ): the handlers disagree on it"
+            )
+        if not 0 <= snap.state < table.states:
+            raise HandoffError(f"automaton state {snap.state} out of range")
+        for name, value in zip(monitor.signal_names, snap.values, strict=True):
+            kind = monitor.spec.signals[name].kind
+            if value is not None and not _checker(kind)(value):
+                raise HandoffError(
+                    f"signal '{name}' is {value!r} in the snapshot, not a {kind} value"
+                )
+        clock_fits = (
+            not monitor.clocked
+            if snap.clock is None
+            else monitor.clocked and len(snap.clock[1]) == len(monitor.signal_names)
+        )
+        if not clock_fits or (snap.past is None) != (not monitor.past):
+            raise HandoffError(
+                f"snapshot of '{snap.monitor}' does not fit this definition (timed atoms or "
+                "past operators differ): the handlers disagree on it"
+            )
+        rt = cls(monitor)
+        if rt.past is not None:
+            try:
+                rt.past.load(snap.past)
+            except (ValueError, TypeError, KeyError, OverflowError) as exc:  # Overflow: int(inf)
+                raise HandoffError(f"snapshot of '{snap.monitor}': {exc}") from None
+        if rt.clock is not None and snap.clock is not None:
+            rt.clock.restore(*snap.clock)
+        rt.state, rt.step, rt.halted = snap.state, snap.step, snap.halted
+        rt.values = [_UNSET if v is None else v for v in snap.values]
+        rt.missing = sum(v is None for v in snap.values)
+        rt.valuation = snap.valuation
+        rt.last_released, rt.late_events = snap.last_released, snap.late_events
+        rt.letters.extend(snap.letters)
+        base = len(rt.stamps)
+        rt.stamps.frombytes(bytes(8 * len(snap.letters)))  # unreported steps need none
+        for i, stamp in snap.stamps.items():
+            rt.stamps[base + i] = stamp
+        # Events up to the cut are H1's, also those H2 has not taken yet (still in its queues)
+        rt.floor = snap.cut
+        rt.events = held[bisect_right(held, snap.cut, key=_STAMP) :]  # held is in stamp order
+        if len(rt.events) >= rt.threshold:
+            rt.flush()
+        return rt
 
 
 class ValueTypeError(Exception):

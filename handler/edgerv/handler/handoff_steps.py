@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable, Collection, Sequence
 from typing import Any
 
-from edgerv.core.handoff import HandoffError, Snapshot, cut_point, export_snapshot, restore
+from edgerv.core.handoff import HandoffError, Snapshot, cut_point
 from edgerv.core.pipeline import MonitorRuntime, Router
 from edgerv.handler.clock import Clock
 from edgerv.handler.handoff_state import HandoffState, check_transition
@@ -212,7 +212,7 @@ class HandoffSteps:
                 or now - max(slot.cut_known[1], quiet_since) >= grace  # nothing comes
             ):
                 return None
-            snap = export_snapshot(rt, cut, epoch)  # rt keeps the events after it
+            snap = rt.snapshot(cut, epoch)  # rt keeps the events after it
             rt.letters, rt.stamps = rt.letters[:0], rt.stamps[:0]
             slot.released = snap
             self._set_handoff(slot, RELEASED)
@@ -262,7 +262,9 @@ class HandoffSteps:
                 try:
                     if snap.epoch != epoch:
                         raise HandoffError("the snapshot belongs to another handoff")
-                    restored.append((slot, restore(slot.compiled, snap, held.events)))
+                    restored.append(
+                        (slot, MonitorRuntime.restored(slot.compiled, snap, held.events))
+                    )
                 except HandoffError as exc:
                     raise HandoffError(f"{name}: {exc}") from None
             self._resume(restored)
@@ -312,7 +314,9 @@ class HandoffSteps:
                 return "resumed"
             if slot.handoff == RELEASED:
                 assert slot.released is not None
-                self._resume([(slot, restore(slot.compiled, slot.released, rt.events))])
+                self._resume(
+                    [(slot, MonitorRuntime.restored(slot.compiled, slot.released, rt.events))]
+                )
                 return "resumed"
             self._let_go(slot)
             return "dropped"
