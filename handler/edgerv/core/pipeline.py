@@ -32,6 +32,10 @@ VerdictKind = Literal["violated", "satisfied"]
 MonitorState = Literal["pending", "violated", "satisfied", "halted"]
 Update = tuple[int, Any]  # (signal index in the monitor, new value)
 Event = tuple[int, int, Sequence[Update]]  # (stamp ns, arrival sequence, updates)
+# evaluate: fewer letters than this, or runs of equal letters shorter than MIN_MEAN_RUN on
+# average, go a letter at a time (taking runs whole costs more per run than it saves)
+SHORT_EVALUATION = 64
+MIN_MEAN_RUN = 6
 _UNSET = object()
 _STAMP = itemgetter(0)
 _UPDATES = itemgetter(2)
@@ -734,18 +738,26 @@ class MonitorRuntime:
 
         A run of equal letters is taken whole once the automaton stays in one state on
         it (a transition back to the state it left): then every step left in the run
-        ends in that state, a verdict each if it is one.
+        ends in that state, a verdict each if it is one. Where the runs are short (a
+        few letters, as a handler's scheduler rounds and lively signals give) a letter
+        at a time costs less: :meth:`_evaluate_each`.
         """
         letters = self.letters
         if not letters or self.halted:
             return []
+        n = len(letters)
+        if n < SHORT_EVALUATION:
+            return self._evaluate_each()
+        ends = _long_run_ends(letters)
+        if ends is None:
+            return self._evaluate_each()
         table = self.monitor.table
         rows, bits, live = table.table, table.bits, table.live
         halt = self.monitor.spec.on_verdict == "halt"
         verdicts: list[Verdict] = []
-        state, start, n = self.state, 0, len(letters)
+        state, start = self.state, 0
         consumed = n
-        for end in [*compress(range(1, n), map(ne, islice(letters, 1, None), letters)), n]:
+        for end in ends:
             letter, i = letters[start], start
             while i < end:
                 new = rows[(state << bits) | letter]
@@ -762,6 +774,33 @@ class MonitorRuntime:
             if self.halted:
                 break
             start = end
+        self.state = state
+        self.step += consumed
+        del letters[:]
+        del self.stamps[:]
+        if self.halted:
+            self.unspeculate()
+            self.events.clear()
+        return verdicts
+
+    def _evaluate_each(self) -> list[Verdict]:
+        """:meth:`evaluate`, a letter at a time."""
+        letters = self.letters
+        table = self.monitor.table
+        rows, bits, live = table.table, table.bits, table.live
+        halt = self.monitor.spec.on_verdict == "halt"
+        verdicts: list[Verdict] = []
+        state, step = self.state, self.step + 1
+        consumed = len(letters)
+        for i, letter in enumerate(letters):
+            state = rows[(state << bits) | letter]
+            if state >= live:
+                kind: VerdictKind = "violated" if state == live else "satisfied"
+                verdicts.append(Verdict(self.name, kind, self.stamps[i], step + i))
+                if halt:
+                    self.halted = True
+                    consumed = i + 1
+                    break
         self.state = state
         self.step += consumed
         del letters[:]
@@ -869,6 +908,18 @@ class MonitorRuntime:
         if len(rt.events) >= rt.threshold:
             rt.flush()
         return rt
+
+
+def _long_run_ends(letters: array) -> list[int] | None:  # type: ignore[type-arg]
+    """Where each run of equal letters ends (one past it), if the runs are at least
+    MIN_MEAN_RUN long on average; else None."""
+    import numpy as np  # here: only long evaluations (a check's) need it
+
+    codes = np.frombuffer(letters, dtype=letters.typecode)  # a view: let go on return
+    changes = np.flatnonzero(codes[1:] != codes[:-1])
+    if (len(changes) + 1) * MIN_MEAN_RUN > len(codes):
+        return None
+    return [*(changes + 1).tolist(), len(codes)]
 
 
 class ValueTypeError(Exception):
