@@ -737,26 +737,35 @@ class MonitorRuntime:
         """Consume every compressed letter; return the verdicts they decided.
 
         A run of equal letters is taken whole once the automaton stays in one state on
-        it (a transition back to the state it left): then every step left in the run
-        ends in that state, a verdict each if it is one. Where the runs are short (a
-        few letters, as a handler's scheduler rounds and lively signals give) a letter
-        at a time costs less: :meth:`_evaluate_each`.
+        it (:meth:`_walk_runs`). Where the runs are short (a few letters, as a handler's
+        scheduler rounds and lively signals give) a letter at a time costs less
+        (:meth:`_walk_each`).
         """
         letters = self.letters
         if not letters or self.halted:
             return []
-        n = len(letters)
-        if n < SHORT_EVALUATION:
-            return self._evaluate_each()
-        ends = _long_run_ends(letters)
-        if ends is None:
-            return self._evaluate_each()
+        ends = _long_run_ends(letters) if len(letters) >= SHORT_EVALUATION else None
+        state, consumed, verdicts = self._walk_each() if ends is None else self._walk_runs(ends)
+        self.state = state
+        self.step += consumed
+        del letters[:]
+        del self.stamps[:]
+        if self.halted:
+            self.unspeculate()
+            self.events.clear()
+        return verdicts
+
+    def _walk_runs(self, ends: list[int]) -> tuple[int, int, list[Verdict]]:
+        """The automaton over the letters, run by run (``ends``: one past each run): once
+        a step stays in the state it left, every step left in the run ends there, a
+        verdict each if it is one. Returns the state, the letters consumed (fewer if it
+        halted) and the verdicts."""
+        letters = self.letters
         table = self.monitor.table
         rows, bits, live = table.table, table.bits, table.live
         halt = self.monitor.spec.on_verdict == "halt"
         verdicts: list[Verdict] = []
         state, start = self.state, 0
-        consumed = n
         for end in ends:
             letter, i = letters[start], start
             while i < end:
@@ -768,47 +777,27 @@ class MonitorRuntime:
                     verdicts += self._verdicts(state == live, i, last)
                     if halt:
                         self.halted = True
-                        consumed = i + 1
-                        break
+                        return state, i + 1, verdicts
                 i = end if stays else i + 1
-            if self.halted:
-                break
             start = end
-        self.state = state
-        self.step += consumed
-        del letters[:]
-        del self.stamps[:]
-        if self.halted:
-            self.unspeculate()
-            self.events.clear()
-        return verdicts
+        return state, len(letters), verdicts
 
-    def _evaluate_each(self) -> list[Verdict]:
-        """:meth:`evaluate`, a letter at a time."""
-        letters = self.letters
+    def _walk_each(self) -> tuple[int, int, list[Verdict]]:
+        """:meth:`_walk_runs`, a letter at a time."""
         table = self.monitor.table
         rows, bits, live = table.table, table.bits, table.live
         halt = self.monitor.spec.on_verdict == "halt"
         verdicts: list[Verdict] = []
         state, step = self.state, self.step + 1
-        consumed = len(letters)
-        for i, letter in enumerate(letters):
+        for i, letter in enumerate(self.letters):
             state = rows[(state << bits) | letter]
             if state >= live:
                 kind: VerdictKind = "violated" if state == live else "satisfied"
                 verdicts.append(Verdict(self.name, kind, self.stamps[i], step + i))
                 if halt:
                     self.halted = True
-                    consumed = i + 1
-                    break
-        self.state = state
-        self.step += consumed
-        del letters[:]
-        del self.stamps[:]
-        if self.halted:
-            self.unspeculate()
-            self.events.clear()
-        return verdicts
+                    return state, i + 1, verdicts
+        return state, len(self.letters), verdicts
 
     def _verdicts(self, violated: bool, first: int, end: int) -> list[Verdict]:
         """The verdicts of the letters ``first`` to ``end`` (excluded) of this evaluation."""
