@@ -46,10 +46,17 @@ class CheckRun:
     monitors: Sequence[CompiledMonitor]
     results: dict[str, MonitorResult] = field(init=False)
     router: Router = field(init=False)
+    # each monitor's topics, and which field each of its signals reads there (the routes
+    # are fixed for the whole check)
+    reads: dict[str, list[tuple[str, Binding]]] = field(init=False)
 
     def __post_init__(self) -> None:
         self.router = Router(MonitorRuntime(m) for m in self.monitors)
         self.results = {m.name: MonitorResult(m.name) for m in self.monitors}
+        self.reads = {}
+        for topic, route in self.router.routes.items():
+            for runtime, b in route.readers:
+                self.reads.setdefault(runtime.name, []).append((topic, route.bindings[b]))
 
     @property
     def topics(self) -> set[str]:
@@ -76,19 +83,11 @@ class CheckRun:
                 return
             columns[topic] = (indexes, values)
         self.router.seq += len(chunk)
-        for name, reads in self._reads().items():
+        for name, reads in self.reads.items():
             runtime = self.router.runtimes[name]
             here = [(columns[t], binding) for t, binding in reads if t in columns]
             if here and runtime.offer_arrivals(_arrivals(chunk, here, len(runtime.values))):
                 self.results[name].verdicts += runtime.evaluate()
-
-    def _reads(self) -> dict[str, list[tuple[str, Binding]]]:
-        """Each monitor's topics, and which field each of its signals reads there."""
-        reads: dict[str, list[tuple[str, Binding]]] = {}
-        for topic, route in self.router.routes.items():
-            for runtime, b in route.readers:
-                reads.setdefault(runtime.name, []).append((topic, route.bindings[b]))
-        return reads
 
     def _feed_events(self, events: Iterable[TraceEvent]) -> None:
         """Check these events one by one."""
