@@ -47,6 +47,12 @@ TARGET_MS = 115.0
 GOAL_MONITOR = "goal-reached"
 PATH = ((0.0, 0.0), (4.0, 0.0), (4.0, 3.0), (0.0, 3.0))
 GOAL_SECONDS = 20.0  # the goal monitor's F[0..20s]
+# The policy's hysteresis, shortened for a demo of minutes (edgerv orchestrate's defaults:
+# 30 s and 60 s): the edge handler calm this long before monitors come back down, and none
+# comes down within this long of its last move.
+CALM_SECONDS = 8
+COOLDOWN_SECONDS = 20
+PARK_SECONDS = 30.0  # at most this long parked, waiting for the monitors to come back
 CLOUD_DELAY_MS = 20.0  # one way, edge to cloud
 TOPICS = {
     "/odom": "nav_msgs/msg/Odometry",
@@ -70,12 +76,20 @@ class Processes:
     def __init__(self, logs: Path, env: dict[str, str]) -> None:
         self.logs, self.env = logs, env
         self.running: dict[str, subprocess.Popen[bytes]] = {}
+        self.paths: dict[str, Path] = {}  # name -> its log (the last process of that name)
         self.files: list[IO[bytes]] = []
 
     def start(
-        self, name: str, argv: Sequence[str], cpus: set[int], env: dict[str, str] | None = None
+        self,
+        name: str,
+        argv: Sequence[str],
+        cpus: set[int],
+        env: dict[str, str] | None = None,
+        log: str | None = None,
     ) -> subprocess.Popen[bytes]:
-        out = open(self.logs / f"{name}.log", "ab")  # noqa: SIM115 - closed in stop_all
+        """Start ``argv`` as ``name``, its output in a new ``logs/{log or name}.log``."""
+        self.paths[name] = self.logs / f"{log or name}.log"
+        out = open(self.paths[name], "wb")  # noqa: SIM115 - closed in stop_all
         self.files.append(out)
         proc = subprocess.Popen(
             list(argv),
@@ -110,7 +124,7 @@ class Processes:
         self.files.clear()
 
     def log_text(self, name: str) -> str:
-        path = self.logs / f"{name}.log"
+        path = self.paths.get(name, self.logs / f"{name}.log")
         return path.read_text(errors="replace") if path.exists() else ""
 
     def wait_for_line(self, name: str, needle: str, timeout: float) -> bool:
@@ -292,6 +306,9 @@ class PhaseResult:
     verdict_check: dict[str, Any] = field(default_factory=dict)
     monitors: Path | None = None
     settled_after: float | None = None  # orchestrated: seconds before the goal was given
+    stop_time: float = 0.0  # the phase's end (after the mission, and parked if it parked)
+    parked: dict[str, Any] = field(default_factory=dict)  # orchestrated: after the goal
+    parked_at: float = 0.0
 
     def figures(self) -> dict[str, Any]:
         ms = [m for _, m in self.makespans]
@@ -307,6 +324,7 @@ class PhaseResult:
             "collision": self.collided,
             "handlerCpu": {k: round(v, 3) for k, v in self.handler_cpu.items()},
             **({"goalGivenAfterSeconds": self.settled_after} if self.settled_after else {}),
+            **({"parked": self.parked} if self.parked else {}),
         }
 
 
@@ -482,9 +500,11 @@ class Demo:
                     "--interval",
                     "1",
                     "--calm",
-                    "20",
+                    str(CALM_SECONDS),
                     "--cooldown",
-                    "30",
+                    str(COOLDOWN_SECONDS),
+                    "--max-moves-down",
+                    "100",
                 ],
                 self.other_cpus,
             )
@@ -507,6 +527,7 @@ class Demo:
                 str(observers),
             ],
             self.other_cpus,
+            log=f"{phase.name}-base",
         )
         on_cmd = observers + ("edge" in phase.handlers)
         slam = [self.python, str(HERE / "robot.py"), "slam", "--observers", str(on_cmd)]
@@ -514,13 +535,15 @@ class Demo:
             slam += ["--calibrate", str(phase.settle - 1.0), "--target", str(TARGET_MS / 1000)]
         else:
             slam += ["--work", f"{self.work:.6f}"]
-        self.procs.start("slam", slam, self.edge_cpus)
+        self.procs.start("slam", slam, self.edge_cpus, log=f"{phase.name}-slam")
         assert self.planner is not None
         if not (
             self.procs.wait_for_line("base", '"started"', 40)
             and self.procs.wait_for_line("slam", '"started"', 40)
         ):
-            raise SystemExit(f"demo: the robot did not start: see {logs}/base.log, slam.log")
+            raise SystemExit(
+                f"demo: the robot did not start: see {logs}/{phase.name}-base.log, -slam.log"
+            )
         self.planner.wait_readers(observers)
         log = RobotLog(robot_log)
         self.view.robot = log
@@ -529,7 +552,9 @@ class Demo:
             result.settled_after = phase.settle + self.await_policy(phase.name, log)
         if self.work is None:
             if not self.procs.wait_for_line("slam", "calibrated", 10):
-                raise SystemExit("demo: the real-time stage did not calibrate: see logs/slam.log")
+                raise SystemExit(
+                    f"demo: the real-time stage did not calibrate: see {logs}/{phase.name}-slam.log"
+                )
             line = next(li for li in self.procs.log_text("slam").splitlines() if "calibrated" in li)
             self.work = json.loads(line)["calibrated"]["workMs"] / 1000
         cpu0 = self.cpu_seconds()
@@ -550,6 +575,9 @@ class Demo:
         span = result.end_time - result.goal_time
         result.handler_cpu = {t: (cpu1[t] - cpu0[t]) / span for t in cpu1 if t in cpu0}
         self.note_placement(result, final=True)
+        if phase.orchestrated and log.event("arrived", result.goal_time) is not None:
+            self.park(phase, result, log)
+        result.stop_time = time.time()
         self.procs.stop("slam")
         self.procs.stop("base")
         time.sleep(1.0)  # the handlers' clocks pass the recording's end
@@ -567,6 +595,27 @@ class Demo:
         self.view.done.append(result)
         return result
 
+    def park(self, phase: Phase, result: PhaseResult, log: RobotLog) -> None:
+        """The robot parked at its goal: its real-time stage idles, the deadline pressure
+        is gone, and the policy (not this driver) brings monitors back down to the edge
+        once its hysteresis allows. Wait for every monitor to be back, or PARK_SECONDS."""
+        arrived = log.event("arrived", result.goal_time)
+        parked_at = result.parked_at = arrived["t"] if arrived else time.time()
+        limit = time.time() + PARK_SECONDS
+        while time.time() < limit:
+            self.sleep(0.5, log)
+            if self.view.on_edge == self.monitor_count:
+                break
+        downs = [m for m in self.moves(phase.name) if m.get("ok") and m["reason"] == "calm below"]
+        result.parked = {
+            "seconds": round(time.time() - parked_at, 1),
+            "monitorsBack": sum(len(m["monitors"]) for m in downs),
+            "firstBackAfterSeconds": round(min(m["at"] for m in downs) - parked_at, 1)
+            if downs
+            else None,
+            "monitorsOnEdgeAtEnd": self.view.on_edge,
+        }
+
     def sleep(self, seconds: float, log: RobotLog) -> None:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
@@ -579,7 +628,7 @@ class Demo:
                 proc = self.procs.running.get(name)
                 if proc is not None and proc.poll() is not None:
                     raise SystemExit(
-                        f"demo: the robot's {name} exited: see {self.out}/logs/{name}.log"
+                        f"demo: the robot's {name} exited: see {self.procs.paths[name]}"
                     )
 
     def cpu_seconds(self) -> dict[str, float]:
@@ -634,7 +683,7 @@ class Demo:
         until = int(result.end_time * 1e9)
         cmds = [r for r in log.kind("cmd", since) if r["stamp"] <= until]
         result.makespans = [(r["stamp"] / 1e9 - self.started, r["makespanMs"]) for r in cmds]
-        whole = [r for r in log.kind("cmd") if r["stamp"] <= until]
+        whole = [r for r in log.kind("cmd") if r["stamp"] <= int(result.stop_time * 1e9)]
         result.timeline = [(r["stamp"] / 1e9 - self.started, r["makespanMs"]) for r in whole]
         frames = [r for r in log.kind("frame", since) if r["stamp"] <= until]
         result.frames = len(frames)
@@ -722,6 +771,7 @@ class Demo:
             "migrations": len(moves),
             "monitorsMoved": sum(len(m["monitors"]) for m in moves),
             "migrationReasons": sorted({m["reason"] for m in moves}),
+            "monitorsMovedBack": orch.parked.get("monitorsBack", 0),
             "lostEvents": sum(r.verdict_check.get("lostEvents", 0) for r in results.values()),
             "verdictChecks": {n: r.verdict_check for n, r in results.items() if r.verdict_check},
             "goalReached": orch.arrived and orch.goal_verdict != "violated",
@@ -772,6 +822,8 @@ class Demo:
             problems.append("moving monitors did not bring the loop back under its deadline")
         if not summary["goalReached"]:
             problems.append("the orchestrated robot did not reach its goal")
+        elif not summary["monitorsMovedBack"]:
+            problems.append("no monitor came back down to the edge once the robot parked")
         if summary["lostEvents"] or any(
             r.verdict_check.get("mismatchedMonitors") for r in results.values()
         ):
@@ -917,7 +969,10 @@ def plot(path: Path, results: dict[str, PhaseResult], started: float) -> None:
         )
         for m in r.migrations:
             if m.get("from") and m.get("ok") and "at" in m:
-                ax.axvline(m["at"] - r.goal_time, color="tab:green", alpha=0.6)
+                down = m["reason"] == "calm below"
+                ax.axvline(
+                    m["at"] - r.goal_time, color="tab:purple" if down else "tab:green", alpha=0.6
+                )
         f = r.figures()
         ax.set_title(
             f"{name}: median {f['medianMs']} ms, {f['deadlineMisses']} misses\n"
@@ -925,6 +980,20 @@ def plot(path: Path, results: dict[str, PhaseResult], started: float) -> None:
             f"goal {'reached' if r.arrived else 'missed'}"
         )
         ax.axvline(0, color="grey", linewidth=0.8)
+        if r.parked_at:
+            ax.axvspan(r.parked_at - r.goal_time, r.stop_time - r.goal_time, color="0.92")
+            ax.text(r.parked_at - r.goal_time + 0.5, DEADLINE_MS * 0.5, "parked", color="0.4")
+        if r.migrations:
+            from matplotlib.lines import Line2D
+
+            ax.legend(
+                handles=[
+                    Line2D([], [], color="tab:green", label="handoff up (deadline)"),
+                    Line2D([], [], color="tab:purple", label="handoff down (calm)"),
+                ],
+                loc="upper right",
+                fontsize="small",
+            )
         ax.set_xlabel("seconds since the goal was given (before: the robot waits)")
     axes[0].set_ylabel("frame to command (ms)")
     axes[0].legend(loc="upper left")
@@ -983,9 +1052,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--extra",
         type=int,
-        default=100,
+        default=250,
         metavar="N",
-        help="monitors added to the paper's 200 to raise the load (default 100)",
+        help="monitors added to the paper's 200 to raise the load (default %(default)s)",
     )
     parser.add_argument(
         "--plain", action="store_true", help="status lines instead of the live view"
@@ -1001,7 +1070,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--domain", type=int, metavar="ID", help="ROS domain (default: random)")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "logs").mkdir(exist_ok=True)
+    shutil.rmtree(args.out / "logs", ignore_errors=True)  # this run's logs only
+    (args.out / "logs").mkdir()
     demo = Demo(args)
 
     def on_signal(signum: int, _frame: object) -> None:

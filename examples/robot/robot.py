@@ -5,7 +5,12 @@ Three kinds of process, as on the paper's robot, each a ROS 2 node:
 * ``base``: the robot's hardware side. A camera (8 frames/s, ``/camera/image``,
   a small mono image into which the simulator renders the robot's pose), the
   motor driver (at each frame tick, 8 Hz, it applies the newest velocity command
-  it has: a late command keeps the old one), a kinematic simulator (unicycle,
+  it has, and a watchdog, as ``diff_drive_controller``'s ``cmd_vel_timeout``:
+  a command older than ``--stale`` frame periods is not run, the motors stop;
+  with the default 1.5 a loop that misses its deadline stops the robot at that
+  tick, and one that misses every deadline never gets it anywhere; ``--stale 0``:
+  the newest command runs however old, a late loop only steers late), a
+  kinematic simulator (unicycle,
   integrated at 200 Hz) publishing ``/odom`` (50 Hz), ``/imu`` (200 Hz),
   ``/scan`` (20 Hz), ``/battery`` (1 Hz) and ``/bumper``. The robot drives in a
   corridor around its path: leaving it by more than ``--corridor`` is a
@@ -18,7 +23,8 @@ Three kinds of process, as on the paper's robot, each a ROS 2 node:
   frame's stamp. Its ``--calibrate`` period sets the work so that the makespan
   (frame stamp to command) is ``--target`` on this machine: the target minus the
   lower quartile of what frames took besides the work (robust to a disturbance
-  during calibration), then freezes it.
+  during calibration), then freezes it. At its goal the robot parks: the stage
+  idles (``--park-work`` per frame, still a command a frame) until a new goal.
 * the mission planner lives in the demo driver (``demo.py``): it publishes the
   path (``/path``, transient local) and a new goal (``/goal``).
 
@@ -98,10 +104,11 @@ def path_points(msg: Path) -> list[tuple[float, float]]:
 class Base(Node):
     """Camera, motor driver and kinematic simulator."""
 
-    def __init__(self, log: TextIO, corridor: float) -> None:
+    def __init__(self, log: TextIO, corridor: float, stale: float) -> None:
         super().__init__("robot_base")
         self.log = log
         self.corridor = corridor
+        self.stale_ns = int(stale * FRAME_PERIOD * 1e9)  # 0: no watchdog
         self.lock = threading.Lock()
         self.x = self.y = self.theta = 0.0
         self.v = self.w = 0.0  # the command the motors run
@@ -213,7 +220,10 @@ class Base(Node):
         now = time.time_ns()
         with self.lock:
             if self.newest is not None and not self.bumped:
-                _, self.v, self.w = self.newest
+                stamp, v, w = self.newest
+                if self.stale_ns and now - stamp > self.stale_ns:
+                    v = w = 0.0  # the watchdog: no command from the last frame
+                self.v, self.w = v, w
             previous, self.previous_frame = self.previous_frame, now
             met = previous is not None and previous in self.arrived
             self.arrived = {s: m for s, m in self.arrived.items() if s >= now - 2_000_000_000}
@@ -282,10 +292,18 @@ class Slam(Node):
     """The real-time stage: fixed CPU work per frame, then steering along the path."""
 
     def __init__(
-        self, work: float, calibrate: float, target: float, gain: float, speed: float
+        self,
+        work: float,
+        calibrate: float,
+        target: float,
+        gain: float,
+        speed: float,
+        park_work: float,
     ) -> None:
         super().__init__("slam_planner")
         self.work, self.target, self.gain, self.speed = work, target, gain, speed
+        self.park_work = park_work
+        self.parked = False  # at the goal: the stage idles until the next one
         self.calibrate_until = time.monotonic() + calibrate if calibrate > 0 else 0.0
         self.samples: list[float] = []
         self.path: list[tuple[float, float]] = []
@@ -302,13 +320,14 @@ class Slam(Node):
     def on_goal(self, _msg: PoseStamped) -> None:
         """A new goal: drive the path from its start (until then the robot stands)."""
         self.waypoint = 1
+        self.parked = False
 
     def on_work(self, msg: Float64) -> None:
         self.work = msg.data
 
     def burn(self) -> int:
-        """``self.work`` CPU seconds of this thread's own computation."""
-        end = time.thread_time() + self.work
+        """The work (CPU seconds of this thread's own computation) of one frame."""
+        end = time.thread_time() + (self.park_work if self.parked else self.work)
         acc = 0
         while time.thread_time() < end:
             for i in range(500):
@@ -326,7 +345,8 @@ class Slam(Node):
             wx, wy = self.path[self.waypoint]
             distance = math.hypot(wx - x, wy - y)
         if self.waypoint == last and distance < 0.1:
-            self.waypoint = len(self.path)  # arrived: stop
+            self.waypoint = len(self.path)  # arrived: stop and park
+            self.parked = True
             return 0.0, 0.0
         error = wrap(math.atan2(wy - y, wx - x) - theta)
         w = max(-3.0, min(3.0, self.gain * error))
@@ -364,6 +384,14 @@ def main(argv: list[str] | None = None) -> int:
     base = sub.add_parser("base")
     base.add_argument("--log", required=True, metavar="FILE")
     base.add_argument("--corridor", type=float, default=0.25, metavar="METRES")
+    base.add_argument(
+        "--stale",
+        type=float,
+        default=1.5,
+        metavar="PERIODS",
+        help="the motors' watchdog: a command older than this many frame periods "
+        "(from its frame's stamp) is not run (0: no watchdog)",
+    )
     for p in (base, slam := sub.add_parser("slam")):
         p.add_argument(
             "--observers",
@@ -377,13 +405,16 @@ def main(argv: list[str] | None = None) -> int:
     slam.add_argument("--target", type=float, default=0.115, metavar="SECONDS")
     slam.add_argument("--gain", type=float, default=5.0, help="heading gain (rad/s per rad)")
     slam.add_argument("--speed", type=float, default=1.0, metavar="M_PER_S")
+    slam.add_argument(
+        "--park-work", type=float, default=0.002, metavar="CPU_SECONDS", help="per frame, parked"
+    )
     args = parser.parse_args(argv)
     rclpy.init()
     node: Node
     log = None
     if args.node == "base":
         log = open(args.log, "a", buffering=1 << 16)  # noqa: SIM115 - closed below
-        base_node = Base(log, args.corridor)
+        base_node = Base(log, args.corridor, args.stale)
         n = args.observers
         ready = wait_for_readers(
             [(base_node.image, n + 1)]
@@ -393,7 +424,7 @@ def main(argv: list[str] | None = None) -> int:
         base_node.start()
         node = base_node
     else:
-        node = Slam(args.work, args.calibrate, args.target, args.gain, args.speed)
+        node = Slam(args.work, args.calibrate, args.target, args.gain, args.speed, args.park_work)
         ready = wait_for_readers([(node.cmd, args.observers + 1)])
     if not ready:
         print(f"{args.node}: not every observer subscribed within 30 s", file=sys.stderr)

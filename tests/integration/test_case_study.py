@@ -4,8 +4,9 @@ A simulated robot's 8 Hz loop shares one CPU with the edge handler. The test
 checks the shape the demo exists to show, as the demo measured it on real ROS 2
 traffic: the loop is slower with every monitor on the edge than with none;
 the orchestration policy, seeing the loop's deadline pressure, moved monitors to
-the cloud handler; the loop was faster after; and the live verdicts of every
-monitor, across the handlers and the moves, equal ``edgerv check`` on the
+the cloud handler; the loop was faster after; once the robot parked at its goal,
+the policy brought monitors back down; and the live verdicts of every monitor,
+across the handlers and the moves both ways, equal ``edgerv check`` on the
 phase's recorded MCAP bag (no event lost or doubled).
 """
 
@@ -62,6 +63,18 @@ def test_the_moves_were_decided_by_the_policy_on_deadline_pressure(
     _, summary, text = run
     assert summary["migrations"] >= 1, text
     assert "deadline" in summary["migrationReasons"], text
+
+
+def test_once_the_robot_parks_the_policy_brings_monitors_back_down(
+    run: tuple[int, dict[str, Any], str],
+) -> None:
+    """Parked at its goal, the robot's loop idles: the deadline pressure is gone, and after
+    the policy's calm and cooldown the monitors come back to the edge by the handoff."""
+    _, summary, text = run
+    assert "calm below" in summary["migrationReasons"], text
+    parked = summary["phases"]["orchestrated"]["parked"]
+    assert summary["monitorsMovedBack"] == parked["monitorsBack"] > 0, text
+    assert parked["firstBackAfterSeconds"] >= 8, parked  # the demo's --calm 8
 
 
 def test_live_verdicts_across_moves_equal_edgerv_check_on_the_recorded_bag(

@@ -170,6 +170,14 @@ def test_the_deadline_flags_set_the_policy_and_default_to_it() -> None:
         config_from(orchestrate_args("--deadline-shed", "2"), targets)
 
 
+def test_max_moves_down_sets_the_policy_and_is_checked() -> None:
+    targets = parse_handlers("edge=e:1,cloud=c:1")
+    assert config_from(orchestrate_args(), targets).max_moves_down == 1
+    assert config_from(orchestrate_args("--max-moves-down", "40"), targets).max_moves_down == 40
+    with pytest.raises(InputError, match="--max-moves-down: error: need 1 <= max_moves_down"):
+        config_from(orchestrate_args("--max-moves-down", "0"), targets)
+
+
 def test_an_unsettled_move_is_not_done_and_is_settled_before_the_monitor_moves_again(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

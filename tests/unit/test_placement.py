@@ -80,6 +80,19 @@ def test_back_down_only_after_calm_and_cooldown() -> None:
     assert [(m.monitor, m.destination, m.reason) for m in moves] == [("a", "edge-1", "calm below")]
 
 
+def test_at_most_max_moves_down_come_down_a_round() -> None:
+    config = PolicyConfig(tiers=("edge", "cloud"), calm_seconds=0, cooldown_seconds=0)
+    up = {name: busy(10) for name in "abcde"}
+    below = [edge(0.2), idle("cloud", "cloud-1", **up)]
+    assert [m.monitor for m in plan(below, {}, config, PolicyMemory(), now=1)] == ["a"]
+    config = PolicyConfig(
+        tiers=("edge", "cloud"), calm_seconds=0, cooldown_seconds=0, max_moves_down=3
+    )
+    assert [m.monitor for m in plan(below, {}, config, PolicyMemory(), now=1)] == ["a", "b", "c"]
+    with pytest.raises(PolicyConfigError, match="max_moves_down"):
+        PolicyConfig(tiers=("edge",), max_moves_down=0)
+
+
 def test_a_monitor_stays_at_its_home_tier() -> None:
     memory = PolicyMemory()
     calm = [edge(0.1), idle("fog", "fog-1", a=busy(10))]

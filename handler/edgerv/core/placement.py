@@ -134,6 +134,8 @@ class PolicyConfig:
             raise PolicyConfigError("need 0 < deadline_shed <= 1", "deadline_shed")
         if not 0 <= self.deadline_wait < float("inf"):
             raise PolicyConfigError("need deadline_wait >= 0 seconds", "deadline_wait")
+        if not 1 <= self.max_moves_down <= 100_000:
+            raise PolicyConfigError("need 1 <= max_moves_down <= 100000", "max_moves_down")
 
 
 @dataclass(frozen=True)

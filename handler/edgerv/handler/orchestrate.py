@@ -345,6 +345,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     defaults = {f.name: f.default for f in fields(PolicyConfig)}
     p.add_argument(
+        "--max-moves-down",
+        type=int,
+        default=defaults["max_moves_down"],
+        metavar="N",
+        help="monitors brought down a tier per round below a calm handler (default %(default)s)",
+    )
+    p.add_argument(
         "--deadline-high",
         type=float,
         default=defaults["deadline_high"],
@@ -401,6 +408,7 @@ def config_from(args: argparse.Namespace, targets: Sequence[Target]) -> PolicyCo
             tier_latency_ms=parse_pairs(args.tier_latency, "--tier-latency"),
             calm_seconds=args.calm,
             cooldown_seconds=args.cooldown,
+            max_moves_down=args.max_moves_down,
             deadline_high=args.deadline_high,
             deadline_low=args.deadline_low,
             deadline_shed=args.deadline_shed,
