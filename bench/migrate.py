@@ -72,10 +72,11 @@ time.sleep(3600)
 
 DRIVER = r"""
 import json, sys, time
-from edgerv.handler.migrate import Handler, migrate
+from edgerv.handler.client import HandlerClient
+from edgerv.handler.migrate import migrate
 src, dst, token, names = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4].split(",")
 buffered, parked = int(sys.argv[5]), sys.argv[6] == "parked"
-edge, cloud = Handler(src, token), Handler(dst, token)
+edge, cloud = HandlerClient(src, token), HandlerClient(dst, token)
 deadline = time.monotonic() + 120
 def events():
     return edge.get("/v1/monitors/" + names[-1])["buffer"]["events"]

@@ -1062,10 +1062,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--cloud",
         choices=("auto", "link", "loopback"),
-        default="loopback",
-        help="the cloud handler's host: this machine's loopback (default), or a network "
-        "namespace behind a delayed link (link; auto: where namespaces work). Over the "
-        "link the loop's margin is thin: see README",
+        default="auto",
+        help="the cloud handler's host: a network namespace behind a link delaying each "
+        "packet 20 ms each way (link), this machine's loopback (loopback), or the link "
+        "where network namespaces work, else loopback (auto, the default)",
     )
     parser.add_argument("--domain", type=int, metavar="ID", help="ROS domain (default: random)")
     args = parser.parse_args(argv)

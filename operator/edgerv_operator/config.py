@@ -4,6 +4,7 @@ the variable."""
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -14,6 +15,32 @@ class ConfigError(Exception):
     """A setting that cannot be used: which variable, and why."""
 
 
+# a Kubernetes label key: an optional DNS-subdomain prefix and a name of up to 63 characters
+_LABEL_KEY = re.compile(
+    r"([a-z0-9]([-a-z0-9]*[a-z0-9])?(\.[a-z0-9]([-a-z0-9]*[a-z0-9])?)*/)?"
+    r"[A-Za-z0-9]([-A-Za-z0-9_.]{0,61}[A-Za-z0-9])?"
+)
+
+
+def parse_selector(text: str) -> dict[str, str] | None:
+    """``key=value,key=value`` as a dict; None when it is not of that form."""
+    labels = {}
+    for part in text.split(","):
+        key, eq, value = part.strip().partition("=")
+        if not eq or not key.strip() or "!" in key or "=" in value:
+            return None
+        labels[key.strip()] = value.strip()
+    return labels or None
+
+
+def selector_labels(env: Mapping[str, str] | None = None) -> dict[str, str]:
+    """The handler pods' labels, for the pod index (read when the handlers module is
+    imported; a bad value falls back to the default, and startup refuses it)."""
+    env = os.environ if env is None else env
+    given = parse_selector(env.get("EDGERV_HANDLER_SELECTOR", DEFAULT_SELECTOR))
+    return given or parse_selector(DEFAULT_SELECTOR) or {}
+
+
 @dataclass(frozen=True)
 class OperatorConfig:
     namespace: str  # where the handler pods run
@@ -22,6 +49,7 @@ class OperatorConfig:
     token: str  # the handlers' EDGERV_TOKEN
     tiers: tuple[str, ...]  # lowest first: a monitor without placement.tier starts on the first
     placement_seconds: float = 5.0  # between rounds of the placement policy; 0: none
+    tier_label: str = "edgerv.io/tier"  # the node label whose value is the node's tier
 
     @classmethod
     def from_env(cls, env: Mapping[str, str] | None = None) -> OperatorConfig:
@@ -55,11 +83,23 @@ class OperatorConfig:
                 f"EDGERV_PLACEMENT_SECONDS: '{every}' is not a number of seconds from 0 "
                 "(no placement rounds) to 3600"
             )
+        selector = env.get("EDGERV_HANDLER_SELECTOR", DEFAULT_SELECTOR)
+        if parse_selector(selector) is None:
+            raise ConfigError(
+                f"EDGERV_HANDLER_SELECTOR: '{selector}' is not a list of key=value labels "
+                "(e.g. app.kubernetes.io/component=handler)"
+            )
+        tier_label = env.get("EDGERV_TIER_LABEL", "edgerv.io/tier")
+        if not _LABEL_KEY.fullmatch(tier_label):
+            raise ConfigError(
+                f"EDGERV_TIER_LABEL: '{tier_label}' is not a label key (e.g. edgerv.io/tier)"
+            )
         return cls(
             namespace=namespace,
-            selector=env.get("EDGERV_HANDLER_SELECTOR", DEFAULT_SELECTOR),
+            selector=selector,
             port=int(text),
             token=token,
             tiers=tiers,
             placement_seconds=placement_seconds,
+            tier_label=tier_label,
         )

@@ -1,254 +1,570 @@
-"""The operator's Kopf handlers: thin glue over :mod:`edgerv_operator.monitors`.
+"""The operator's Kopf handlers: thin glue over :mod:`~edgerv_operator.documents`,
+:mod:`~edgerv_operator.placement` and :mod:`~edgerv_operator.status`.
 
-A Monitor resource is defined on every handler of the cluster (the handler pods the
-chart's DaemonSet runs, one per node, host networking) and runs on one: where it runs
-already, else a handler of its ``placement.tier``, else of the lowest tier. Its status
-is refreshed from the handlers every few seconds; a handler that restarted empty gets
-its definitions again. Run it with ``kopf run -m edgerv_operator.handlers`` (the image
-does) or ``python -m edgerv_operator``.
+A Monitor resource is defined on every handler of the cluster (the pods of the
+chart's DaemonSet, one per node, host networking) and runs on one: where it runs
+already, else a handler of its ``placement.tier``, else of the lowest tier. What
+the operator keeps between calls lives in Kopf's ``memo`` (an :class:`Operator`);
+the handler pods and the nodes' tiers come from Kopf indexes, kept by watching.
+
+Every few seconds (the Monitors' status timers; the first one due does it for
+all) the operator asks each handler once for all its monitors (the *survey*),
+then tends the cluster: monitors on a handler pod that is going away move to
+another by the handoff (a drain), and the placement policy of ``edgerv
+orchestrate`` runs one round. Moves are made one at a time (one lock): a tier
+edit, a drain and a placement round never act on a monitor at once
+(docs/protocol.md, "The operator"). Run it with ``kopf run -m
+edgerv_operator.handlers`` (the image does) or ``python -m edgerv_operator``.
 """
 
 from __future__ import annotations
 
-import contextlib
-import json
+import datetime
 import logging
 import os
 import threading
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import kopf
-import kubernetes
 
 from edgerv.core.placement import PolicyConfig
-from edgerv.handler.migrate import Handler, MigrationFailed, Rejected
+from edgerv.handler.client import (
+    ApiError,
+    HandlerClient,
+    Invalid,
+    NotFound,
+    Unauthorized,
+)
+from edgerv.handler.migrate import migrate, settle
 from edgerv.handler.orchestrate import Orchestrator, Target
-from edgerv_operator.config import ConfigError, OperatorConfig
-from edgerv_operator.monitors import (
+from edgerv.handler.payloads import MonitorReport
+from edgerv_operator.config import ConfigError, OperatorConfig, selector_labels
+from edgerv_operator.documents import (
     HandlerPod,
-    choose,
+    document_text,
     handler_name,
     monitor_document,
     problems,
-    status_of,
 )
+from edgerv_operator.placement import change, choose, destination, tier_of
+from edgerv_operator.status import Event, Survey, invalid, moved, refreshed
 
 log = logging.getLogger("edgerv.operator")
 MONITORS = ("edgerv.io", "v1alpha1", "monitors")
 STATUS_SECONDS = 5.0
-_config: OperatorConfig | None = None
-_stop = threading.Event()  # ends the placement rounds
+
+
+@dataclass(frozen=True)
+class MoveNote:
+    """A move the operator made, until the monitor's status records it."""
+
+    source: HandlerPod
+    destination: HandlerPod
+    reason: str
+    ms: float
+    # the source's report on it right after the move: the counts it reached there (a
+    # drained handler exits soon after, and the next survey would not hear them)
+    final: MonitorReport | None = None
+    at: float = field(default_factory=time.monotonic)  # when it was done
+
+
+@dataclass
+class Operator:
+    """What the operator keeps between handler calls (in Kopf's ``memo``)."""
+
+    config: OperatorConfig
+    orchestrator: Orchestrator
+    moving: threading.Lock = field(default_factory=threading.Lock)  # one move at a time
+    surveying: threading.Lock = field(default_factory=threading.Lock)
+    surveyed_at: float = float("-inf")
+    placed_at: float = float("-inf")  # the last placement round
+    reports: dict[HandlerPod, dict[str, MonitorReport]] = field(default_factory=dict)
+    silent: set[HandlerPod] = field(default_factory=set)
+    notes: dict[str, MoveNote] = field(default_factory=dict)  # monitor -> its last move
+
+    def client(self, pod: HandlerPod) -> HandlerClient:
+        return HandlerClient(pod.address, self.config.token)
+
+
+def _operator(memo: kopf.Memo) -> Operator:
+    op = memo.get("edgerv")
+    if not isinstance(op, Operator):
+        raise kopf.TemporaryError("the operator is starting", delay=2)
+    return op
 
 
 @kopf.on.startup()
-def startup(settings: kopf.OperatorSettings, **_: Any) -> None:
-    global _config
+def startup(settings: kopf.OperatorSettings, memo: kopf.Memo, **_: Any) -> None:
     try:
-        _config = OperatorConfig.from_env()
+        config = OperatorConfig.from_env()
     except ConfigError as exc:
         raise kopf.PermanentError(f"edgerv operator: {exc}") from None
     settings.persistence.finalizer = "edgerv.io/monitor"
-    try:
-        kubernetes.config.load_incluster_config()
-    except kubernetes.config.ConfigException:  # outside a cluster: $KUBECONFIG, as read now
-        kubernetes.config.load_kube_config(config_file=os.environ.get("KUBECONFIG"))
-    if _config.placement_seconds > 0:
-        _stop.clear()
-        threading.Thread(
-            target=placement_rounds, args=(_config,), name="edgerv-placement", daemon=True
-        ).start()
-
-
-@kopf.on.cleanup()
-def cleanup(**_: Any) -> None:
-    _stop.set()
-
-
-def placement_rounds(cfg: OperatorConfig) -> None:
-    """The placement policy over the cluster's handlers (docs/protocol.md): monitors move
-    up a tier when a handler is under pressure and back down when it is calm, by the
-    handoff. Starting monitors stays the resources' handlers' job."""
-    policy = Orchestrator([], PolicyConfig(tiers=cfg.tiers), cfg.token, starts=False)
-    while not _stop.wait(cfg.placement_seconds):
-        try:
-            pods = handler_pods(cfg)
-            policy.set_targets([Target(p.tier, p.address) for p in pods if p.tier in cfg.tiers])
-            for record in policy.round():
-                log.info("placement: %s", json.dumps(record))
-        except Exception:  # a failed round must not end the rounds
-            log.exception("placement round failed")
-
-
-SERVICE_ACCOUNT = "/var/run/secrets/kubernetes.io/serviceaccount/token"
+    # Kopf's own "handler succeeded" lines stay in the log; Events are the ones this
+    # operator posts (kopf.event), and Kopf's warnings and errors.
+    settings.posting.level = logging.WARNING
+    policy = Orchestrator([], PolicyConfig(tiers=config.tiers), config.token, starts=False)
+    memo["edgerv"] = Operator(config, policy)
 
 
 @kopf.on.login()
 def login(**kwargs: Any) -> kopf.ConnectionInfo | None:
-    """In a pod: its service account, the API server by $KUBERNETES_SERVICE_HOST (no
-    cluster DNS needed); elsewhere: $KUBECONFIG as it is now (the client library reads
-    it once, at import)."""
-    if os.path.exists(SERVICE_ACCOUNT):
+    """In a pod: its service account; elsewhere: $KUBECONFIG as it is now."""
+    if os.path.exists("/var/run/secrets/kubernetes.io/serviceaccount/token"):
         return kopf.login_via_client(**kwargs)
     return kopf.login_with_kubeconfig(**kwargs)
 
 
-def config() -> OperatorConfig:
-    if _config is None:
-        raise kopf.TemporaryError("the operator is starting", delay=2)
-    return _config
+@kopf.on.probe(id="handlers")
+def probe(memo: kopf.Memo, **_: Any) -> int:
+    """For the liveness endpoint: the operator is up (how many handlers it last saw)."""
+    op = memo.get("edgerv")
+    return len(op.reports) if isinstance(op, Operator) else 0
 
 
-def handler_pods(cfg: OperatorConfig) -> list[HandlerPod]:
-    """The ready handler pods, with their node's tier (label ``edgerv.io/tier``)."""
-    core = kubernetes.client.CoreV1Api()
-    pods = core.list_namespaced_pod(cfg.namespace, label_selector=cfg.selector).items
-    tiers = {
-        n.metadata.name: (n.metadata.labels or {}).get("edgerv.io/tier")
-        for n in core.list_node().items
-        if n.metadata is not None
-    }
-    ready = []
-    for p in pods:
-        st, node = p.status, p.spec.node_name if p.spec else None
-        if st is None or node is None or not st.host_ip or st.phase != "Running":
-            continue
-        if {c.type: c.status for c in (st.conditions or [])}.get("Ready") == "True":
-            ready.append(HandlerPod(node, tiers.get(node), f"{st.host_ip}:{cfg.port}"))
-    return ready
+# -- what the cluster has: handler pods and the nodes' tiers (Kopf indexes) ----------------
 
 
-def report(cfg: OperatorConfig, pod: HandlerPod, name: str) -> dict[str, Any] | None:
-    """The handler's view of a monitor; None where it does not define it."""
-    status, body = Handler(pod.address, cfg.token).call(
-        f"/v1/monitors/{name}", method="GET", timeout=5.0
-    )
-    if status == 404:
+@dataclass(frozen=True)
+class PodFacts:
+    namespace: str
+    name: str
+    node: str
+    host_ip: str
+    ready: bool
+    leaving: bool  # deletionTimestamp set: it is going away
+    incarnation: str  # UID and restart count
+
+
+@kopf.index("", "v1", "pods", labels=selector_labels())
+def handler_pods(
+    name: str,
+    namespace: str | None,
+    uid: str | None,
+    spec: kopf.Spec,
+    status: kopf.Status,
+    meta: kopf.Meta,
+    **_: Any,
+) -> dict[str, PodFacts] | None:
+    node, host_ip = spec.get("nodeName"), status.get("hostIP")
+    if not node or not host_ip or status.get("phase") != "Running":
         return None
-    if status >= 400:
-        raise MigrationFailed(f"{pod.address}: HTTP {status}: {body[:200]!r}")
-    answer: dict[str, Any] = json.loads(body)
-    return answer
-
-
-def define(cfg: OperatorConfig, pod: HandlerPod, name: str, document: str, active: bool) -> None:
-    Handler(pod.address, cfg.token).call(
-        f"/v1/monitors/{name}?active={'true' if active else 'false'}",
-        raw=document.encode(),
-        method="PUT",
-        check=True,
-        timeout=30.0,
+    conditions = {c.get("type"): c.get("status") for c in status.get("conditions") or []}
+    restarts = sum(int(c.get("restartCount", 0)) for c in status.get("containerStatuses") or [])
+    facts = PodFacts(
+        namespace or "",
+        name,
+        str(node),
+        str(host_ip),
+        conditions.get("Ready") == "True",
+        meta.get("deletionTimestamp") is not None,
+        f"{uid}/{restarts}",
     )
+    return {name: facts}
+
+
+@kopf.index("", "v1", "nodes")
+def node_labels(name: str, labels: kopf.Labels, **_: Any) -> dict[str, dict[str, str]]:
+    """Each node's labels (its tier is the one the chart's ``handler.tierLabel`` names)."""
+    return {name: dict(labels)}
+
+
+@dataclass(frozen=True)
+class Handlers:
+    """The handler pods of the cluster, as the index shows them now."""
+
+    ready: list[HandlerPod]  # they run monitors and receive them
+    leaving: list[HandlerPod]  # going away: what runs there moves off
+    unready: list[HandlerPod]  # running, not Ready: asked, given nothing
+
+    @property
+    def every(self) -> list[HandlerPod]:
+        return self.ready + self.leaving + self.unready
+
+
+def cluster_handlers(
+    cfg: OperatorConfig, pods: kopf.Index[str, PodFacts], nodes: kopf.Index[str, dict[str, str]]
+) -> Handlers:
+    found = Handlers([], [], [])
+    for key in pods:
+        for p in pods[key]:
+            if p.namespace != cfg.namespace:
+                continue
+            labels = next(iter(nodes.get(p.node, [])), {})
+            tier = labels.get(cfg.tier_label)
+            h = HandlerPod(p.node, tier, f"{p.host_ip}:{cfg.port}", p.name, p.incarnation)
+            (found.leaving if p.leaving else found.ready if p.ready else found.unready).append(h)
+    return found
+
+
+# -- the survey, and tending the cluster (drains, placement rounds) ------------------------
+
+
+def survey_and_tend(op: Operator, handlers: Handlers) -> None:
+    """At most once per STATUS_SECONDS / 2 (the first status timer due does it): every
+    handler's monitors in one call each, then drains and a placement round."""
+    if time.monotonic() - op.surveyed_at < STATUS_SECONDS / 2:
+        return
+    if not op.surveying.acquire(blocking=False):
+        return  # another timer is at it: use the last survey
+    try:
+        started = time.monotonic()  # a move noted after this is not in these reports
+        reports: dict[HandlerPod, dict[str, MonitorReport]] = {}
+        silent: set[HandlerPod] = set()
+        for pod in handlers.every:
+            try:
+                listing = op.client(pod).monitors(timeout=5.0)
+                reports[pod] = {m["name"]: m for m in listing}
+            except ApiError as exc:
+                silent.add(pod)
+                log.warning("handler %s on %s: no survey: %s", pod.pod, pod.node, exc)
+        op.reports, op.silent, op.surveyed_at = reports, silent, started
+        tend(op, handlers)
+    finally:
+        op.surveying.release()
+
+
+def tend(op: Operator, handlers: Handlers) -> None:
+    """Drains first (a pod going away hands its active monitors over), then one round
+    of the placement policy over the ready handlers."""
+    if not op.moving.acquire(blocking=False):
+        return  # a tier edit is moving a monitor: next time
+    try:
+        settle_orphans(op, handlers.every)
+        ready = handlers.ready
+        for pod in handlers.leaving:
+            names = [n for n, r in op.reports.get(pod, {}).items() if r.get("active")]
+            target = destination(ready, None, op.config.tiers, leaving=pod)
+            if names and target is not None:
+                _move(op, pod, target, names, f"pod {pod.pod} is going away")
+        every = op.config.placement_seconds
+        if every > 0 and time.monotonic() - op.placed_at >= every:
+            op.placed_at = time.monotonic()
+            by_address = {h.address: h for h in ready}
+            op.orchestrator.set_targets(
+                [Target(h.tier, h.address) for h in ready if h.tier in op.config.tiers]
+            )
+            for record in op.orchestrator.round():
+                log.info("placement: %s", record)
+                src = by_address.get(str(record.get("from") or "").removeprefix("http://"))
+                dst = by_address.get(str(record.get("to") or "").removeprefix("http://"))
+                if record.get("ok") and src and dst:
+                    for name in record["monitors"]:
+                        op.notes[name] = MoveNote(src, dst, str(record["reason"]), record["ms"])
+    finally:
+        op.moving.release()
+
+
+def settle_orphans(op: Operator, pods: Sequence[HandlerPod]) -> None:
+    """Settle the handoffs that no move of this operator drives (the caller holds
+    ``op.moving``, which every move of its holds throughout): the operator restarted in
+    the middle of one, or a move of its failed without knowing whether the receiver
+    adopted. As ``edgerv migrate`` settles them: a monitor the receiver adopted commits
+    there, any other resumes on its sender; never two active copies."""
+    for pod in pods:
+        held = [
+            name
+            for name, r in op.reports.get(pod, {}).items()
+            if r["handoff"] in ("sending", "released")
+        ]
+        if not held:
+            continue
+        try:
+            where = settle(op.client(pod), held, time.monotonic() + 30.0)
+        except ApiError as exc:
+            log.warning("settling %s on %s: %s", ", ".join(held), pod.node, exc)
+            continue
+        moved = {n for names in where.values() for n in names}
+        log.info(
+            "settled a handoff no one drove: %s",
+            "; ".join(f"{n} {'moved' if n in moved else 'resumed on ' + pod.node}" for n in held),
+        )
+
+
+def _move(
+    op: Operator, source: HandlerPod, target: HandlerPod, names: Sequence[str], reason: str
+) -> bool:
+    """Move ``names`` by the handoff (the caller holds ``op.moving``); note each move."""
+    started = time.monotonic()
+    try:
+        migrate(op.client(source), op.client(target), list(names), timeout=30.0)
+    except ApiError as exc:
+        log.warning("moving %s from %s to %s: %s", ", ".join(names), source.node, target.node, exc)
+        return False
+    ms = (time.monotonic() - started) * 1000
+    try:
+        final = {m["name"]: m for m in op.client(source).monitors(timeout=5.0)}
+    except ApiError as exc:
+        log.warning("after moving from %s: no final counts: %s", source.node, exc)
+        final = {}
+    for name in names:
+        op.notes[name] = MoveNote(source, target, reason, ms, final.get(name))
+    log.info("moved %s from %s to %s (%s)", ", ".join(names), source.node, target.node, reason)
+    return True
+
+
+def _runs(report: MonitorReport | None) -> bool:
+    return report is not None and report["active"]
+
+
+def survey_of(op: Operator, hname: str) -> Survey:
+    """The last survey's reports on one monitor."""
+    return Survey({p: r.get(hname) for p, r in op.reports.items()}, list(op.silent))
+
+
+# -- defining and placing a monitor ---------------------------------------------------------
+
+
+def _now() -> str:
+    return datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def _post(body: kopf.Body, events: Sequence[Event]) -> None:
+    for e in events:
+        kopf.event(body, type=e.type, reason=e.reason, message=e.message)
+
+
+def _transient(exc: ApiError) -> kopf.TemporaryError:
+    if isinstance(exc, Unauthorized):
+        return kopf.TemporaryError(
+            f"{exc}: the handlers refuse the operator's token (EDGERV_TOKEN differs from "
+            "theirs: a rotated Secret? restart the operator with the new one)",
+            delay=30,
+        )
+    return kopf.TemporaryError(str(exc), delay=10)
 
 
 def place(
-    cfg: OperatorConfig, namespace: str, name: str, spec: dict[str, Any], redefine: bool = True
-) -> dict[str, Any]:
-    """Define the monitor on every handler, running on one; return its status.
+    op: Operator,
+    handlers: Handlers,
+    hname: str,
+    document: str,
+    spec: Mapping[str, Any],
+    redefine: bool,
+) -> None:
+    """Define the monitor on every ready handler, running on one.
 
     ``redefine``: give the definition to every handler (a new or changed spec: that
-    restarts the monitor). Without it (the operator restarted, a handler restarted
-    empty), only handlers lacking it get it, and a running monitor keeps its state."""
+    restarts it, unless only its placement changed). Otherwise (the operator or a
+    handler restarted) only handlers lacking it get it; what runs keeps its state."""
+    ready = handlers.ready
+    if not ready:
+        raise kopf.TemporaryError(f"no edgerv handler is ready in {op.config.namespace}", delay=10)
+    elsewhere = [
+        p for p in handlers.leaving + handlers.unready if _runs(op.reports.get(p, {}).get(hname))
+    ]
+    if elsewhere:  # never a second active copy: it moves off (leaving) or comes back
+        raise kopf.TemporaryError(
+            f"it runs on {elsewhere[0].pod}, which is going away or not ready: waiting", delay=10
+        )
+    try:
+        reports = {p: op.client(p).monitor(hname, timeout=5.0) for p in ready}
+        running = [p for p, r in reports.items() if r and r.get("active")]
+        target = running[0] if running else choose(ready, tier_of(spec), op.config.tiers)
+        if target is None:
+            raise kopf.TemporaryError(
+                f"no handler runs on a node of the tiers {','.join(op.config.tiers)}", delay=30
+            )
+        for p in sorted(ready, key=lambda p: p == target):  # idle everywhere first, then run
+            if redefine or reports[p] is None:
+                op.client(p).define(hname, document, active=p == target, timeout=30.0)
+            elif p == target and not _runs(reports[p]):
+                op.client(p).activate(hname, timeout=30.0)
+    except Invalid as exc:  # the handler refuses the definition: fix the resource
+        raise kopf.PermanentError(str(exc)) from None
+    except ApiError as exc:
+        raise _transient(exc) from None
+    op.surveyed_at = float("-inf")  # the next status refresh surveys afresh
+
+
+def _checked(name: str, namespace: str, spec: Mapping[str, Any]) -> str:
     document = monitor_document(namespace, name, spec)
     errors = problems(document)
     if errors:
         raise kopf.PermanentError("; ".join(errors))
-    pods = handler_pods(cfg)
-    if not pods:
-        raise kopf.TemporaryError(f"no edgerv handler is ready in {cfg.namespace}", delay=10)
-    hname = handler_name(namespace, name)
-    try:
-        reports = {p: report(cfg, p, hname) for p in pods}
-        running = [p for p, r in reports.items() if r and r.get("active")]
-        target = (
-            running[0]
-            if running
-            else choose(pods, (spec.get("placement") or {}).get("tier"), cfg.tiers)
-        )
-        if target is None:
-            raise kopf.TemporaryError(
-                f"no handler runs on a node of the tiers {','.join(cfg.tiers)}", delay=30
-            )
-        for p in sorted(pods, key=lambda p: p == target):  # idle everywhere first, then run
-            if redefine or reports[p] is None:
-                define(cfg, p, hname, document, active=p == target)
-            elif p == target and not (reports[p] or {}).get("active"):
-                Handler(p.address, cfg.token).call(
-                    f"/v1/monitors/{hname}/activate", check=True, timeout=30.0
-                )
-        return status_of({p: report(cfg, p, hname) for p in pods})
-    except Rejected as exc:
-        if exc.status < 500:  # the handler refuses the definition: fix the resource
-            raise kopf.PermanentError(str(exc)) from None
-        raise kopf.TemporaryError(str(exc), delay=10) from None
-    except MigrationFailed as exc:  # unreachable for now
-        raise kopf.TemporaryError(str(exc), delay=10) from None
-
-
-@kopf.on.create(*MONITORS)
-@kopf.on.update(*MONITORS, field="spec")
-def apply_fn(
-    name: str, namespace: str | None, spec: kopf.Spec, patch: kopf.Patch, **_: Any
-) -> None:
-    _apply(name, namespace, spec, patch, redefine=True)
-
-
-@kopf.on.resume(*MONITORS)
-def resume_fn(
-    name: str, namespace: str | None, spec: kopf.Spec, patch: kopf.Patch, **_: Any
-) -> None:
-    """The operator restarted: what runs goes on running (its state intact)."""
-    _apply(name, namespace, spec, patch, redefine=False)
+    return document_text(document)
 
 
 def _apply(
-    name: str, namespace: str | None, spec: kopf.Spec, patch: kopf.Patch, redefine: bool
+    name: str,
+    namespace: str,
+    spec: Mapping[str, Any],
+    status: Mapping[str, Any],
+    meta: kopf.Meta,
+    body: kopf.Body,
+    patch: kopf.Patch,
+    memo: kopf.Memo,
+    handler_pods: kopf.Index[str, PodFacts],
+    node_labels: kopf.Index[str, dict[str, str]],
+    redefine: bool,
+    old: Mapping[str, Any] | None = None,
 ) -> None:
-    try:
-        patch.status.update(place(config(), namespace or "", name, dict(spec), redefine))
+    op = _operator(memo)
+    generation = int(meta.get("generation") or 0)
+    handlers = cluster_handlers(op.config, handler_pods, node_labels)
+    hname = handler_name(namespace, name)
+    what = change(old, spec) if old is not None else ("redefine" if redefine else "none")
+    try:  # refused here or by the handlers: the spec is wrong, until it changes
+        document = _checked(name, namespace, spec)
+        if what == "move":
+            with op.moving:
+                place(op, handlers, hname, document, spec, redefine=True)  # placement in place
+                _move_to_tier(op, handlers.ready, hname, spec)
+        else:
+            place(op, handlers, hname, document, spec, redefine=what in ("redefine", "placement"))
     except kopf.PermanentError as exc:
-        patch.status.update(phase="Error", message=str(exc))
+        new, events = invalid(status, str(exc), generation, _now())
+        new.pop("kopf", None)
+        patch.status.update(new)
+        _post(body, events)
         raise
+    patch.status["observedGeneration"] = generation
+    if what == "redefine" and old is not None:
+        kopf.event(
+            body,
+            type="Normal",
+            reason="Redefined",
+            message="the spec changed: the monitor restarted with it (its state afresh)",
+        )
+
+
+def _move_to_tier(
+    op: Operator, ready: list[HandlerPod], hname: str, spec: Mapping[str, Any]
+) -> None:
+    """A tier edit: move the running monitor to a handler of its new tier by the handoff."""
+    tier = tier_of(spec)
+    runner = None
+    for p in ready:
+        report = op.client(p).monitor(hname, timeout=5.0)
+        if report and report.get("active"):
+            runner = p
+    if runner is None or runner.tier == tier or tier is None:
+        return  # not running yet (it starts on its tier), or there already
+    target = destination(ready, tier, op.config.tiers)
+    if target is None:
+        raise kopf.TemporaryError(f"no handler of tier {tier} is ready: the move waits", delay=15)
+    if not _move(op, runner, target, [hname], f"spec.placement.tier is {tier}"):
+        raise kopf.TemporaryError(f"the move to {target.node} did not happen: retrying", delay=10)
+
+
+@kopf.on.create(*MONITORS)
+def created(
+    name: str, namespace: str | None, spec: kopf.Spec, status: kopf.Status, **kw: Any
+) -> None:
+    _apply(name, namespace or "", dict(spec), dict(status), redefine=True, **_kopf(kw))
+
+
+@kopf.on.update(*MONITORS, field="spec")
+def updated(
+    name: str,
+    namespace: str | None,
+    old: Any,
+    new: Any,
+    status: kopf.Status,
+    **kw: Any,
+) -> None:
+    _apply(
+        name, namespace or "", dict(new or {}), dict(status), redefine=True, old=dict(old or {}),
+        **_kopf(kw),
+    )  # fmt: skip
+
+
+@kopf.on.resume(*MONITORS)
+def resumed(
+    name: str, namespace: str | None, spec: kopf.Spec, status: kopf.Status, **kw: Any
+) -> None:
+    """The operator restarted: what runs goes on running (its state intact)."""
+    _apply(name, namespace or "", dict(spec), dict(status), redefine=False, **_kopf(kw))
+
+
+def _kopf(kw: Mapping[str, Any]) -> dict[str, Any]:
+    keys = ("meta", "body", "patch", "memo", "handler_pods", "node_labels")
+    return {k: kw[k] for k in keys}
 
 
 @kopf.on.delete(*MONITORS)
-def delete_fn(name: str, namespace: str | None, **_: Any) -> None:
-    cfg = config()
-    for pod in handler_pods(cfg):
-        with contextlib.suppress(MigrationFailed):  # a handler that is gone has none
-            Handler(pod.address, cfg.token).call(
-                f"/v1/monitors/{handler_name(namespace or '', name)}",
-                method="DELETE",
-                timeout=10.0,
-            )
+def deleted(
+    name: str,
+    namespace: str | None,
+    memo: kopf.Memo,
+    **kw: Any,
+) -> None:
+    """Remove it from every handler pod there is; one that does not answer is asked
+    again until it does or its pod is gone (the finalizer holds the Monitor meanwhile)."""
+    op = _operator(memo)
+    handlers = cluster_handlers(op.config, kw["handler_pods"], kw["node_labels"])
+    hname = handler_name(namespace or "", name)
+    unanswered = []
+    for pod in handlers.every:
+        try:
+            op.client(pod).delete(hname, timeout=10.0)
+        except NotFound:
+            pass
+        except ApiError as exc:
+            unanswered.append(f"{pod.pod} on {pod.node}: {exc}")
+    op.notes.pop(hname, None)
+    if unanswered:
+        raise kopf.TemporaryError(
+            "not yet removed from " + "; ".join(unanswered) + " (retrying until it answers "
+            "or its pod is gone)",
+            delay=10,
+        )
 
 
 @kopf.timer(*MONITORS, interval=STATUS_SECONDS, initial_delay=STATUS_SECONDS)
-def status_fn(
+def refresh(
     name: str,
     namespace: str | None,
     spec: kopf.Spec,
     status: kopf.Status,
+    meta: kopf.Meta,
+    body: kopf.Body,
     patch: kopf.Patch,
-    **_: Any,
+    memo: kopf.Memo,
+    **kw: Any,
 ) -> None:
-    """Refresh the status; give the definition again to handlers that lost it (never
-    during a handoff: a new definition would restart the monitor and undo it)."""
-    if status.get("phase") == "Error":
+    """Refresh the status from the survey; post the Events it calls for; give the
+    definition again to handlers that lost it (never during a handoff: a new definition
+    would restart the monitor and undo it)."""
+    generation = int(meta.get("generation") or 0)
+    if status.get("phase") == "Error" and status.get("observedGeneration") == generation:
         return  # until the spec changes
+    op = _operator(memo)
+    handlers = cluster_handlers(op.config, kw["handler_pods"], kw["node_labels"])
+    survey_and_tend(op, handlers)
     namespace = namespace or ""
-    cfg = config()
-    pods = handler_pods(cfg)
     hname = handler_name(namespace, name)
-    try:
-        reports = {p: report(cfg, p, hname) for p in pods}
-    except MigrationFailed as exc:
-        log.warning("monitor %s/%s: %s", namespace, name, exc)
+    previous: dict[str, Any] = dict(status)
+    events: list[Event] = []
+    note = op.notes.get(hname)
+    if note is not None and note.at >= op.surveyed_at:
+        op.surveyed_at = float("-inf")  # its reports predate the move: next time, afresh
         return
+    op.notes.pop(hname, None)
+    if note is not None:
+        previous, events = moved(
+            previous, note.source, note.destination, note.reason, _now(), note.ms
+        )
+    survey = survey_of(op, hname)
+    if note is not None and note.final is not None:  # what it counted up to the move
+        survey = Survey(
+            {**survey.reports, note.source: note.final},
+            [p for p in survey.silent if p != note.source],
+        )
+    new, more = refreshed(previous, survey, generation, _now(), time.time())
+    events += more
+    seen_before = ((status.get("tally") or {}).get("seen") or {}).keys()
+    for key in seen_before - new["tally"]["seen"].keys():
+        new["tally"]["seen"][key] = None  # a merge patch removes it
+    new.pop("kopf", None)  # Kopf's own field: its progress is not ours to write
+    patch.status.update(new)
+    _post(body, events)
+    reports = survey.reports
     moving = any(r and r.get("handoff") for r in reports.values())
-    if not moving and (
-        any(r is None for r in reports.values())
-        or not any(r and r.get("active") for r in reports.values())
-    ):
-        patch.status.update(place(cfg, namespace, name, dict(spec), redefine=False))
-        return
-    patch.status.update(status_of(reports))
+    lacking = any(reports.get(p) is None for p in handlers.ready if p in reports)
+    if not moving and (lacking or not any(r and r.get("active") for r in reports.values())):
+        document = _checked(name, namespace, dict(spec))
+        place(op, handlers, hname, document, dict(spec), redefine=False)

@@ -9,6 +9,7 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 import time
 import urllib.error
 import urllib.request
@@ -177,16 +178,24 @@ def status(cluster: Cluster, namespace: str, name: str) -> dict[str, Any]:
     return dict(json.loads(out).get("status", {})) if out else {}
 
 
-def handler_get(cluster: Cluster, namespace: str, tier: str, path: str) -> int:
-    """The HTTP status of a GET on the handler of a tier (its node's address, port 8470)."""
+def handler_pod(cluster: Cluster, namespace: str, tier: str) -> dict[str, Any]:
+    """The one live handler pod on the node of a tier (not one being deleted)."""
     pods = json.loads(cluster.run("get", "pods", "-n", namespace, "-o", "json"))["items"]
     nodes = json.loads(cluster.run("get", "nodes", "-o", "json"))["items"]
     tiers = {n["metadata"]["name"]: n["metadata"]["labels"].get("edgerv.io/tier") for n in nodes}
-    (ip,) = [
-        p["status"]["hostIP"]
+    (pod,) = [
+        p
         for p in pods
-        if "handler" in p["metadata"]["name"] and tiers.get(p["spec"]["nodeName"]) == tier
+        if "handler" in p["metadata"]["name"]
+        and tiers.get(p["spec"]["nodeName"]) == tier
+        and not p["metadata"].get("deletionTimestamp")
     ]
+    return dict(pod)
+
+
+def handler_get(cluster: Cluster, namespace: str, tier: str, path: str) -> int:
+    """The HTTP status of a GET on the handler of a tier (its node's address, port 8470)."""
+    ip = handler_pod(cluster, namespace, tier)["status"]["hostIP"]
     req = urllib.request.Request(
         f"http://{ip}:8470{path}", headers={"Authorization": f"Bearer {TOKEN}"}
     )
@@ -267,11 +276,23 @@ def test_the_api_server_checks_the_shape(cluster: Cluster, namespace: str) -> No
 
 
 def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None:
-    """The chart as a user installs it: the operator's pod places a Monitor too (its own
-    namespace and handler port, beside the release the other tests use)."""
+    """The chart as a user installs it: the operator's pods place a Monitor too (its own
+    namespace and handler port, beside the release the other tests use). Two operator
+    replicas: one acts, the other waits (Kopf peering), so the Monitor is defined once."""
     ns = f"edgerv-e2e-{uuid.uuid4().hex[:6]}"
+    operator = "app.kubernetes.io/component=operator"
+
+    def waiting() -> list[str]:  # the operator pods that paused in favour of another
+        pods = json.loads(cluster.run("get", "pods", "-n", ns, "-l", operator, "-o", "json"))
+        names = [p["metadata"]["name"] for p in pods["items"]]
+        logs = {n: cluster.run("logs", "-n", ns, n, "--tail=-1", check=False) for n in names}
+        return [n for n, text in logs.items() if "Pausing operations in favour of" in text]
+
     try:
-        install(cluster, "erv2", ns, "handler.port=8471", f"operator.watchNamespaces={{{ns}}}")
+        install(
+            cluster, "erv2", ns, "handler.port=8471", f"operator.watchNamespaces={{{ns}}}",
+            "operator.replicas=2",
+        )  # fmt: skip
         apply(cluster, ns, talker_pod(cluster))
         apply(cluster, ns, monitor("speed-limit", "always (speed < limit)"))
         got = until(
@@ -282,8 +303,8 @@ def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None
             timeout=180,
         )
         assert got["phase"] == "Running" and got["tier"] == "edge", got
-        # a new operator pod resumes the Monitor without redefining it (that would restart it)
-        operator = "app.kubernetes.io/component=operator"
+        assert len(until("one operator replica to wait", waiting)) == 1
+        # new operator pods resume the Monitor without redefining it (that would restart it)
         cluster.run("delete", "pod", "-n", ns, "-l", operator, "--timeout=60s")
         until(
             "the new operator to resume the Monitor",
@@ -305,3 +326,219 @@ def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None
             timeout=120,
         )
         cluster.run("delete", "namespace", ns, "--wait=false", check=False)
+
+
+# -- moves by the handoff: tier edits and pods going away (#16) -----------------------------
+
+COUNTER = """
+import json, sys, time, rclpy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64
+rclpy.init(); node = rclpy.create_node("e2e_counter")
+qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+pub = node.create_publisher(Float64, "/e2e/count", qos)
+while pub.get_subscription_count() < 1:  # the edge handler's: every message reaches it
+    time.sleep(0.1)
+print(json.dumps({"subscribers": pub.get_subscription_count()}), flush=True)
+for i in range(N):
+    m = Float64(); m.data = float(i % 100); pub.publish(m); time.sleep(0.02)
+print(json.dumps({"published": N}), flush=True)
+while True:  # then quiet values: no more violations, the last ones evaluated
+    m = Float64(); m.data = 0.0; pub.publish(m); time.sleep(0.02)
+"""
+COUNT = 2500  # 50 s at 50 messages/s: the moves happen meanwhile
+
+
+def counter_pod(cluster: Cluster, name: str) -> dict[str, Any]:
+    pod = talker_pod(cluster)
+    pod["metadata"]["name"] = name
+    pod["spec"]["containers"][0]["command"] = [
+        "python3", "-c", COUNTER.replace("range(N)", f"range({COUNT})").replace(
+            '"published": N', f'"published": {COUNT}'
+        ),
+    ]  # fmt: skip
+    return pod
+
+
+def counting_monitor(name: str) -> dict[str, Any]:
+    """Violated by each message of value 50 or more: COUNT / 2 times, the last at step COUNT
+    (the step of every verdict shifts if one message is lost or evaluated twice)."""
+    doc = monitor(name, "always (count < limit)", placement={"tier": "edge"})
+    doc["spec"]["signals"] = {
+        "count": {
+            "topic": "/e2e/count",
+            "type": "std_msgs/msg/Float64",
+            "qos": {"reliability": "reliable", "depth": 1000},
+        }
+    }
+    return doc
+
+
+def expected_verdicts(tmp: Path) -> tuple[int, int]:
+    """``edgerv check`` on the messages the counter publishes first: (violations, the
+    last one's step)."""
+    trace = tmp / "count.jsonl"
+    trace.write_text(
+        "".join(
+            json.dumps({"topic": "/e2e/count", "stamp": i * 20_000_000, "msg": {"data": i % 100}})
+            + "\n"
+            for i in range(COUNT)
+        )
+    )
+    spec = counting_monitor("offline")["spec"]
+    doc = tmp / "monitor.yaml"
+    doc.write_text(json.dumps({"apiVersion": "edgerv.io/v1alpha1", "kind": "Monitor",
+                               "metadata": {"name": "offline"}, "spec": spec}))  # fmt: skip
+    done = subprocess.run(
+        [str(Path(sys.executable).with_name("edgerv")), "check", str(doc), str(trace), "--json"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 1, done.stderr
+    (result,) = json.loads(done.stdout)["monitors"]
+    violated = [v for v in result["verdicts"] if v["verdict"] == "violated"]
+    return len(violated), violated[-1]["step"]
+
+
+def events_of(cluster: Cluster, namespace: str, name: str) -> list[dict[str, Any]]:
+    out = cluster.run(
+        "get", "events", "-n", namespace, "--field-selector",
+        f"involvedObject.name={name},involvedObject.kind=Monitor", "-o", "json",
+    )  # fmt: skip
+    return list(json.loads(out)["items"])
+
+
+def evaluated(cluster: Cluster, namespace: str, name: str, last_step: int) -> Any:
+    """The status once the monitor's verdicts reached ``last_step``."""
+    return until(
+        "every message evaluated",
+        lambda: (
+            (s := status(cluster, namespace, name)).get("lastVerdict", {}).get("step", 0)
+            >= last_step
+            and s
+        ),
+        timeout=150,
+    )
+
+
+def settled_on(cluster: Cluster, namespace: str, name: str, tier: str, moves: int) -> Any:
+    return until(
+        f"{name} running on {tier} after {moves} move(s)",
+        lambda: (
+            (s := status(cluster, namespace, name)).get("tier") == tier
+            and s.get("phase") == "Running"
+            and (s.get("migrations") or {}).get("count") == moves
+            and s
+        ),
+        timeout=120,
+    )
+
+
+def test_a_tier_edit_moves_the_monitor_by_the_handoff_both_ways(
+    cluster: Cluster, namespace: str, operator: KopfRunner, tmp_path: Path
+) -> None:
+    """`kubectl patch` of spec.placement.tier: edge -> cloud -> edge while a counter
+    publishes. Each move keeps the state: the verdicts over the whole run equal edgerv
+    check on the messages published; status, Events and printer columns say both moves."""
+    name = "moving"
+    apply(cluster, namespace, counting_monitor(name))
+    until("it to run on the edge", lambda: status(cluster, namespace, name).get("tier") == "edge")
+    apply(cluster, namespace, counter_pod(cluster, "counter"))
+    until("the first violations", lambda: status(cluster, namespace, name).get("lastVerdict"))
+    for tier, moves in (("cloud", 1), ("edge", 2)):
+        cluster.run(
+            "patch", "monitor", name, "-n", namespace, "--type=merge",
+            "-p", json.dumps({"spec": {"placement": {"tier": tier}}}),
+        )  # fmt: skip
+        got = settled_on(cluster, namespace, name, tier, moves)
+        assert got["migrations"]["last"]["reason"] == f"spec.placement.tier is {tier}", got
+    violations, last_step = expected_verdicts(tmp_path)
+    got = evaluated(cluster, namespace, name, last_step)
+    assert got["verdicts"]["violated"] == violations, got  # none lost, none twice
+    assert got["lastVerdict"] == {"verdict": "violated", "step": last_step,
+                                  "stamp": got["lastVerdict"]["stamp"]}, got  # fmt: skip
+    assert got["observedGeneration"] == 3, got  # created, then two edits
+    moved = [e for e in events_of(cluster, namespace, name) if e["reason"] == "Moved"]
+    assert len(moved) == 2, moved
+    assert "to cloud-" in moved[0]["message"] or "(cloud)" in moved[0]["message"], moved
+    described = cluster.run("describe", "monitor", name, "-n", namespace)
+    assert "Moved" in described and "Ready" in described, described
+    table = cluster.run("get", "monitors", name, "-n", namespace, "-o", "wide")
+    header = table.splitlines()[0].split()
+    for column in ("PHASE", "TIER", "NODE", "LAST", "VIOLATIONS", "MOVES", "ASSERTION"):
+        assert column in header, table
+    assert "always (count < limit)" in table and "violated" in table, table
+    cluster.run("delete", "pod", "counter", "-n", namespace, "--wait=false")
+    cluster.run("delete", "monitor", name, "-n", namespace, "--timeout=60s")
+
+
+def handler_pod_name(cluster: Cluster, namespace: str, tier: str) -> str:
+    return str(handler_pod(cluster, namespace, tier)["metadata"]["name"])
+
+
+def test_a_handler_pod_going_away_hands_its_monitors_over(
+    cluster: Cluster, namespace: str, operator: KopfRunner, tmp_path: Path
+) -> None:
+    """`kubectl delete pod` of the edge handler: during its termination grace (the
+    handler's --drain) the operator moves its monitor to the cloud by the handoff: the
+    state goes with it (the verdicts equal edgerv check), status and an Event say so."""
+    name = "drained"
+    apply(cluster, namespace, counting_monitor(name))
+    until("it to run on the edge", lambda: status(cluster, namespace, name).get("tier") == "edge")
+    apply(cluster, namespace, counter_pod(cluster, "counter-2"))
+    until("the first violations", lambda: status(cluster, namespace, name).get("lastVerdict"))
+    edge = handler_pod_name(cluster, namespace, "edge")
+    cluster.run("delete", "pod", edge, "-n", namespace, "--wait=false")
+    got = settled_on(cluster, namespace, name, "cloud", 1)
+    assert got["migrations"]["last"]["reason"] == f"pod {edge} is going away", got
+    assert "stateLost" not in got, got
+    violations, last_step = expected_verdicts(tmp_path)
+    got = evaluated(cluster, namespace, name, last_step)
+    assert got["verdicts"]["violated"] == violations and got["lastVerdict"]["step"] == last_step
+    reasons = [e["reason"] for e in events_of(cluster, namespace, name)]
+    assert "Moved" in reasons and "StateLost" not in reasons, reasons
+    logs = cluster.run("logs", "-n", namespace, edge, "--tail=-1", check=False)
+    cluster.run("delete", "pod", "counter-2", "-n", namespace, "--wait=false")
+    cluster.run("delete", "monitor", name, "-n", namespace, "--timeout=60s")
+    until("a new edge handler", lambda: pod_name_or_none(cluster, namespace, "edge") not in
+          (None, edge))  # fmt: skip
+    assert logs == "" or "drain" in logs, logs  # (a deleted pod's log may be gone already)
+
+
+def pod_name_or_none(cluster: Cluster, namespace: str, tier: str) -> str | None:
+    try:
+        return handler_pod_name(cluster, namespace, tier)
+    except ValueError:  # none, or two while one is going
+        return None
+
+
+def test_a_crashed_handler_loses_the_state_and_says_so(
+    cluster: Cluster, namespace: str, operator: KopfRunner
+) -> None:
+    """kill -9 of the handler running a monitor: its container restarts empty; the
+    operator starts the monitor again (afresh), and its status and an Event say the
+    state was lost. (The project's cluster only: its nodes' processes are this host's.)"""
+    if not cluster.link:
+        pytest.skip("kills a handler's process from the host: the project's cluster only")
+    name = "crashed"
+    apply(cluster, namespace, talker_pod(cluster))
+    apply(cluster, namespace, monitor(name, "always (speed < limit)", placement={"tier": "edge"}))
+    until("verdicts", lambda: status(cluster, namespace, name).get("lastVerdict"), timeout=150)
+    pattern = "edgerv handler --name=edge --listen=0.0.0.0:8470"
+    pids = subprocess.run(["pgrep", "-f", pattern], capture_output=True, text=True).stdout.split()
+    assert pids, f"no process matches {pattern!r}"
+    subprocess.run(["kill", "-9", *pids], check=True)
+    got = until(
+        "the loss in the status",
+        lambda: (s := status(cluster, namespace, name)).get("stateLost") and s,
+        timeout=120,
+    )
+    assert "the monitor's state is lost" in got["stateLost"]["message"], got
+    reasons = [e["reason"] for e in events_of(cluster, namespace, name)]
+    assert reasons.count("StateLost") == 1, reasons
+    again = until(
+        "it to run again",
+        lambda: (s := status(cluster, namespace, name)).get("phase") == "Running" and s,
+        timeout=150,
+    )
+    assert again["verdicts"]["violated"] >= got["verdicts"]["violated"], (got, again)
+    cluster.run("delete", "monitor", name, "-n", namespace, "--timeout=60s")

@@ -51,7 +51,7 @@ sys.stdout.write(str(status) + "\n" + raw.decode())
 """
 
 
-class Handler:
+class HandlerProcess:
     """An ``edgerv handler`` process with its API on a free loopback port.
 
     With ``lab`` (a :class:`netlab.Lab`), it runs on the lab's host ``name``
@@ -210,7 +210,7 @@ def offline_verdicts(monitors: Path, trace: Path) -> list[tuple[str, str, int]]:
     )
 
 
-def live_verdicts(*handlers: Handler) -> list[tuple[str, str, int]]:
+def live_verdicts(*handlers: HandlerProcess) -> list[tuple[str, str, int]]:
     """(monitor, verdict, step) from the handlers' verdict logs, sorted."""
     return sorted((v["monitor"], v["verdict"], v["step"]) for h in handlers for v in h.verdicts())
 

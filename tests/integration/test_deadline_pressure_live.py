@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from rosprocs import Handler, ros_env, wait_for
+from rosprocs import HandlerProcess, ros_env, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -46,7 +46,7 @@ while True:
 """
 
 
-def deadline(handler: Handler) -> dict[str, Any]:
+def deadline(handler: HandlerProcess) -> dict[str, Any]:
     status, load = handler.request("GET", "/v1/load")
     assert status == 200, load
     reading: dict[str, Any] = load["deadline"]
@@ -58,7 +58,7 @@ def test_the_makespan_of_a_stamped_command_stream_is_in_the_load_report(
 ) -> None:
     monitors = tmp_path / "m.yaml"
     monitors.write_text(MONITOR)
-    handler = Handler(tmp_path, monitors, domain, "--deadline", "/cmd=125ms")
+    handler = HandlerProcess(tmp_path, monitors, domain, "--deadline", "/cmd=125ms")
     task = subprocess.Popen(
         [sys.executable, "-c", TASK],
         env=ros_env(domain),

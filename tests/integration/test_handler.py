@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 from rosprocs import (
     TOKEN,
-    Handler,
+    HandlerProcess,
     live_verdicts,
     offline_verdicts,
     publisher,
@@ -88,7 +88,7 @@ def test_live_verdicts_equal_edgerv_check_on_the_replayed_trace(
 ) -> None:
     monitors = write(tmp_path, "monitors.yaml", MONITORS)
     trace = random_trace(tmp_path / "run.jsonl", 400, seed=3)
-    handler = Handler(tmp_path, monitors, domain)
+    handler = HandlerProcess(tmp_path, monitors, domain)
     try:
         replay = subprocess.run(
             replay_command(monitors, trace, 0.003),
@@ -112,7 +112,7 @@ def test_a_bad_monitor_is_reported_and_the_others_run(tmp_path: Path, domain: in
         "std_msgs/msg/Float64", "std_msgs/msg/Flaot64"
     )
     monitors = write(tmp_path, "m.yaml", SPEED + "---\n" + bad)
-    handler = Handler(tmp_path, monitors, domain)
+    handler = HandlerProcess(tmp_path, monitors, domain)
     try:
         assert (
             "m.yaml:15:34: error: spec.signals.speed.type: unknown message type "
@@ -134,7 +134,7 @@ def test_message_package_not_installed(tmp_path: Path, domain: int) -> None:
         "speed: {topic", "speed: {field: temperature, topic"
     )
     monitors = write(tmp_path, "t.yaml", doc + "---\n" + SPEED.replace("speed-cap", "other"))
-    handler = Handler(tmp_path, monitors, domain)
+    handler = HandlerProcess(tmp_path, monitors, domain)
     try:
         _, listing = handler.request("GET", "/v1/monitors")
         names = [m["name"] for m in listing["monitors"]]
@@ -151,7 +151,7 @@ def test_incompatible_qos_is_a_warning_and_a_metric(tmp_path: Path, domain: int)
     doc = SPEED.replace(
         "std_msgs/msg/Float64}", "std_msgs/msg/Float64, qos: {reliability: reliable}}"
     )
-    handler = Handler(tmp_path, write(tmp_path, "q.yaml", doc), domain)
+    handler = HandlerProcess(tmp_path, write(tmp_path, "q.yaml", doc), domain)
     pub = publisher(
         domain,
         "/speed",
@@ -174,7 +174,7 @@ def test_incompatible_qos_is_a_warning_and_a_metric(tmp_path: Path, domain: int)
 
 
 def test_auto_qos_follows_a_best_effort_publisher(tmp_path: Path, domain: int) -> None:
-    handler = Handler(tmp_path, write(tmp_path, "a.yaml", SPEED), domain)
+    handler = HandlerProcess(tmp_path, write(tmp_path, "a.yaml", SPEED), domain)
     pub = publisher(
         domain,
         "/speed",
@@ -197,7 +197,7 @@ def test_auto_qos_follows_a_best_effort_publisher(tmp_path: Path, domain: int) -
 
 
 def test_monitors_added_and_removed_at_run_time(tmp_path: Path, domain: int) -> None:
-    handler = Handler(tmp_path, write(tmp_path, "m.yaml", SPEED), domain)
+    handler = HandlerProcess(tmp_path, write(tmp_path, "m.yaml", SPEED), domain)
     try:
         added = SPEED.replace("speed-cap", "speed-floor").replace("speed < 100", "speed > 10")
         status, body = handler.request("PUT", "/v1/monitors/speed-floor", added)
@@ -235,7 +235,9 @@ def test_a_monitor_spot_cannot_build_in_time_is_refused_and_the_others_run_meanw
     """Spot holds the GIL while it builds an automaton; ``X[30]`` needs 2^30 states. The
     handler builds in a child process: it takes messages and reports verdicts meanwhile,
     and refuses the monitor with the reason once --synthesis-budget has passed."""
-    handler = Handler(tmp_path, write(tmp_path, "m.yaml", SPEED), domain, "--synthesis-budget", "8")
+    handler = HandlerProcess(
+        tmp_path, write(tmp_path, "m.yaml", SPEED), domain, "--synthesis-budget", "8"
+    )
     slow = SPEED.replace("speed-cap", "slow").replace(
         "always (speed < 100)", "always (speed > 100 -> X[30] speed < 100)"
     )
@@ -268,7 +270,7 @@ def test_a_monitor_spot_cannot_build_in_time_is_refused_and_the_others_run_meanw
 
 @pytest.mark.parametrize("token", [None, "wrong"])
 def test_control_calls_need_the_token(tmp_path: Path, domain: int, token: str | None) -> None:
-    handler = Handler(tmp_path, write(tmp_path, "m.yaml", SPEED), domain)
+    handler = HandlerProcess(tmp_path, write(tmp_path, "m.yaml", SPEED), domain)
     try:
         for method, path, body in [
             ("GET", "/v1/monitors", None),
@@ -315,7 +317,7 @@ def test_sigterm_mid_stream_flushes_and_exits_0(tmp_path: Path, domain: int) -> 
         .replace("    speed:", "  sortThreshold: 50\n  signals:\n    speed:")
         .replace("  signals:\n  ", "  ", 1)
     )
-    handler = Handler(tmp_path, write(tmp_path, "s.yaml", doc), domain)
+    handler = HandlerProcess(tmp_path, write(tmp_path, "s.yaml", doc), domain)
     pub = publisher(domain, "/speed", "std_msgs/msg/Float64", [], interval=0.001, forever=True)
     try:
         assert wait_for(
@@ -332,7 +334,7 @@ def test_sigterm_mid_stream_flushes_and_exits_0(tmp_path: Path, domain: int) -> 
 
 
 def test_sigint_stops_too(tmp_path: Path, domain: int) -> None:
-    handler = Handler(tmp_path, write(tmp_path, "m.yaml", SPEED), domain)
+    handler = HandlerProcess(tmp_path, write(tmp_path, "m.yaml", SPEED), domain)
     assert handler.stop(signal.SIGINT) == 0
     assert "SIGINT: stopping" in handler.stderr
 
@@ -383,7 +385,7 @@ def test_a_deadline_is_reported_live_when_the_publisher_is_killed(
     the time that passed after them) gives the same verdict, stamp and step."""
     monitors = write(tmp_path, "deadline.yaml", DEADLINE)
     recording = tmp_path / "cmd.jsonl"
-    handler = Handler(tmp_path, monitors, domain, "--flush-after", "0.2")
+    handler = HandlerProcess(tmp_path, monitors, domain, "--flush-after", "0.2")
     commander = subprocess.Popen(
         [sys.executable, "-c", COMMANDER, str(recording)],
         env=ros_env(domain),
@@ -462,7 +464,7 @@ def test_a_monitor_reading_new_fields_of_a_subscribed_topic_is_added_mid_stream(
     then (x of /pt); a monitor added meanwhile reads other fields of /pt (y, z). They are
     read again for the new fields: the handler lives on and the new monitor takes events
     (it crashed with an IndexError in offer_values, 'the ingest loop failed')."""
-    handler = Handler(
+    handler = HandlerProcess(
         tmp_path, write(tmp_path, "pt.yaml", POINT_X), domain, "--reorder-window", "0.3"
     )
     pub = subprocess.Popen(

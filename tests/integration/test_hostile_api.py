@@ -161,7 +161,7 @@ def test_a_hostile_client_neither_stops_the_verdicts_nor_grows_the_handler(
     monitors = write(tmp_path, "monitors.yaml", MONITORS)
     trace = random_trace(tmp_path / "run.jsonl", 1500, seed=15)
     limits = ["--api-max-connections", str(CAP), "--api-read-timeout", str(READ)]
-    handler = ros.Handler(
+    handler = ros.HandlerProcess(
         tmp_path, monitors, domain, *limits, "--api-idle-timeout", "2", "--max-monitors", "2"
     )
     outcomes: list[tuple[str, str]] = []

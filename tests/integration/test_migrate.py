@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from rosprocs import (
     TOKEN,
-    Handler,
+    HandlerProcess,
     live_verdicts,
     offline_verdicts,
     replay_command,
@@ -29,7 +29,7 @@ pytestmark = pytest.mark.integration
 
 
 def migrate(
-    src: Handler, dst: Handler, monitor: str, domain: int
+    src: HandlerProcess, dst: HandlerProcess, monitor: str, domain: int
 ) -> subprocess.CompletedProcess[str]:
     env = ros_env(domain) | {"EDGERV_TOKEN": TOKEN}
     return subprocess.run(
@@ -58,8 +58,8 @@ def test_migrating_mid_stream_loses_and_repeats_nothing(tmp_path: Path, domain: 
     # a window well above the default 20 ms: under the tests' load on 2 cores, topics can
     # reach a handler further apart, and merged out of order they give other letters
     window = ("--reorder-window", "0.25")
-    edge = Handler(tmp_path, monitors, domain, *window, name="edge")
-    cloud = Handler(tmp_path, monitors, domain, "--active", "none", *window, name="cloud")
+    edge = HandlerProcess(tmp_path, monitors, domain, *window, name="edge")
+    cloud = HandlerProcess(tmp_path, monitors, domain, "--active", "none", *window, name="cloud")
     try:
         replay = subprocess.Popen(
             replay_command(monitors, trace, 0.006),
@@ -93,7 +93,7 @@ def test_migrating_mid_stream_loses_and_repeats_nothing(tmp_path: Path, domain: 
 
 def test_a_failed_migration_leaves_the_monitor_where_it_was(tmp_path: Path, domain: int) -> None:
     monitors = write(tmp_path, "monitors.yaml", MONITORS)
-    edge = Handler(tmp_path, monitors, domain, name="edge")
+    edge = HandlerProcess(tmp_path, monitors, domain, name="edge")
     try:
         env = ros_env(domain) | {"EDGERV_TOKEN": TOKEN}
         gone = subprocess.run(

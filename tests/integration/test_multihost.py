@@ -26,7 +26,14 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from rosprocs import TOKEN, Handler, live_verdicts, offline_verdicts, replay_command, wait_for
+from rosprocs import (
+    TOKEN,
+    HandlerProcess,
+    live_verdicts,
+    offline_verdicts,
+    replay_command,
+    wait_for,
+)
 from test_handler import MONITORS, random_trace, write
 
 from netlab import Lab, available
@@ -63,7 +70,7 @@ def edgerv(
     )
 
 
-def addr(h: Handler) -> str:
+def addr(h: HandlerProcess) -> str:
     return f"{h.host}:{h.port}"
 
 
@@ -77,7 +84,7 @@ def start_replay(lab: Lab, monitors: Path, trace: Path, interval: float) -> subp
     )
 
 
-def late_events(*handlers: Handler) -> float:
+def late_events(*handlers: HandlerProcess) -> float:
     """Events released after a newer one, over the monitors that run on ``handlers``."""
     total = 0.0
     for h in handlers:
@@ -86,7 +93,7 @@ def late_events(*handlers: Handler) -> float:
     return total
 
 
-def events_seen(h: Handler, monitor: str) -> float:
+def events_seen(h: HandlerProcess, monitor: str) -> float:
     return h.metric("edgerv_events_total", monitor=monitor) or 0
 
 
@@ -104,8 +111,8 @@ def test_random_migrations_across_hosts_equal_edgerv_check(
     monitors = write(tmp_path, "monitors.yaml", MONITORS)
     n, interval = 3000, 0.004
     trace = random_trace(tmp_path / "run.jsonl", n, seed=seed)
-    edge = Handler(tmp_path, monitors, domain, *WINDOW, lab=lab, name="edge")
-    cloud = Handler(tmp_path, monitors, domain, *CLOUD, lab=lab, name="cloud")
+    edge = HandlerProcess(tmp_path, monitors, domain, *WINDOW, lab=lab, name="edge")
+    cloud = HandlerProcess(tmp_path, monitors, domain, *CLOUD, lab=lab, name="cloud")
     rng = random.Random(seed)
     where = {"speed-limit": edge, "no-stop-while-fast": edge}
     moves: list[str] = []
@@ -146,20 +153,22 @@ def crash_mid_handoff(tmp_path: Path, lab: Lab, domain: int, crash: str) -> None
     """Move both monitors edge -> cloud; kill ``crash`` right after the sender's release."""
     monitors = write(tmp_path, "monitors.yaml", MONITORS)
     trace = random_trace(tmp_path / "run.jsonl", 1200, seed=7)
-    edge = Handler(tmp_path, monitors, domain, *WINDOW, lab=lab, name="edge")
-    cloud = Handler(tmp_path, monitors, domain, *CLOUD, lab=lab, name="cloud")
+    edge = HandlerProcess(tmp_path, monitors, domain, *WINDOW, lab=lab, name="edge")
+    cloud = HandlerProcess(tmp_path, monitors, domain, *CLOUD, lab=lab, name="cloud")
     victim = {"edge": edge, "cloud": cloud}[crash]
     driver_code = (
         "import sys\n"
-        "from edgerv.handler.migrate import Handler, MigrationFailed, migrate\n"
+        "from edgerv.handler.client import ApiError, HandlerClient\n"
+        "from edgerv.handler.migrate import migrate\n"
         "def pause():\n"
         "    print('released', flush=True)\n"
         "    sys.stdin.readline()\n"
-        f"src, dst = Handler({addr(edge)!r}, {TOKEN!r}), Handler({addr(cloud)!r}, {TOKEN!r})\n"
+        f"src = HandlerClient({addr(edge)!r}, {TOKEN!r})\n"
+        f"dst = HandlerClient({addr(cloud)!r}, {TOKEN!r})\n"
         "try:\n"
         "    moved = migrate(src, dst, ['speed-limit', 'no-stop-while-fast'], 4.0, 1.0, pause)\n"
         "    print('moved', moved.seconds, flush=True)\n"
-        "except MigrationFailed as exc:\n"
+        "except ApiError as exc:\n"
         "    print('failed', exc, flush=True)\n"
     )
     try:
@@ -249,8 +258,8 @@ def test_orchestrate_starts_monitors_and_moves_one_under_pressure(
     trace = tmp_path / "run.jsonl"
     trace.write_text("\n".join(lines) + "\n")
     flags = ("--active", "none", "--flush-after", "3600")
-    edge = Handler(tmp_path, monitors, domain, *flags, lab=lab, name="edge")
-    cloud = Handler(tmp_path, monitors, domain, *flags, lab=lab, name="cloud")
+    edge = HandlerProcess(tmp_path, monitors, domain, *flags, lab=lab, name="edge")
+    cloud = HandlerProcess(tmp_path, monitors, domain, *flags, lab=lab, name="cloud")
     handlers = f"edge={addr(edge)},cloud={addr(cloud)}"
     try:
         started = edgerv(lab, "cloud", "orchestrate", "--handlers", handlers, "--once")
@@ -290,8 +299,8 @@ def test_orchestrate_starts_monitors_and_moves_one_under_pressure(
 
 def test_calls_without_the_token_change_nothing(tmp_path: Path, lab: Lab, domain: int) -> None:
     monitors = write(tmp_path, "monitors.yaml", MONITORS)
-    edge = Handler(tmp_path, monitors, domain, *WINDOW, lab=lab, name="edge")
-    cloud = Handler(tmp_path, monitors, domain, "--active", "none", lab=lab, name="cloud")
+    edge = HandlerProcess(tmp_path, monitors, domain, *WINDOW, lab=lab, name="edge")
+    cloud = HandlerProcess(tmp_path, monitors, domain, "--active", "none", lab=lab, name="cloud")
     try:
         for token in ("", "wrong"):
             done = lab.run(
@@ -392,8 +401,8 @@ def test_monitors_with_silent_topics_move_and_a_press_mid_move_counts_once(
     rng = random.Random(seed)
     monitors = write(tmp_path, "silent.yaml", SILENT)
     recording = tmp_path / "robot.jsonl"
-    edge = Handler(tmp_path, monitors, domain, *WINDOW, lab=lab, name="edge")
-    cloud = Handler(tmp_path, monitors, domain, *CLOUD, lab=lab, name="cloud")
+    edge = HandlerProcess(tmp_path, monitors, domain, *WINDOW, lab=lab, name="edge")
+    cloud = HandlerProcess(tmp_path, monitors, domain, *CLOUD, lab=lab, name="cloud")
     stop = tmp_path / "stop"
     # the presses fall while the monitors move back and forth (4 moves, about 4 s)
     presses = [[t, round(rng.uniform(0.5, 4.0), 3)] for t in ("/estop", "/lift", "/estop")]

@@ -17,10 +17,10 @@ import pytest
 from prometheus_client import CollectorRegistry
 
 from edgerv.handler.api import ControlApi
+from edgerv.handler.client import HandlerClient
 from edgerv.handler.engine import Engine
 from edgerv.handler.limits import Limits
 from edgerv.handler.main import add_arguments, load
-from edgerv.handler.migrate import Handler
 from helpers import monitor_doc, spec_of
 
 TOKEN = "limits-token"
@@ -38,8 +38,8 @@ def api() -> Iterator[ControlApi]:
     served.stop()
 
 
-def client(api: ControlApi) -> Handler:
-    return Handler(f"127.0.0.1:{api.port}", TOKEN)
+def client(api: ControlApi) -> HandlerClient:
+    return HandlerClient(f"127.0.0.1:{api.port}", TOKEN)
 
 
 def connect(api: ControlApi) -> socket.socket:

@@ -285,6 +285,26 @@ def test_a_parked_robot_lets_the_sender_go_a_reorder_window_past_the_cut() -> No
     assert e.release("m", 1, cut=cut, grace=5.0, now=10.5, quiet=quiet) is not None
 
 
+def test_a_topic_published_after_its_stamps_is_let_go_that_much_later() -> None:
+    """A command stamped with its camera frame's time is published a makespan later: a
+    vouched topic is let go only once the stream ran that lag past the cut too, so the
+    command stamped before the cut, published after H2 vouched, still reaches H1 (seen
+    in `make demo`: lost, then a spurious `age(cmd) < 200ms` violation on H2)."""
+    ms = 1_000_000
+    e = Engine("h", flush_after=1e9, reorder_window=0.02)
+    e.put(monitor(), active=True)
+    e.ingest([(1 * ms, "/a", [True]), (2 * ms, "/x", [1.0])], now=10.0)
+    e.stamp_lag["/a"] = 150 * ms  # /a's messages come up to 150 ms after their stamps
+    e.hold("m", 1, now=10.0)
+    cut, quiet = 100 * ms, ("/a",)
+    e.ingest([(130 * ms, "/x", [2.0])], now=10.1)  # /x ran a window past the cut
+    assert e.release("m", 1, cut=cut, grace=5.0, now=10.1, quiet=quiet) is None
+    e.ingest([(90 * ms, "/a", [False])], now=10.2)  # stamped before the cut, published late
+    e.ingest([(270 * ms, "/x", [3.0])], now=10.3)  # the window and the lag past the cut
+    snap = e.release("m", 1, cut=cut, grace=5.0, now=10.3, quiet=quiet)
+    assert snap is not None and False in snap.values  # /a as the late command left it: H1 took it
+
+
 def test_a_receiver_vouches_for_a_silent_topic_once_matched_a_window_long() -> None:
     """H2 received nothing on /a: once its subscription has been matched with every
     publisher of /a for a reorder window, that instant stands for /a's first stamp."""
@@ -318,3 +338,32 @@ def test_the_handoff_state_machine_refuses_a_change_it_does_not_have() -> None:
                      (HandoffState.RELEASED, HandoffState.SENDING), (None, None)]:  # fmt: skip
         with pytest.raises(HandoffStateError):
             check_transition(old, new)
+
+
+def test_a_new_placement_alone_keeps_the_monitor_running_with_its_state() -> None:
+    """The operator's tier edit redefines a monitor with only its placement changed: it
+    runs on with its state and counts; any other change (or another activity) restarts it."""
+    e = Engine("one", [Collect()], flush_after=1e9)
+    e.put(monitor(), active=True)
+    for b in batches(3)[:40]:
+        e.ingest(b)
+        e.emit(e.tick())
+    before = e.slots["m"].describe("one")
+    assert before["step"] > 0
+    moved = compiled(
+        "always (a -> x < 5)", {"a": "bool", "x": "float"}, sortThreshold=2,
+        placement={"tier": "cloud"},
+    )  # fmt: skip
+    assert e.put(moved, active=True) is False
+    after = e.slots["m"].describe("one")
+    assert after["placement"]["tier"] == "cloud"
+    assert (after["step"], after["events"]) == (before["step"], before["events"])
+    e.put(moved, active=False)  # another activity: a new definition, afresh
+    assert e.slots["m"].describe("one")["step"] == 0
+    e.put(moved, active=True)
+    for b in batches(4)[:40]:
+        e.ingest(b)
+        e.emit(e.tick())
+    assert e.slots["m"].describe("one")["step"] > 0
+    e.put(monitor(3), active=True)  # another sort threshold: afresh
+    assert e.slots["m"].describe("one")["step"] == 0

@@ -56,10 +56,10 @@ from test_migrate_http import TOKEN, Pair, pair  # noqa: F401  (pair: a fixture)
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import Verdict
 from edgerv.handler.api import ControlApi
+from edgerv.handler.client import ApiError, HandlerClient
 from edgerv.handler.engine import Engine
 from edgerv.handler.handoff_steps import HANDOFF_EXPIRES
 from edgerv.handler.migrate import (
-    Handler,
     MigrationFailed,
     NotMoved,
     Unsettled,
@@ -414,8 +414,8 @@ class World:
             self.fed = i
             time.sleep(0.005)
 
-    def handler(self, name: str) -> Handler:
-        return Handler(self.gates[name].address(), TOKEN)
+    def handler(self, name: str) -> HandlerClient:
+        return HandlerClient(self.gates[name].address(), TOKEN)
 
     def where(self, name: str) -> list[str]:
         running = []
@@ -504,7 +504,7 @@ def move(world: World, src: str, dst: str, names: list[str], timeout: float) -> 
         outcome, where = "unsettled", {}
     except NotMoved as exc:
         outcome, where = f"not moved ({str(exc)[:100]})", exc.where
-    except MigrationFailed as exc:
+    except ApiError as exc:
         raise AssertionError(f"a failure that does not say where they run: {exc}") from None
     net.note(f"{'faulty' if net.faulty else 'clean'} {src}->{dst} {names}: {outcome}")
     world.told(src, dst, where, before)
@@ -675,7 +675,7 @@ def test_a_settle_after_the_monitor_moved_on_to_a_third_handler_commits_the_send
             return heard(batch, *args, **kwargs)
 
         monkeypatch.setattr(pair.cloud, "ingest", both)
-        migrate(cloud, Handler(f"127.0.0.1:{api.port}", TOKEN), ["m"], 5.0, 0.2)
+        migrate(cloud, HandlerClient(f"127.0.0.1:{api.port}", TOKEN), ["m"], 5.0, 0.2)
         assert fog.slots["m"].active and pair.active() == []
         with pytest.raises(MigrationFailed, match="which moved them on since"):
             migrate(edge, cloud, ["m"], 5.0, 0.5)  # the first command again
@@ -708,7 +708,7 @@ def test_a_hold_or_receive_that_lands_after_the_abort_is_fenced(
     abort of an epoch newer than any the handler saw now fences that epoch."""
     net = Late(f"/v1/handoff/{step}")
     gates = [FaultyGate(net, n, pair.apis[i].port) for i, n in enumerate(("edge", "cloud"))]
-    edge, cloud = (Handler(g.address(), TOKEN) for g in gates)
+    edge, cloud = (HandlerClient(g.address(), TOKEN) for g in gates)
     try:
         with pytest.raises(MigrationFailed, match="timed out"):
             migrate(edge, cloud, ["m"], 0.25, 0.2)
@@ -843,7 +843,7 @@ def test_a_sender_whose_abort_is_lost_is_unsettled_never_stays_and_the_rerun_set
     did not hear; the same command run again resumes m on the edge and moves it."""
     faults = net()
     gates = [FaultyGate(faults, n, pair.apis[i].port) for i, n in enumerate(("edge", "cloud"))]
-    edge, cloud = (Handler(g.address(), TOKEN) for g in gates)
+    edge, cloud = (HandlerClient(g.address(), TOKEN) for g in gates)
     try:
         with pytest.raises(Unsettled) as unsettled:
             migrate(edge, cloud, ["m"], 0.2, 0.2)

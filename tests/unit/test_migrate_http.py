@@ -19,9 +19,10 @@ import pytest
 from prometheus_client import CollectorRegistry
 
 from edgerv.handler.api import ControlApi
+from edgerv.handler.client import HandlerClient
 from edgerv.handler.engine import Engine
 from edgerv.handler.handoff_steps import HANDOFF_EXPIRES
-from edgerv.handler.migrate import Handler, MigrationFailed, Unsettled, migrate
+from edgerv.handler.migrate import MigrationFailed, Unsettled, migrate
 from helpers import ManualClock, compiled
 
 TOKEN = "test-token"
@@ -75,11 +76,11 @@ class Pair:
     apis: list[ControlApi]
     gate: Gate
 
-    def source(self) -> Handler:
-        return Handler(f"127.0.0.1:{self.apis[0].port}", TOKEN)
+    def source(self) -> HandlerClient:
+        return HandlerClient(f"127.0.0.1:{self.apis[0].port}", TOKEN)
 
-    def destination(self) -> Handler:  # through the gate
-        return Handler(f"127.0.0.1:{self.gate.port}", TOKEN)
+    def destination(self) -> HandlerClient:  # through the gate
+        return HandlerClient(f"127.0.0.1:{self.gate.port}", TOKEN)
 
     def active(self) -> list[str]:
         return [e.name for e in (self.edge, self.cloud) if e.slots["m"].active]
@@ -146,7 +147,7 @@ def test_an_adoption_that_never_arrived_leaves_none_and_settles(pair: Pair) -> N
 
 
 def test_a_receiver_that_is_down_after_the_release_lets_the_sender_resume(pair: Pair) -> None:
-    destination = Handler(f"127.0.0.1:{pair.apis[1].port}", TOKEN)  # no gate: refused
+    destination = HandlerClient(f"127.0.0.1:{pair.apis[1].port}", TOKEN)  # no gate: refused
 
     with pytest.raises(MigrationFailed, match="down: the sender resumed") as failed:
         migrate(pair.source(), destination, ["m"], 0.5, 0.5, after_release=pair.apis[1].stop)
@@ -224,7 +225,7 @@ def test_a_peer_that_answers_wrong_fails_the_move_and_the_monitor_resumes(
     peer = BadPeer(body)
     try:
         with pytest.raises(MigrationFailed) as failed:
-            migrate(pair.source(), Handler(f"127.0.0.1:{peer.port}", TOKEN), ["m"], 2.0, 0.5)
+            migrate(pair.source(), HandlerClient(f"127.0.0.1:{peer.port}", TOKEN), ["m"], 2.0, 0.5)
     finally:
         peer.close()
     assert "cut" in str(failed.value)
@@ -335,3 +336,33 @@ def test_a_wrong_token_changes_nothing_and_says_so(
         f"edgerv migrate: not moved: m: nothing of this move took effect on {edge}"
     )
     assert "(HTTP 401)" in said and pair.active() == ["edge"] and pair.edge.slots["m"].epoch == 0
+
+
+@pytest.mark.parametrize(("cut_off", "runs_on"), [("black", "edge"), ("mute", "cloud")])
+def test_an_operator_that_restarts_mid_handoff_settles_it(
+    pair: Pair, cut_off: str, runs_on: str
+) -> None:
+    """The operator's driver is gone after the release (cut off, then restarted): the new
+    one's first survey finds the monitor held and settles it where it runs, one copy."""
+    from edgerv.core.placement import PolicyConfig
+    from edgerv.handler.orchestrate import Orchestrator
+    from edgerv_operator.config import OperatorConfig
+    from edgerv_operator.documents import HandlerPod
+    from edgerv_operator.handlers import Operator, settle_orphans
+
+    def partition() -> None:
+        pair.gate.mode = cut_off  # black: the adoption never arrives; mute: its answer
+
+    with pytest.raises(Unsettled):
+        migrate(pair.source(), pair.destination(), ["m"], 0.5, 0.5, after_release=partition)
+    assert pair.edge.slots["m"].handoff == "released"
+    pair.gate.mode = "pass"
+    config = OperatorConfig("ns", "a=b", pair.apis[0].port, TOKEN, ("edge", "cloud"))
+    op = Operator(config, Orchestrator([], PolicyConfig(tiers=config.tiers), TOKEN, starts=False))
+    edge = HandlerPod("edge", "edge", f"127.0.0.1:{pair.apis[0].port}", "edge-pod")
+    op.reports = {edge: {m["name"]: m for m in pair.source().monitors()}}
+    settle_orphans(op, [edge])
+    assert pair.active() == [runs_on]
+    assert pair.edge.slots["m"].handoff is None and pair.cloud.slots["m"].handoff is None
+    settle_orphans(op, [edge])  # stale reports: it lists afresh, nothing to do
+    assert pair.active() == [runs_on]

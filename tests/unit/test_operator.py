@@ -1,5 +1,6 @@
 """The operator's pure parts: its settings, the resource as a handler's document, its
-problems by field path, where it starts, and its status from the handlers' reports."""
+problems by field path, where it starts and moves (tier edits, drains). Its status and
+Events: tests/unit/test_operator_status.py."""
 
 from __future__ import annotations
 
@@ -9,15 +10,15 @@ import pytest
 import yaml
 
 from edgerv.core.documents import parse_monitors_text
-from edgerv_operator.config import ConfigError, OperatorConfig
-from edgerv_operator.monitors import (
+from edgerv_operator.config import ConfigError, OperatorConfig, selector_labels
+from edgerv_operator.documents import (
     HandlerPod,
-    choose,
+    document_text,
     handler_name,
     monitor_document,
     problems,
-    status_of,
 )
+from edgerv_operator.placement import change, choose, destination
 
 ENV = {"EDGERV_TOKEN": "t", "EDGERV_NAMESPACE": "edgerv"}
 SPEC: dict[str, Any] = {
@@ -52,8 +53,10 @@ def test_settings_and_their_errors_name_the_variable() -> None:
 
 def test_the_resource_becomes_the_handlers_document() -> None:
     doc = monitor_document("robots", "speed-limit", SPEC)
-    assert yaml.safe_load(doc)["spec"] == SPEC
-    (spec,), diagnostics = parse_monitors_text("Monitor", doc)
+    assert doc["spec"] == SPEC and doc["spec"] is not SPEC  # data, not text
+    text = document_text(doc)
+    assert yaml.safe_load(text) == doc  # the handlers read it as YAML (JSON is YAML)
+    (spec,), diagnostics = parse_monitors_text("Monitor", text)
     assert not diagnostics
     assert spec.name == handler_name("robots", "speed-limit") == "robots.speed-limit"
     assert spec.signals["speed"].qos.depth == 50 and spec.placement.tier == "cloud"
@@ -92,28 +95,36 @@ def test_a_monitor_starts_on_its_tier_else_on_the_lowest() -> None:
     assert choose([stray], None, tiers) is None
 
 
-def test_status_adds_up_the_handlers_reports() -> None:
-    edge = HandlerPod("n1", "edge", "a:1")
-    cloud = HandlerPod("n2", "cloud", "b:1")
+def test_a_tier_edit_moves_other_placement_edits_update_anything_else_restarts() -> None:
+    moved = {**SPEC, "placement": {"tier": "edge"}}
+    assert change(SPEC, dict(SPEC)) == "none"
+    assert change(SPEC, moved) == "move"
+    assert change({k: v for k, v in SPEC.items() if k != "placement"}, SPEC) == "move"
+    pinned = {**SPEC, "placement": {"tier": "cloud", "migrate": "pinned"}}
+    assert change(SPEC, pinned) == "placement"
+    assert change(SPEC, {**moved, "parameters": {"limit": 90}}) == "redefine"
+    assert change(None, SPEC) == "redefine"
 
-    def seen(active: bool, violated: int, handoff: str | None = None) -> dict[str, Any]:
-        return {
-            "active": active,
-            "handoff": handoff,
-            "state": "violated" if active else "inactive",
-            "events": 10,
-            "verdicts": {"violated": violated, "satisfied": 0},
-        }
 
-    s = status_of({edge: seen(True, 3), cloud: seen(False, 4)})
-    assert s["phase"] == "Running" and (s["handler"], s["tier"]) == ("n1", "edge")
-    assert s["verdicts"] == {"violated": 7, "satisfied": 0} and s["events"] == 20
-    assert (
-        status_of({edge: seen(False, 0, "released"), cloud: seen(False, 0, "receiving")})["phase"]
-        == "Migrating"
-    )
-    assert status_of({edge: None, cloud: seen(False, 0)})["message"] == "no handler runs it"
-    assert (
-        "several handlers: n1, n2"
-        in status_of({edge: seen(True, 0), cloud: seen(True, 0)})["message"]
-    )
+def test_where_a_moved_or_drained_monitor_goes() -> None:
+    edge1, edge2 = HandlerPod("e1", "edge", "a:1", "h-e1"), HandlerPod("e2", "edge", "b:1", "h-e2")
+    fog, cloud = HandlerPod("f", "fog", "c:1", "h-f"), HandlerPod("c", "cloud", "d:1", "h-c")
+    tiers = ("edge", "fog", "cloud")
+    every = [cloud, fog, edge2, edge1]
+    assert destination(every, "cloud", tiers) == cloud
+    assert destination([edge1, fog], "cloud", tiers) is None  # the move waits for one
+    # a pod going away: its own tier first, then up, then down
+    assert destination(every, None, tiers, leaving=edge1) == edge2
+    assert destination([edge1, fog, cloud], None, tiers, leaving=edge1) == fog
+    assert destination([edge1, edge2, cloud], None, tiers, leaving=cloud) == edge1
+    assert destination([edge1], None, tiers, leaving=edge1) is None
+
+
+def test_the_pod_index_reads_the_selector_and_refuses_what_it_cannot_read() -> None:
+    env = {**ENV, "EDGERV_HANDLER_SELECTOR": "app=edgerv, component=handler"}
+    assert selector_labels(env) == {"app": "edgerv", "component": "handler"}
+    assert OperatorConfig.from_env(env).selector == "app=edgerv, component=handler"
+    bad = {**ENV, "EDGERV_HANDLER_SELECTOR": "app!=edgerv"}
+    assert selector_labels(bad) == selector_labels({})  # the default, until startup refuses it
+    with pytest.raises(ConfigError, match="EDGERV_HANDLER_SELECTOR: 'app!=edgerv'"):
+        OperatorConfig.from_env(bad)

@@ -12,6 +12,7 @@ scheduled) only where it is placed (the paper's section III).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -27,6 +28,7 @@ from edgerv.core.pipeline import MonitorRuntime, Router, TopicRoute, Verdict
 from edgerv.core.placement import placement_json
 from edgerv.handler.clock import Clock, SystemClock
 from edgerv.handler.handoff_steps import HandoffSteps
+from edgerv.handler.payloads import MonitorReport
 from edgerv.handler.slot import MonitorSlot
 
 log = logging.getLogger("edgerv.handler")
@@ -90,6 +92,9 @@ class Engine(HandoffSteps):
         # per topic: the newest stamp and when a message last came (a sender's release)
         self.newest: dict[str, int] = {}
         self.heard: dict[str, float] = {}
+        # per topic: the most a message was published after its stamp (ns; header stamps
+        # taken before processing lag their publication), at most flush_after
+        self.stamp_lag: dict[str, int] = {}
         self.ingest_lag = 0.0  # seconds between publication and ingestion, last batch
         self.waiting: dict[str, MonitorRuntime] = {}  # monitors with letters to evaluate
         self.in_handoff: dict[str, MonitorSlot] = {}  # so ingest need not scan every slot
@@ -116,10 +121,24 @@ class Engine(HandoffSteps):
     def put(self, compiled: CompiledMonitor, active: bool) -> bool:
         """Define (or redefine) a monitor; returns True when it is new.
 
-        Redefining a monitor restarts it: its buffers and automaton state start afresh.
+        Redefining a monitor restarts it (the same definition again too): its buffers
+        and automaton state start afresh; except a definition that differs only in its
+        placement, given with the activity the monitor has here: that updates the
+        placement, and the monitor runs on (or stays idle) with its state and counts
+        (the operator's tier edits).
         """
         with self.lock:
             old = self.slots.get(compiled.name)
+            if (
+                old is not None
+                and old.handoff is None
+                and old.active == active
+                and compiled.spec.placement != old.compiled.spec.placement
+                and dataclasses.replace(compiled.spec, placement=old.compiled.spec.placement)
+                == old.compiled.spec
+            ):
+                old.compiled = compiled  # the runtime keeps its own: the same monitor
+                return False
             if old is not None and old.runtime is not None:
                 self.router.remove(old.name)
             slot = MonitorSlot(compiled)
@@ -242,6 +261,7 @@ class Engine(HandoffSteps):
                 continue  # removed or redefined since
             for v in rt.evaluate():
                 slot.verdicts[v.verdict] += 1
+                slot.last_verdict = v
                 verdicts.append(v)
         return verdicts
 
@@ -363,7 +383,7 @@ class Engine(HandoffSteps):
                 },
             }
 
-    def snapshot(self) -> list[dict[str, Any]]:
+    def snapshot(self) -> list[MonitorReport]:
         with self.lock:
             return [slot.describe(self.name) for slot in self.slots.values()]
 

@@ -61,6 +61,7 @@ class HandoffSteps:
     newest: dict[str, int]
     heard: dict[str, float]
     settle_ns: int
+    stamp_lag: dict[str, int]
     matched: Callable[[str], bool] | None
     drained_at: int | None
 
@@ -173,8 +174,11 @@ class HandoffSteps:
         A ``quiet`` topic (one H2 vouched for: it brought H2 nothing) is let go sooner,
         once H1's stream (the newest stamp it took on any topic) ran ``settle`` past
         the cut, or its ROS layer found nothing left to take that long after the cut
-        (a parked robot): with the topics' skew within the reorder window, nothing at
-        or before the cut is still on its way (docs/protocol.md, "Silent topics").
+        (a parked robot), plus the most that topic's messages were published after
+        their stamps (:attr:`stamp_lag`: a command stamped with its camera frame's time
+        is published a makespan later): with the topics' skew within the reorder
+        window, nothing at or before the cut is still on its way (docs/protocol.md,
+        "Silent topics").
 
         Then the monitor stops running here, but H1 keeps the snapshot and goes on
         holding the events after the cut until the handoff commits (H2 adopted) or is
@@ -203,10 +207,11 @@ class HandoffSteps:
             topics = slot.compiled.spec.topics
             newest = [self.newest.get(t, cut) for t in topics]
             quiet_since = max([slot.held_at] + [self.heard.get(t, 0.0) for t in topics])
-            settled = self._settled(cut + self.settle_ns)
+            lag = self.stamp_lag
             if not (
                 all(
-                    n > cut or (t in quiet and settled) for t, n in zip(topics, newest, strict=True)
+                    n > cut or (t in quiet and self._settled(cut + self.settle_ns + lag.get(t, 0)))
+                    for t, n in zip(topics, newest, strict=True)
                 )
                 or max(newest) - cut >= grace * 1e9  # the others ran grace past it: quiet
                 or now - max(slot.cut_known[1], quiet_since) >= grace  # nothing comes

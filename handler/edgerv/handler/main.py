@@ -4,7 +4,10 @@ It loads the monitors of a file or directory (a bad monitor is reported and
 skipped; the others run), runs the active ones on live ROS 2 traffic, and
 reports verdicts on ``/edgerv/verdicts``, in ``--verdict-log`` and as metrics.
 SIGTERM or SIGINT stops it cleanly: no new messages are taken, every buffered
-event is evaluated, the verdict log is flushed, and it exits 0.
+event is evaluated, the verdict log is flushed, and it exits 0. With ``--drain
+SECONDS`` it first runs on (monitors and API) until no monitor is active here
+(the operator moves them away: a pod going away hands its monitors over), at
+most that long; a second signal ends the wait.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 
 from edgerv.core.deadline import MakespanWindow, parse_deadline
@@ -65,6 +69,14 @@ def time_limit(text: str) -> float:
         if 0 < (value := float(text)) < math.inf:
             return value
     raise argparse.ArgumentTypeError(f"'{text}' is not a number of seconds above 0")
+
+
+def drain_limit(text: str) -> float:
+    """SECONDS from 0 to a day."""
+    with contextlib.suppress(ValueError):
+        if 0 <= (value := float(text)) <= 86400:
+            return value
+    raise argparse.ArgumentTypeError(f"'{text}' is not a number of seconds from 0 to 86400")
 
 
 def read_token(args: argparse.Namespace) -> str | None:
@@ -171,6 +183,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="close a kept-alive connection that sends no request for this long "
         f"(default {given.idle_seconds:g})",
     )
+    p.add_argument(
+        "--drain",
+        type=drain_limit,
+        default=0.0,
+        metavar="SECONDS",
+        help="on SIGTERM, first run on until no monitor is active here (moved away by the "
+        "operator), at most this long (default 0: stop at once)",
+    )
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
 
 
@@ -192,6 +212,32 @@ def load(engine: Engine, specs: list[MonitorSpec], active: set[str], most: int) 
         except InputError as exc:
             diagnostics += exc.diagnostics
     return diagnostics
+
+
+DRAIN_LINGER = 2.0  # seconds a drained handler stays up: its last answers are read
+
+
+def drain(engine: Engine, seconds: float, hurry: threading.Event) -> None:
+    """Run on until no monitor is active here or in a handoff (moved away by whoever
+    drives the handoffs: the operator, for a pod going away), ``seconds`` at most."""
+    until = time.monotonic() + seconds
+    busy = [m["name"] for m in engine.snapshot() if m["active"] or m["handoff"]]
+    if not busy:
+        return
+    log.info("draining: up to %gs for %d monitor(s) to move away", seconds, len(busy))
+    while busy and not hurry.wait(0.2):
+        busy = [m["name"] for m in engine.snapshot() if m["active"] or m["handoff"]]
+        if time.monotonic() >= until:
+            log.warning(
+                "drain: %d monitor(s) still here after %gs: %s (their state ends here)",
+                len(busy),
+                seconds,
+                ", ".join(sorted(busy)[:10]) + (" ..." if len(busy) > 10 else ""),
+            )
+            return
+    if not busy:
+        log.info("drained: no monitor runs here")
+        hurry.wait(DRAIN_LINGER)  # whoever moved them reads their final counts meanwhile
 
 
 def run(args: argparse.Namespace) -> int:
@@ -273,8 +319,14 @@ def run(args: argparse.Namespace) -> int:
         ros.wake()
 
     def on_signal(signum: int, _frame: object) -> None:
+        if stop.is_set():
+            log.info("%s: stopping now", signal.Signals(signum).name)
+            hurry.set()
+            return
         log.info("%s: stopping", signal.Signals(signum).name)
         stop.set()
+
+    hurry = threading.Event()
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
@@ -321,6 +373,8 @@ def run(args: argparse.Namespace) -> int:
     )
     while not stop.wait(0.5):
         pass
+    if args.drain > 0 and api is not None and not ros.failed:
+        drain(engine, args.drain, hurry)
     # Ordered shutdown: take nothing more, evaluate everything taken, then close the outputs.
     ros.stop()
     scheduler_stop.set()

@@ -15,18 +15,16 @@ from __future__ import annotations
 import argparse
 import contextlib
 import functools
-import http.client
-import json
 import os
 import sys
 import time
-import urllib.parse
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 from edgerv.core.handoff import HandoffError, frame_sizes, unbundle
+from edgerv.handler.client import ApiError, HandlerClient, HttpError, Refused, Unreachable
 from edgerv.handler.handoff_steps import HANDOFF_EXPIRES
 
 EXIT_CODES = """\
@@ -43,31 +41,15 @@ exit codes:
 """
 
 
-class MigrationFailed(Exception):
-    pass
-
-
-class Unreachable(MigrationFailed):
-    """The handler did not answer (refused, reset, timed out)."""
-
-
-class Rejected(MigrationFailed):
-    """The handler answered with an HTTP error."""
-
-    def __init__(self, message: str, status: int) -> None:
-        super().__init__(message)
-        self.status = status
-
-
-class Refused(Unreachable):
-    """Nothing listens at the handler's address: it is down, and runs no monitor."""
+class MigrationFailed(ApiError):
+    """The move failed (every other failure of a call to a handler is an ApiError too)."""
 
 
 class NotMoved(MigrationFailed):
     """Some monitors did not move, and where each one runs is what the handlers answered
     (exit 1): a driver never says "stays" on a guess.
 
-    ``where``: monitor -> the address (``Handler.base``) of the handler running it;
+    ``where``: monitor -> the address (``HandlerClient.base``) of the handler running it;
     ``""`` when neither of the two does; None when nothing of this move took effect on
     the sender (it never held the monitor for it) and the listings could not be read:
     the monitor is where it was before."""
@@ -106,109 +88,12 @@ UNAUTHORIZED = "not authorized"  # a handler that refuses the token: it acted on
 DOWN = "down"  # its port refuses connections: it runs nothing
 
 
-class Handler:
-    """A handler's control API, over one kept-alive connection (a round trip per call)."""
-
-    def __init__(self, address: str, token: str | None) -> None:
-        self.base = address if "://" in address else f"http://{address}"
-        self.token = token
-        parts = urllib.parse.urlsplit(self.base)
-        self._https = parts.scheme == "https"
-        self._netloc = parts.netloc
-        self._conn: http.client.HTTPConnection | None = None
-
-    def _connection(self, timeout: float) -> http.client.HTTPConnection:
-        if self._conn is None:
-            cls = http.client.HTTPSConnection if self._https else http.client.HTTPConnection
-            self._conn = cls(self._netloc, timeout=timeout)
-        self._conn.timeout = timeout
-        if self._conn.sock is not None:
-            self._conn.sock.settimeout(timeout)
-        return self._conn
-
-    def close(self) -> None:
-        if self._conn is not None:
-            self._conn.close()
-            self._conn = None
-
-    def call(
-        self,
-        path: str,
-        body: Any = None,
-        raw: bytes | None = None,
-        timeout: float = 10.0,
-        check: bool = False,
-        method: str = "POST",
-    ) -> tuple[int, bytes]:
-        """One request; with ``check``, a 4xx/5xx answer raises MigrationFailed with its reason.
-
-        Every call of the protocol is idempotent, so a call on a kept-alive connection
-        that the handler had closed is sent once more on a new one.
-        """
-        data = raw if raw is not None else json.dumps(body or {}).encode()
-        headers = {
-            "Content-Type": "application/octet-stream" if raw is not None else "application/json"
-        }
-        if self.token:
-            headers["Authorization"] = f"Bearer {self.token}"
-        for attempt in (1, 2):
-            reused = self._conn is not None and self._conn.sock is not None
-            conn = self._connection(timeout)
-            try:
-                conn.request(
-                    method, path, body=data if method in ("POST", "PUT") else None, headers=headers
-                )
-                resp = conn.getresponse()
-                status, answer = resp.status, resp.read()
-                break
-            except (http.client.HTTPException, OSError) as exc:
-                self.close()
-                if attempt == 1 and reused and not isinstance(exc, TimeoutError):
-                    continue  # the kept-alive connection had been closed: once more
-                kind = Refused if isinstance(exc, ConnectionRefusedError) else Unreachable
-                raise kind(f"{self.base} is unreachable: {exc}") from None
-        if check and status >= 400:
-            try:
-                reason = json.loads(answer)["errors"][0]["message"]
-            except (ValueError, KeyError, IndexError, TypeError):
-                reason = answer[:200].decode(errors="replace")
-            raise Rejected(f"{self.base}{path}: {reason} (HTTP {status})", status)
-        return status, answer
-
-    def handoff(
-        self,
-        step: str,
-        epoch: int,
-        monitors: Sequence[str],
-        timeout: float,
-        check: bool = True,
-        **body: Any,
-    ) -> tuple[int, bytes]:
-        """One step of a handoff (docs/protocol.md) for ``monitors`` under ``epoch``."""
-        return self.call(
-            f"/v1/handoff/{step}",
-            {"epoch": epoch, "monitors": list(monitors), **body},
-            check=check,
-            timeout=timeout,
-        )
-
-    def get(self, path: str, timeout: float = 10.0) -> Any:
-        """GET a JSON document (raises MigrationFailed on errors)."""
-        return _json(self, path, self.call(path, timeout=timeout, check=True, method="GET")[1])
-
-
-def _json(side: Handler, what: str, raw: bytes) -> Any:
-    """A peer's answer as JSON, or MigrationFailed naming the peer and the step."""
-    try:
-        return json.loads(raw)
-    except (ValueError, RecursionError):
-        raise MigrationFailed(f"{side.base} answered {what} with something not JSON") from None
-
-
-def _cut_answer(side: Handler, raw: bytes, names: Sequence[str]) -> tuple[dict[str, Any], Any]:
+def _cut_answer(
+    side: HandlerClient, raw: bytes, names: Sequence[str]
+) -> tuple[dict[str, Any], Any]:
     """The cut step's answer, checked: a cut (integer nanoseconds, or null: not yet) for
     every monitor asked about, and the topics it vouched for (lists of names)."""
-    answer = _json(side, "the cut", raw)
+    answer = side.json("the cut", raw)
     cuts = answer.get("cuts") if isinstance(answer, dict) else None
     quiet = answer.get("quiet", {}) if isinstance(answer, dict) else None
     if (
@@ -222,17 +107,6 @@ def _cut_answer(side: Handler, raw: bytes, names: Sequence[str]) -> tuple[dict[s
     ):  # fmt: skip
         raise MigrationFailed(f"{side.base} answered the cut with {raw[:200]!r}: not a cut")
     return cuts, quiet
-
-
-def _listing(side: Handler, timeout: float) -> list[dict[str, Any]]:
-    """GET /v1/monitors, checked: a list of monitors, each with its name."""
-    listing = side.get("/v1/monitors", timeout=timeout)
-    monitors = listing.get("monitors") if isinstance(listing, dict) else None
-    if not isinstance(monitors, list) or not all(
-        isinstance(m, dict) and isinstance(m.get("name"), str) for m in monitors
-    ):
-        raise MigrationFailed(f"{side.base} answered /v1/monitors with no list of monitors")
-    return monitors
 
 
 def _retry(deadline: float, call: Callable[[], T]) -> T:
@@ -259,8 +133,8 @@ class Moved:
 
 
 def migrate(
-    source: Handler,
-    destination: Handler,
+    source: HandlerClient,
+    destination: HandlerClient,
     monitors: Sequence[str],
     timeout: float = 30.0,
     grace: float = 1.0,
@@ -313,8 +187,8 @@ def migrate(
 
 
 def _migrate(
-    source: Handler,
-    destination: Handler,
+    source: HandlerClient,
+    destination: HandlerClient,
     names: list[str],
     timeout: float,
     grace: float,
@@ -325,7 +199,7 @@ def _migrate(
     deadline = started + timeout
     per_call = min(10.0, timeout)
 
-    def step(side: Handler, name: str, **body: Any) -> tuple[int, bytes]:
+    def step(side: HandlerClient, name: str, **body: Any) -> tuple[int, bytes]:
         timeout = per_call + float(body.get("wait", 0.0))
         return side.handoff(name, epoch, body.pop("monitors", names), timeout, **body)
 
@@ -381,7 +255,7 @@ def _migrate(
             raise MigrationFailed(
                 f"{source.base} released {len(sizes)} snapshots for {len(names)} monitors"
             )
-    except MigrationFailed as failed:
+    except ApiError as failed:
         return _undo(source, destination, epoch, names, failed, time.monotonic() + timeout)
     if after_release is not None:
         after_release()
@@ -393,7 +267,7 @@ def _migrate(
                 f"/v1/handoff/adopt?epoch={epoch}", raw=bundle, check=True, timeout=per_call
             ),
         )
-    except MigrationFailed as failed:
+    except ApiError as failed:
         until = time.monotonic() + timeout
         where, answers = _decide(source, destination, epoch, names, until)
         back = sorted(n for n in names if where[n] != destination.base)
@@ -413,14 +287,14 @@ def _migrate(
     return Moved(seconds, len(bundle), letters, headers, steps, note=note)
 
 
-def _commit(source: Handler, epoch: int, names: Sequence[str], until: float) -> str:
+def _commit(source: HandlerClient, epoch: int, names: Sequence[str], until: float) -> str:
     """Tell the source to let go of what the destination adopted; what is left to do
     when it did not confirm it ("" when it did, or is down: a crashed one let go too)."""
     try:
         _retry(until, lambda: source.handoff("commit", epoch, names, _left(until)))
-    except (Refused, Rejected):
+    except (Refused, HttpError):
         return ""  # down, or it no longer has that handoff (restarted): nothing kept
-    except MigrationFailed as exc:
+    except ApiError as exc:
         return (
             f"{source.base} did not confirm it let go of {', '.join(names)} ({exc}): it "
             "keeps their snapshots, evaluated nowhere, until the same command is run "
@@ -429,7 +303,7 @@ def _commit(source: Handler, epoch: int, names: Sequence[str], until: float) -> 
     return ""
 
 
-def _abort(side: Handler, epoch: int, names: Sequence[str], until: float) -> dict[str, str]:
+def _abort(side: HandlerClient, epoch: int, names: Sequence[str], until: float) -> dict[str, str]:
     """``abort`` on one side, retried until ``until`` while it does not answer: its
     answer per monitor (Engine.abort), UNDEFINED for one it does not define, or
     UNAUTHORIZED for each when it refuses the token.
@@ -437,7 +311,7 @@ def _abort(side: Handler, epoch: int, names: Sequence[str], until: float) -> dic
     Raises MigrationFailed when it gave no usable answer (Refused: it is down)."""
     try:
         raw = _retry(until, lambda: side.handoff("abort", epoch, names, _left(until)))[1]
-    except Rejected as exc:
+    except HttpError as exc:
         if exc.status in (401, 403):  # our token is refused: so was every call of ours
             return dict.fromkeys(names, UNAUTHORIZED)
         if exc.status != 409:
@@ -448,7 +322,7 @@ def _abort(side: Handler, epoch: int, names: Sequence[str], until: float) -> dic
         for name in names:  # a batch stops at the one it does not define: one by one
             answers.update(_abort(side, epoch, [name], until))
         return answers
-    answer = _json(side, "the abort", raw)
+    answer = side.json("the abort", raw)
     outcomes = answer.get("outcomes") if isinstance(answer, dict) else None
     if not isinstance(outcomes, dict) or not all(isinstance(outcomes.get(n), str) for n in names):
         raise MigrationFailed(f"{side.base} answered the abort with {raw[:200]!r}")
@@ -456,7 +330,7 @@ def _abort(side: Handler, epoch: int, names: Sequence[str], until: float) -> dic
 
 
 def _resume(
-    source: Handler, epoch: int, names: Sequence[str], until: float, why: str, meanwhile: str
+    source: HandlerClient, epoch: int, names: Sequence[str], until: float, why: str, meanwhile: str
 ) -> dict[str, str]:
     """The source's ``abort`` of ``names`` (it resumes them), retried until ``until``: its
     answers (DOWN for each when it is down, holding nothing). Raises Unsettled when it
@@ -465,7 +339,7 @@ def _resume(
         return _abort(source, epoch, names, until)
     except Refused:
         return dict.fromkeys(names, DOWN)
-    except MigrationFailed as exc:
+    except ApiError as exc:
         raise Unsettled(
             f"{why}, and {source.base} did not confirm it resumed {', '.join(names)} ({exc}): "
             f"{meanwhile}",
@@ -475,11 +349,11 @@ def _resume(
 
 
 def _undo(
-    source: Handler,
-    destination: Handler,
+    source: HandlerClient,
+    destination: HandlerClient,
     epoch: int,
     names: list[str],
-    failed: MigrationFailed,
+    failed: ApiError,
     until: float,
 ) -> Moved:
     """A move failed before the adoption was sent: nothing of it can run on the
@@ -541,11 +415,11 @@ def _undo(
     raise NotMoved(said, where)
 
 
-def _entries(side: Handler, names: Sequence[str], until: float) -> dict[str, Any] | None:
+def _entries(side: HandlerClient, names: Sequence[str], until: float) -> dict[str, Any] | None:
     """Those of ``names`` a handler lists, by name (None when it does not answer)."""
     try:
-        listing = _retry(until, lambda: _listing(side, _left(until)))
-    except MigrationFailed:
+        listing = _retry(until, lambda: side.monitors(timeout=_left(until)))
+    except ApiError:
         return None
     return {m["name"]: m for m in listing if m["name"] in names}
 
@@ -579,7 +453,7 @@ def _whereabouts(entries: Mapping[str, Any] | None, name: str) -> str:
     }.get(state, f"is in state {state}")
 
 
-def _say(where: Mapping[str, str | None], source: Handler, destination: Handler) -> str:
+def _say(where: Mapping[str, str | None], source: HandlerClient, destination: HandlerClient) -> str:
     """Where each monitor runs, a clause a place: "m, p stay on S; q runs on D"."""
     groups: dict[str | None, list[str]] = {}
     for name, place in where.items():
@@ -601,7 +475,7 @@ def _say(where: Mapping[str, str | None], source: Handler, destination: Handler)
 
 
 def _decide(
-    source: Handler, receiver: Handler, epoch: int, names: Sequence[str], until: float
+    source: HandlerClient, receiver: HandlerClient, epoch: int, names: Sequence[str], until: float
 ) -> tuple[dict[str, str], dict[str, str]]:
     """After a release: ask the receiver to abort, which answers per monitor whether it
     adopted it (``active``, or ``adopted`` when it moved it on since) or now never will;
@@ -619,7 +493,7 @@ def _decide(
         answers = _abort(receiver, epoch, names, until)
     except Refused:
         answers = dict.fromkeys(names, DOWN)  # nothing listens there: it runs none of them
-    except MigrationFailed as exc:  # no answer, or an error: whether it adopted is unknown
+    except ApiError as exc:  # no answer, or an error: whether it adopted is unknown
         raise Unsettled(
             f"{receiver.base} did not say whether it adopted {', '.join(names)} ({exc}): "
             f"{source.base} holds {', '.join(names)} released, evaluated nowhere, and they "
@@ -659,7 +533,7 @@ def _left(deadline: float) -> float:
     return max(0.5, min(10.0, deadline - time.monotonic()))
 
 
-def settle(source: Handler, names: Sequence[str], deadline: float) -> dict[str, list[str]]:
+def settle(source: HandlerClient, names: Sequence[str], deadline: float) -> dict[str, list[str]]:
     """Settle the handoffs ``source`` still holds some of ``names`` for (its driver died or
     the receiver did not answer): those that sent nothing yet resume on the source (and
     the receiver lets go); of those released, the receiver it recorded says which it
@@ -669,8 +543,8 @@ def settle(source: Handler, names: Sequence[str], deadline: float) -> dict[str, 
     answer: the source may go on holding them.
     """
     try:
-        listing = _retry(deadline, lambda: _listing(source, _left(deadline)))
-    except MigrationFailed as exc:
+        listing = _retry(deadline, lambda: source.monitors(timeout=_left(deadline)))
+    except ApiError as exc:
         raise Unsettled(
             f"{source.base} did not list its monitors ({exc}): it may hold "
             f"{', '.join(names)} for a handoff, evaluated nowhere",
@@ -687,10 +561,10 @@ def settle(source: Handler, names: Sequence[str], deadline: float) -> dict[str, 
             groups.setdefault(key, []).append(str(m["name"]))
     moved: dict[str, list[str]] = {}
     for (epoch, peer, state), group in groups.items():
-        receiver = Handler(peer, source.token) if peer else None
+        receiver = HandlerClient(peer, source.token) if peer else None
         if state == "sending":  # nothing left the source: it resumes; the receiver drops
             if receiver is not None:
-                with contextlib.suppress(MigrationFailed):
+                with contextlib.suppress(ApiError):
                     receiver.handoff("abort", epoch, group, _left(deadline), check=False)
             _resume(
                 source,
@@ -759,8 +633,8 @@ def run(args: argparse.Namespace) -> int:
     what = ", ".join(names)
     try:
         moved = migrate(
-            Handler(args.source, token),
-            Handler(args.destination, token),
+            HandlerClient(args.source, token),
+            HandlerClient(args.destination, token),
             names,
             args.timeout,
             args.grace,
@@ -778,7 +652,7 @@ def run(args: argparse.Namespace) -> int:
     except NotMoved as exc:
         print(f"edgerv migrate: not moved: {exc}", file=sys.stderr)
         return 1
-    except MigrationFailed as exc:  # (not expected: every failure above says where they run)
+    except ApiError as exc:  # (not expected: every failure above says where they run)
         print(f"edgerv migrate: {what}: unsettled: {exc}", file=sys.stderr)
         return 3
     fresh = [n for n in names if n not in moved.already]

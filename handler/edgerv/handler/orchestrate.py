@@ -40,7 +40,8 @@ from edgerv.core.placement import (
     placement_from_json,
     plan,
 )
-from edgerv.handler.migrate import Handler, MigrationFailed, NotMoved, Unsettled, migrate, settle
+from edgerv.handler.client import ApiError, HandlerClient
+from edgerv.handler.migrate import NotMoved, Unsettled, migrate, settle
 
 log = logging.getLogger("edgerv.orchestrate")
 
@@ -172,7 +173,7 @@ class Orchestrator:
         self.config = config
         self.token = token
         self.targets: list[Target] = []
-        self.clients: dict[Target, Handler] = {}
+        self.clients: dict[Target, HandlerClient] = {}
         self.previous: dict[Target, Counters] = {}
         self.set_targets(targets)
         self.starts = starts  # start monitors that run nowhere (off: someone else does)
@@ -186,7 +187,9 @@ class Orchestrator:
     def set_targets(self, targets: Sequence[Target]) -> None:
         """The handlers to poll from now on (the operator's change as pods come and go)."""
         self.targets = list(targets)
-        self.clients = {t: self.clients.get(t) or Handler(t.address, self.token) for t in targets}
+        self.clients = {
+            t: self.clients.get(t) or HandlerClient(t.address, self.token) for t in targets
+        }
         self.previous = {t: c for t, c in self.previous.items() if t in targets}
 
     def poll(self) -> dict[Target, Mapping[str, Any]]:
@@ -194,7 +197,7 @@ class Orchestrator:
         for t, client in self.clients.items():
             try:
                 loads[t] = client.get("/v1/load", timeout=5.0)
-            except MigrationFailed as exc:
+            except ApiError as exc:
                 log.warning("%s (%s) left out of this round: %s", t.address, t.tier, exc)
         return loads
 
@@ -233,7 +236,7 @@ class Orchestrator:
             try:
                 client.call(f"/v1/monitors/{start.monitor}/activate", check=True)
                 record["ok"] = True
-            except MigrationFailed as exc:
+            except ApiError as exc:
                 record["ok"], record["error"] = False, str(exc)
             record["ms"] = round((time.monotonic() - started) * 1000, 1)
             done.append(record)
@@ -264,15 +267,15 @@ class Orchestrator:
                 self.unsettled.update(dict.fromkeys(unsettled, pair))
             except NotMoved as exc:
                 record.update(ok=False, error=str(exc), where=exc.where)
-            except MigrationFailed as exc:  # (not expected: migrate says where they run)
+            except ApiError as exc:  # (not expected: migrate says where they run)
                 record.update(ok=False, error=str(exc), unsettled=names)
                 self.unsettled.update(dict.fromkeys(names, (where[source], where[destination])))
             record["ms"] = round((time.monotonic() - started) * 1000, 1)
             done.append(record)
         return done
 
-    def _client(self, target: Target) -> Handler:
-        return self.clients.get(target) or Handler(target.address, self.token)
+    def _client(self, target: Target) -> HandlerClient:
+        return self.clients.get(target) or HandlerClient(target.address, self.token)
 
     def _settle(self, loads: Mapping[Target, Mapping[str, Any]]) -> list[dict[str, Any]]:
         """First the moves of ours that ended unsettled: their sources settle what they
@@ -302,7 +305,9 @@ class Orchestrator:
                 done.append(self._settled(self._client(target), names, {}))
         return done
 
-    def _settled(self, client: Handler, names: list[str], extra: dict[str, Any]) -> dict[str, Any]:
+    def _settled(
+        self, client: HandlerClient, names: list[str], extra: dict[str, Any]
+    ) -> dict[str, Any]:
         """Settle ``names`` on ``client``; the record of it."""
         record: dict[str, Any] = {
             "at": round(time.time(), 3),
@@ -313,7 +318,7 @@ class Orchestrator:
         }
         try:
             record.update(ok=True, moved=settle(client, names, time.monotonic() + self.timeout))
-        except MigrationFailed as exc:
+        except ApiError as exc:
             record["ok"], record["error"] = False, str(exc)
         return record
 

@@ -360,6 +360,7 @@ class RosIngest:
         append = batch.append
         oldest_source: int | None = None
         delivered = 0  # subscriptions that had messages
+        lags, lag_cap = self.engine.stamp_lag, int(self.engine.flush_after * 1e9)
         for sub in subs:
             topic = sub.route.topic
             handle, reader, cls = sub.subscription.handle, sub.reader, sub.subscription.msg_type
@@ -370,6 +371,7 @@ class RosIngest:
             delivered += 1
             first = got[1]["source_timestamp"]  # a subscription's first message is its oldest
             oldest_source = first if oldest_source is None else min(oldest_source, first)
+            lag = 0  # the most a message here was published after its header stamp
             for _ in range(TAKE_PER_WAKE):
                 raw, info = got
                 try:
@@ -377,11 +379,16 @@ class RosIngest:
                 except Exception:  # a malformed message is counted and skipped
                     self._bad_message(topic, sub.route.msg_type)
                 else:
+                    source = info["source_timestamp"]
+                    if stamp and source - stamp > lag:
+                        lag = source - stamp
                     # unstamped: 0; the bytes and the routes' version: read again if they change
-                    append((stamp or info["source_timestamp"], topic, values, raw, version))
+                    append((stamp or source, topic, values, raw, version))
                 got = take(cls, True)
                 if got is None:
                     break
+            if lag > lags.get(topic, 0):
+                lags[topic] = min(lag, lag_cap)
         if oldest_source is not None:
             self.engine.ingest_lag = max(0.0, (time.time_ns() - oldest_source) / 1e9)
         if delivered > 1:

@@ -4,13 +4,13 @@ its handoff's state (the steps that change it are in :mod:`edgerv.handler.handof
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 from edgerv.core.handoff import Snapshot
 from edgerv.core.monitor import CompiledMonitor
-from edgerv.core.pipeline import MonitorRuntime
+from edgerv.core.pipeline import MonitorRuntime, Verdict
 from edgerv.core.placement import placement_json
 from edgerv.handler.handoff_state import HandoffState
+from edgerv.handler.payloads import LastVerdict, MonitorReport
 
 RECEIVING, RELEASED = HandoffState.RECEIVING, HandoffState.RELEASED
 
@@ -24,6 +24,7 @@ class MonitorSlot:
     events: int = 0
     dropped: int = 0
     verdicts: dict[str, int] = field(default_factory=lambda: {"violated": 0, "satisfied": 0})
+    last_verdict: Verdict | None = None  # the newest this handler reached
     pending_since: float | None = None  # when the event buffer got its oldest event
     full_since: float | None = None  # when the buffer rose above HIGH_WATER
     migration_wanted: bool = False
@@ -62,7 +63,11 @@ class MonitorSlot:
     def buffered(self) -> int:
         return self.runtime.buffered if self.runtime else 0
 
-    def describe(self, handler: str) -> dict[str, Any]:
+    def _last_verdict(self) -> LastVerdict | None:
+        v = self.last_verdict
+        return None if v is None else {"verdict": v.verdict, "stamp": v.stamp, "step": v.step}
+
+    def describe(self, handler: str) -> MonitorReport:
         rt = self.runtime
         spec = self.compiled.spec
         return {
@@ -84,6 +89,7 @@ class MonitorSlot:
             "droppedEvents": self.dropped,
             "lateEvents": rt.late_events if rt else 0,
             "verdicts": dict(self.verdicts),
+            "lastVerdict": self._last_verdict(),
             "migrationWanted": self.migration_wanted,
             "handoff": self.handoff,
             "epoch": self.epoch,

@@ -1,0 +1,250 @@
+"""The handlers' control API from the outside: one client for the operator,
+``edgerv migrate`` and ``edgerv orchestrate`` (docs/handler.md lists the calls).
+
+Every failure is an :class:`ApiError`, and its class says which failure it was, so a
+caller tells a transient one (the handler is unreachable, busy or restarting: try
+again) from a permanent one (the definition is invalid: fix it):
+
+* :class:`Unreachable`: no answer (reset, timed out); :class:`Refused`: nothing listens
+  there, so the handler is down and runs nothing.
+* :class:`HttpError`: an answer with an HTTP error, ``status`` and the handler's
+  reason: :class:`Invalid` (400, 413, 422: the request, e.g. a Monitor document, is
+  wrong), :class:`Unauthorized` (401: the bearer token is refused, e.g. rotated),
+  :class:`NotFound` (404), :class:`Conflict` (409: e.g. held by a handoff),
+  :class:`ServerError` (5xx).
+* :class:`BadAnswer`: an answer that is not what the API promises.
+"""
+
+from __future__ import annotations
+
+import http.client
+import json
+import urllib.parse
+from collections.abc import Sequence
+from typing import Any, cast
+
+from edgerv.handler.payloads import ErrorBody, MonitorListing, MonitorReport
+
+
+class ApiError(Exception):
+    """A call to a handler's control API failed."""
+
+
+class Unreachable(ApiError):
+    """The handler did not answer (reset, timed out)."""
+
+
+class Refused(Unreachable):
+    """Nothing listens at the handler's address: it is down, and runs no monitor."""
+
+
+class HttpError(ApiError):
+    """The handler answered with an HTTP error; ``errors`` are the items of its body."""
+
+    def __init__(self, message: str, status: int, errors: Sequence[Any] = ()) -> None:
+        super().__init__(message)
+        self.status = status
+        self.errors = list(errors)
+
+
+class Invalid(HttpError):
+    """400/413/422: the request is wrong (a Monitor document's problems are in ``errors``)."""
+
+
+class Unauthorized(HttpError):
+    """401: the handler refuses the bearer token; it acted on nothing."""
+
+
+class NotFound(HttpError):
+    """404: no such monitor (or path) on that handler."""
+
+
+class Conflict(HttpError):
+    """409: the monitor exists already, or a handoff holds it."""
+
+
+class ServerError(HttpError):
+    """5xx: the handler failed."""
+
+
+class BadAnswer(ApiError):
+    """The answer is not what the API promises (not JSON, or the wrong shape)."""
+
+
+_BY_STATUS: dict[int, type[HttpError]] = {
+    400: Invalid,
+    413: Invalid,
+    422: Invalid,
+    401: Unauthorized,
+    404: NotFound,
+    409: Conflict,
+}
+
+
+def http_error(where: str, status: int, answer: bytes) -> HttpError:
+    """The error class of an HTTP error answer, with the handler's reason."""
+    items: list[Any] = []
+    try:
+        body = cast(ErrorBody, json.loads(answer))
+        items = list(body["errors"])
+        reason = "; ".join(
+            f"{e['location']}: {e['message']}" if e.get("location") else str(e["message"])
+            for e in items
+        )
+    except (ValueError, KeyError, IndexError, TypeError, RecursionError):
+        reason = answer[:200].decode(errors="replace")
+    kind = _BY_STATUS.get(status, ServerError if status >= 500 else HttpError)
+    return kind(f"{where}: {reason} (HTTP {status})", status, items)
+
+
+class HandlerClient:
+    """One handler's control API, over one kept-alive connection (a round trip per call).
+
+    Not thread-safe: one client per thread (they are cheap)."""
+
+    def __init__(self, address: str, token: str | None) -> None:
+        self.base = address if "://" in address else f"http://{address}"
+        self.token = token
+        parts = urllib.parse.urlsplit(self.base)
+        self._https = parts.scheme == "https"
+        self._netloc = parts.netloc
+        self._conn: http.client.HTTPConnection | None = None
+
+    def __repr__(self) -> str:
+        return f"HandlerClient({self.base!r})"
+
+    def _connection(self, timeout: float) -> http.client.HTTPConnection:
+        if self._conn is None:
+            cls = http.client.HTTPSConnection if self._https else http.client.HTTPConnection
+            self._conn = cls(self._netloc, timeout=timeout)
+        self._conn.timeout = timeout
+        if self._conn.sock is not None:
+            self._conn.sock.settimeout(timeout)
+        return self._conn
+
+    def close(self) -> None:
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
+
+    def call(
+        self,
+        path: str,
+        body: Any = None,
+        raw: bytes | None = None,
+        timeout: float = 10.0,
+        check: bool = False,
+        method: str = "POST",
+        content_type: str | None = None,
+    ) -> tuple[int, bytes]:
+        """One request; with ``check``, a 4xx/5xx answer raises its :class:`HttpError`.
+
+        Every call of the API is idempotent, so a call on a kept-alive connection that
+        the handler had closed is sent once more on a new one.
+        """
+        data = raw if raw is not None else json.dumps(body or {}).encode()
+        headers = {
+            "Content-Type": content_type
+            or ("application/octet-stream" if raw is not None else "application/json")
+        }
+        if self.token:
+            headers["Authorization"] = f"Bearer {self.token}"
+        for attempt in (1, 2):
+            reused = self._conn is not None and self._conn.sock is not None
+            conn = self._connection(timeout)
+            try:
+                conn.request(
+                    method, path, body=data if method in ("POST", "PUT") else None, headers=headers
+                )
+                resp = conn.getresponse()
+                status, answer = resp.status, resp.read()
+                break
+            except (http.client.HTTPException, OSError) as exc:
+                self.close()
+                if attempt == 1 and reused and not isinstance(exc, TimeoutError):
+                    continue  # the kept-alive connection had been closed: once more
+                kind = Refused if isinstance(exc, ConnectionRefusedError) else Unreachable
+                raise kind(f"{self.base} is unreachable: {exc}") from None
+        if check and status >= 400:
+            raise http_error(f"{self.base}{path}", status, answer)
+        return status, answer
+
+    def json(self, what: str, raw: bytes) -> Any:
+        """An answer as JSON, or :class:`BadAnswer` naming the handler and the call."""
+        try:
+            return json.loads(raw)
+        except (ValueError, RecursionError):
+            raise BadAnswer(f"{self.base} answered {what} with something not JSON") from None
+
+    def get(self, path: str, timeout: float = 10.0) -> Any:
+        """GET a JSON document."""
+        return self.json(path, self.call(path, timeout=timeout, check=True, method="GET")[1])
+
+    def handoff(
+        self,
+        step: str,
+        epoch: int,
+        monitors: Sequence[str],
+        timeout: float,
+        check: bool = True,
+        **body: Any,
+    ) -> tuple[int, bytes]:
+        """One step of a handoff (docs/protocol.md) for ``monitors`` under ``epoch``."""
+        return self.call(
+            f"/v1/handoff/{step}",
+            {"epoch": epoch, "monitors": list(monitors), **body},
+            check=check,
+            timeout=timeout,
+        )
+
+    # -- monitors -------------------------------------------------------------------------
+
+    def monitors(self, timeout: float = 10.0) -> list[MonitorReport]:
+        """``GET /v1/monitors``: every monitor it defines, each with its name."""
+        listing = self.get("/v1/monitors", timeout=timeout)
+        monitors = listing.get("monitors") if isinstance(listing, dict) else None
+        if not isinstance(monitors, list) or not all(
+            isinstance(m, dict) and isinstance(m.get("name"), str) for m in monitors
+        ):
+            raise BadAnswer(f"{self.base} answered /v1/monitors with no list of monitors")
+        return cast(MonitorListing, listing)["monitors"]
+
+    def monitor(self, name: str, timeout: float = 10.0) -> MonitorReport | None:
+        """``GET /v1/monitors/{name}``; None when it does not define that monitor."""
+        try:
+            report = self.get(f"/v1/monitors/{_quoted(name)}", timeout=timeout)
+        except NotFound:
+            return None
+        if not isinstance(report, dict) or report.get("name") != name:
+            raise BadAnswer(f"{self.base} answered /v1/monitors/{name} with no such monitor")
+        return cast(MonitorReport, report)
+
+    def define(self, name: str, document: str, active: bool, timeout: float = 30.0) -> bool:
+        """``PUT /v1/monitors/{name}``: define it (True) or redefine it (False), running
+        here or idle (``active``). :class:`Invalid` names the document's problems."""
+        path = f"/v1/monitors/{_quoted(name)}?active={'true' if active else 'false'}"
+        _, answer = self.call(
+            path,
+            raw=document.encode(),
+            content_type="application/yaml",
+            timeout=timeout,
+            check=True,
+            method="PUT",
+        )
+        return bool(self.json(path, answer).get("created"))
+
+    def activate(self, name: str, timeout: float = 30.0) -> None:
+        """Run it here (:class:`Conflict` while a handoff holds it)."""
+        self.call(f"/v1/monitors/{_quoted(name)}/activate", timeout=timeout, check=True)
+
+    def deactivate(self, name: str, timeout: float = 30.0) -> None:
+        """Stop running it here, keeping its definition."""
+        self.call(f"/v1/monitors/{_quoted(name)}/deactivate", timeout=timeout, check=True)
+
+    def delete(self, name: str, timeout: float = 10.0) -> None:
+        """Remove it (:class:`NotFound` when it was not there)."""
+        self.call(f"/v1/monitors/{_quoted(name)}", timeout=timeout, check=True, method="DELETE")
+
+
+def _quoted(name: str) -> str:
+    return urllib.parse.quote(name, safe="")

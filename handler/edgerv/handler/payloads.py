@@ -1,0 +1,69 @@
+"""The control API's JSON payloads, typed: what the handler's server answers
+(:mod:`edgerv.handler.api`, :meth:`MonitorSlot.describe`) and what its clients read
+(:mod:`edgerv.handler.client`: the operator, ``edgerv migrate``, ``edgerv orchestrate``).
+
+docs/handler.md describes each field; these types are the one place both sides name them.
+"""
+
+from __future__ import annotations
+
+from typing import Any, TypedDict
+
+
+class LastVerdict(TypedDict):
+    """A monitor's newest verdict on this handler."""
+
+    verdict: str  # "violated" or "satisfied"
+    stamp: int  # the deciding event's stamp, nanoseconds
+    step: int  # the steps evaluated when it was reached
+
+
+class BufferReport(TypedDict):
+    events: int
+    letters: int
+    capacity: int
+    fill: float  # buffered / capacity
+
+
+class MonitorReport(TypedDict):
+    """``GET /v1/monitors/{name}``, and each item of ``GET /v1/monitors``."""
+
+    name: str
+    handler: str
+    active: bool  # it runs here (or is held here for a handoff)
+    state: str  # "pending", "violated", "satisfied", or "inactive"
+    assertion: str
+    topics: list[str]
+    automatonState: int | None
+    step: int
+    buffer: BufferReport
+    events: int
+    droppedEvents: int
+    lateEvents: int
+    verdicts: dict[str, int]  # "violated"/"satisfied" -> how many reached here
+    lastVerdict: LastVerdict | None
+    migrationWanted: bool
+    handoff: str | None  # the handoff step it is in, if any
+    epoch: int  # the newest handoff it took part in here
+    peer: str | None
+    placement: dict[str, Any]
+
+
+class MonitorListing(TypedDict):
+    """``GET /v1/monitors``."""
+
+    handler: str
+    monitors: list[MonitorReport]
+
+
+class ErrorItem(TypedDict, total=False):
+    message: str  # always there
+    location: str  # FILE:LINE:COL of a document's problem
+    hint: str | None
+    severity: str
+
+
+class ErrorBody(TypedDict):
+    """Every 4xx/5xx answer."""
+
+    errors: list[ErrorItem]
