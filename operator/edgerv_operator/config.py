@@ -8,6 +8,8 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from edgerv.handler.token import Token, TokenFile
+
 DEFAULT_SELECTOR = "app.kubernetes.io/name=edgerv,app.kubernetes.io/component=handler"
 
 
@@ -41,12 +43,32 @@ def selector_labels(env: Mapping[str, str] | None = None) -> dict[str, str]:
     return given or parse_selector(DEFAULT_SELECTOR) or {}
 
 
+def _token(env: Mapping[str, str]) -> Token:
+    """EDGERV_TOKEN_FILE (read again when it changes: a rotated Secret mounted as a
+    volume), else EDGERV_TOKEN."""
+    path = env.get("EDGERV_TOKEN_FILE", "")
+    if path:
+        try:
+            return TokenFile(path)
+        except OSError as exc:
+            raise ConfigError(f"EDGERV_TOKEN_FILE: cannot read '{path}': {exc.strerror}") from None
+        except (ValueError, UnicodeDecodeError):
+            raise ConfigError(f"EDGERV_TOKEN_FILE: '{path}' is empty or not text") from None
+    token = env.get("EDGERV_TOKEN", "")
+    if not token:
+        raise ConfigError(
+            "EDGERV_TOKEN: not set (nor EDGERV_TOKEN_FILE): the operator calls the handlers' "
+            "API with the handlers' token (the chart mounts it from a Secret)"
+        )
+    return token
+
+
 @dataclass(frozen=True)
 class OperatorConfig:
     namespace: str  # where the handler pods run
     selector: str  # the handler pods' label selector
     port: int  # the handlers' control API port (host networking: on each node's address)
-    token: str  # the handlers' EDGERV_TOKEN
+    token: Token  # the handlers' token: EDGERV_TOKEN_FILE (followed), else EDGERV_TOKEN
     tiers: tuple[str, ...]  # lowest first: a monitor without placement.tier starts on the first
     placement_seconds: float = 5.0  # between rounds of the placement policy; 0: none
     tier_label: str = "edgerv.io/tier"  # the node label whose value is the node's tier
@@ -55,12 +77,7 @@ class OperatorConfig:
     def from_env(cls, env: Mapping[str, str] | None = None) -> OperatorConfig:
         env = os.environ if env is None else env
 
-        token = env.get("EDGERV_TOKEN", "")
-        if not token:
-            raise ConfigError(
-                "EDGERV_TOKEN: not set: the operator calls the handlers' API with the "
-                "handlers' token (the chart puts it in a Secret)"
-            )
+        token = _token(env)
         namespace = env.get("EDGERV_NAMESPACE") or env.get("POD_NAMESPACE") or ""
         if not namespace:
             raise ConfigError("EDGERV_NAMESPACE: not set: the namespace of the handler pods")

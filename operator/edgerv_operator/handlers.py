@@ -258,6 +258,9 @@ def tend(op: Operator, handlers: Handlers) -> None:
         op.moving.release()
 
 
+HELD = ("sending", "released")  # a sender's handoff steps: it may hold the only copy
+
+
 def settle_orphans(op: Operator, pods: Sequence[HandlerPod]) -> None:
     """Settle the handoffs that no move of this operator drives (the caller holds
     ``op.moving``, which every move of its holds throughout): the operator restarted in
@@ -265,23 +268,33 @@ def settle_orphans(op: Operator, pods: Sequence[HandlerPod]) -> None:
     adopted. As ``edgerv migrate`` settles them: a monitor the receiver adopted commits
     there, any other resumes on its sender; never two active copies."""
     for pod in pods:
-        held = [
-            name
-            for name, r in op.reports.get(pod, {}).items()
-            if r["handoff"] in ("sending", "released")
-        ]
+        held = [name for name, r in op.reports.get(pod, {}).items() if r["handoff"] in HELD]
         if not held:
             continue
         try:
-            where = settle(op.client(pod), held, time.monotonic() + 30.0)
+            _settle(op, pod, held)
         except ApiError as exc:
             log.warning("settling %s on %s: %s", ", ".join(held), pod.node, exc)
-            continue
-        moved = {n for names in where.values() for n in names}
-        log.info(
-            "settled a handoff no one drove: %s",
-            "; ".join(f"{n} {'moved' if n in moved else 'resumed on ' + pod.node}" for n in held),
-        )
+
+
+def _settle(op: Operator, pod: HandlerPod, held: list[str]) -> None:
+    where = settle(op.client(pod), held, time.monotonic() + 30.0)
+    moved = {n for names in where.values() for n in names}
+    log.info(
+        "settled a handoff no one drove: %s",
+        "; ".join(f"{n} {'moved' if n in moved else 'resumed on ' + pod.node}" for n in held),
+    )
+
+
+def settle_held(op: Operator, pods: Sequence[HandlerPod], hname: str) -> None:
+    """Before a spec is applied (the caller holds ``op.moving``): settle a handoff that
+    holds this monitor, asked afresh of each handler (a restarted operator has no survey
+    yet). A definition given to a handler in the middle of a handoff would restart the
+    monitor there and lose the move; handlers refuse it (409) until it is settled."""
+    for pod in pods:
+        report = op.client(pod).monitor(hname, timeout=5.0)
+        if report is not None and report["handoff"] in HELD:
+            _settle(op, pod, [hname])
 
 
 def _move(
@@ -330,8 +343,9 @@ def _post(body: kopf.Body, events: Sequence[Event]) -> None:
 def _transient(exc: ApiError) -> kopf.TemporaryError:
     if isinstance(exc, Unauthorized):
         return kopf.TemporaryError(
-            f"{exc}: the handlers refuse the operator's token (EDGERV_TOKEN differs from "
-            "theirs: a rotated Secret? restart the operator with the new one)",
+            f"{exc}: the handlers refuse the operator's token (it differs from theirs: a "
+            "rotated Secret reaches each pod within the kubelet's sync period, about a "
+            "minute; with EDGERV_TOKEN instead of EDGERV_TOKEN_FILE, restart the operator)",
             delay=30,
         )
     return kopf.TemporaryError(str(exc), delay=10)
@@ -409,12 +423,16 @@ def _apply(
     what = change(old, spec) if old is not None else ("redefine" if redefine else "none")
     try:  # refused here or by the handlers: the spec is wrong, until it changes
         document = _checked(name, namespace, spec)
-        if what == "move":
-            with op.moving:
+        with op.moving:  # no move runs meanwhile: none is undone by a definition
+            settle_held(op, handlers.ready, hname)
+            if what == "move":
                 place(op, handlers, hname, document, spec, redefine=True)  # placement in place
                 _move_to_tier(op, handlers.ready, hname, spec)
-        else:
-            place(op, handlers, hname, document, spec, redefine=what in ("redefine", "placement"))
+            else:
+                redefine = what in ("redefine", "placement")
+                place(op, handlers, hname, document, spec, redefine=redefine)
+    except ApiError as exc:  # settling: the handler did not answer
+        raise _transient(exc) from None
     except kopf.PermanentError as exc:
         new, events = invalid(status, str(exc), generation, _now())
         new.pop("kopf", None)

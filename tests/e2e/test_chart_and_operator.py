@@ -5,6 +5,7 @@ resources on them and reports their verdicts in the resources' status.
 
 from __future__ import annotations
 
+import base64
 import json
 import os
 import shutil
@@ -21,6 +22,9 @@ from typing import Any
 import pytest
 from kopf.testing import KopfRunner
 from kube import Cluster
+
+from edgerv.handler.client import ApiError, HandlerClient
+from edgerv.handler.migrate import migrate
 
 ROOT = Path(__file__).resolve().parents[2]
 CHART = ROOT / "helm" / "edgerv"
@@ -178,6 +182,14 @@ def status(cluster: Cluster, namespace: str, name: str) -> dict[str, Any]:
     return dict(json.loads(out).get("status", {})) if out else {}
 
 
+def set_tier(cluster: Cluster, namespace: str, name: str, tier: str) -> None:
+    """`kubectl patch` of a Monitor's spec.placement.tier, as a user edits it."""
+    cluster.run(
+        "patch", "monitor", name, "-n", namespace, "--type=merge",
+        "-p", json.dumps({"spec": {"placement": {"tier": tier}}}),
+    )  # fmt: skip
+
+
 def handler_pod(cluster: Cluster, namespace: str, tier: str) -> dict[str, Any]:
     """The one live handler pod on the node of a tier (not one being deleted)."""
     pods = json.loads(cluster.run("get", "pods", "-n", namespace, "-o", "json"))["items"]
@@ -278,20 +290,31 @@ def test_the_api_server_checks_the_shape(cluster: Cluster, namespace: str) -> No
 def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None:
     """The chart as a user installs it: the operator's pods place a Monitor too (its own
     namespace and handler port, beside the release the other tests use). Two operator
-    replicas: one acts, the other waits (Kopf peering), so the Monitor is defined once."""
+    replicas: one acts, the other waits (Kopf peering), so the Monitor is defined once and
+    a tier edit moves it by one handoff (the handlers' records). The operator restarted
+    while a handoff is half done (adopted, never committed): it settles it, one copy.
+    The token's Secret rotated: handlers and operator follow it, with no restart."""
     ns = f"edgerv-e2e-{uuid.uuid4().hex[:6]}"
     operator = "app.kubernetes.io/component=operator"
 
-    def waiting() -> list[str]:  # the operator pods that paused in favour of another
+    def acting() -> tuple[str, list[str], dict[str, int]]:
+        """The replica of highest priority in the peering object (its pod's name: POD_ID),
+        the pods whose logs show work on the Monitor, and every replica's priority."""
         pods = json.loads(cluster.run("get", "pods", "-n", ns, "-l", operator, "-o", "json"))
         names = [p["metadata"]["name"] for p in pods["items"]]
         logs = {n: cluster.run("logs", "-n", ns, n, "--tail=-1", check=False) for n in names}
-        return [n for n, text in logs.items() if "Pausing operations in favour of" in text]
+        peering = json.loads(
+            cluster.run("get", "kopfpeering", "erv2-operator", "-n", ns, "-o", "json")
+        )
+        peers = {k: int(v["priority"]) for k, v in peering.get("status", {}).items()}
+        assert set(peers) == set(names), (peers, names)  # both met in the peering object
+        worked = [n for n, text in logs.items() if f"[{ns}/speed-limit]" in text]
+        return max(peers, key=lambda k: peers[k]), worked, peers
 
     try:
         install(
             cluster, "erv2", ns, "handler.port=8471", f"operator.watchNamespaces={{{ns}}}",
-            "operator.replicas=2",
+            "operator.replicas=2", f"token.value={TOKEN}",
         )  # fmt: skip
         apply(cluster, ns, talker_pod(cluster))
         apply(cluster, ns, monitor("speed-limit", "always (speed < limit)"))
@@ -302,8 +325,12 @@ def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None
             ),
             timeout=180,
         )
-        assert got["phase"] == "Running" and got["tier"] == "edge", got
-        assert len(until("one operator replica to wait", waiting)) == 1
+        assert got["phase"] == "Running" and got["tier"] == "edge", json.dumps(got) + cluster.run(
+            "logs", "-n", ns, "-l", operator, "--tail=-1"
+        )
+        leader, worked, peers = acting()
+        assert len(peers) == 2 and len(set(peers.values())) == 2, peers
+        assert worked == [leader], (worked, peers)  # the other one waits: it did nothing
         # new operator pods resume the Monitor without redefining it (that would restart it)
         cluster.run("delete", "pod", "-n", ns, "-l", operator, "--timeout=60s")
         until(
@@ -317,6 +344,18 @@ def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None
             "logs", "-n", ns, "-l", "app.kubernetes.io/component=handler", "--tail=-1"
         )
         assert f"added {ns}.speed-limit" in handlers and "replaced" not in handlers, handlers
+        # a tier edit: one replica moves it, by one handoff (its epoch in both handlers' logs)
+        name = f"{ns}.speed-limit"
+        set_tier(cluster, ns, "speed-limit", "cloud")
+        until(
+            "the move to the cloud",
+            lambda: status(cluster, ns, "speed-limit").get("tier") == "cloud",
+        )
+        (epoch,) = until("the handlers' records of the move", lambda: handoffs(cluster, ns, name))
+        records = handoffs(cluster, ns, name)[epoch]
+        assert sorted(records) == ["adopted", "committed", "held"], records
+        restarted_mid_handoff(cluster, ns, name)
+        rotated_token(cluster, ns)
     finally:
         cluster.run("delete", "monitor", "--all", "-n", ns, "--timeout=60s", check=False)
         unfinalize(cluster)
@@ -326,6 +365,121 @@ def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None
             timeout=120,
         )
         cluster.run("delete", "namespace", ns, "--wait=false", check=False)
+
+
+def handoffs(cluster: Cluster, ns: str, name: str) -> dict[str, list[str]]:
+    """The handlers' records of the handoffs of monitor ``name``: epoch -> the steps
+    recorded (held, adopted, committed, aborted), from the logs of both handlers."""
+    logs = cluster.run("logs", "-n", ns, "-l", "app.kubernetes.io/component=handler", "--tail=-1")
+    found: dict[str, list[str]] = {}
+    for line in logs.splitlines():
+        _, sep, record = line.partition("handoff ")
+        epoch, _, rest = record.partition(" ")
+        what, _, names = rest.partition(": ")
+        if sep and epoch.isdigit() and name in names.split(", "):
+            found.setdefault(epoch, []).append(what.split()[0])
+    return found
+
+
+class DriverKilled(BaseException):
+    """The driver of a handoff dies (no handler error: nothing of ours catches it)."""
+
+
+class DiesBeforeCommit(HandlerClient):
+    def handoff(self, step: str, *args: Any, **kwargs: Any) -> tuple[int, bytes]:
+        if step == "commit":
+            raise DriverKilled(step)
+        return super().handoff(step, *args, **kwargs)
+
+
+def restarted_mid_handoff(cluster: Cluster, ns: str, name: str) -> None:
+    """With the operator stopped, a move from the cloud to the edge is driven up to the
+    adoption and never committed: the state an operator killed there leaves (the edge
+    runs it, the cloud holds it released). The spec is edited to the edge meanwhile.
+    The operator started again settles it: the cloud lets go, one copy runs, on the edge."""
+    operator = "app.kubernetes.io/component=operator"
+    cluster.run("scale", "deployment", "-n", ns, "-l", operator, "--replicas=0")
+    until(
+        "the operator to stop",
+        lambda: (
+            not json.loads(cluster.run("get", "pods", "-n", ns, "-l", operator, "-o", "json"))[
+                "items"
+            ]
+        ),
+    )
+    address = {
+        t: f"{handler_pod(cluster, ns, t)['status']['hostIP']}:8471" for t in ("edge", "cloud")
+    }
+    edge, cloud = HandlerClient(address["edge"], TOKEN), HandlerClient(address["cloud"], TOKEN)
+    with pytest.raises(DriverKilled):
+        migrate(DiesBeforeCommit(address["cloud"], TOKEN), edge, [name], timeout=30.0)
+    held = cloud.monitor(name)
+    assert held is not None and held["handoff"] == "released", held
+    assert (runs := edge.monitor(name)) is not None and runs["active"], runs
+    set_tier(cluster, ns, "speed-limit", "edge")
+    cluster.run("scale", "deployment", "-n", ns, "-l", operator, "--replicas=1")
+
+    def settled() -> bool:
+        report = cloud.monitor(name)
+        return report is not None and report["handoff"] is None and not report["active"]
+
+    until("the restarted operator to settle the handoff", settled, timeout=180)
+    assert (runs := edge.monitor(name)) is not None and runs["active"], runs
+    got = until(
+        "the status on the edge",
+        lambda: (s := status(cluster, ns, "speed-limit")).get("tier") == "edge" and s,
+    )
+    assert got["phase"] == "Running", got
+    logs = cluster.run("logs", "-n", ns, "-l", operator, "--tail=-1")
+    handlers = cluster.run(
+        "logs", "-n", ns, "-l", "app.kubernetes.io/component=handler", "--tail=-1"
+    )
+    assert "settled a handoff no one drove" in logs, logs + handlers
+    records = handoffs(cluster, ns, name)
+    assert len(records) == 2 and all("committed" in r for r in records.values()), records
+
+
+def rotated_token(cluster: Cluster, ns: str) -> None:
+    """`kubectl patch` of the token's Secret: the kubelet updates the mounted file on each
+    node (within its sync period, a minute by default); the handlers then refuse the old
+    token and take the new one, and the operator, following its own file, places a new
+    Monitor with it. Nothing restarts: the pods' restart counts stay 0."""
+    new = f"rotated-{uuid.uuid4().hex}"
+    encoded = base64.b64encode(new.encode()).decode()
+    cluster.run(
+        "patch", "secret", "erv2-token", "-n", ns, "--type=merge",
+        "-p", json.dumps({"data": {"token": encoded}}),
+    )  # fmt: skip
+    addresses = [
+        f"{handler_pod(cluster, ns, t)['status']['hostIP']}:8471" for t in ("edge", "cloud")
+    ]
+
+    def takes(address: str, token: str) -> bool:
+        try:
+            HandlerClient(address, token).monitors(timeout=5.0)
+        except ApiError:
+            return False
+        return True
+
+    until(
+        "the handlers to take the new token",
+        lambda: all(takes(a, new) and not takes(a, TOKEN) for a in addresses),
+        timeout=180,
+    )
+    apply(cluster, ns, monitor("after-rotation", "always (speed < limit)"))
+    got = until(
+        "the operator to place a Monitor with the new token",
+        lambda: (s := status(cluster, ns, "after-rotation")).get("phase") == "Running" and s,
+        timeout=180,
+    )
+    assert got["tier"] == "edge", got
+    pods = json.loads(cluster.run("get", "pods", "-n", ns, "-o", "json"))["items"]
+    restarts = {
+        p["metadata"]["name"]: c["restartCount"]
+        for p in pods
+        for c in p["status"].get("containerStatuses", [])
+    }
+    assert not any(restarts.values()), restarts
 
 
 # -- moves by the handoff: tier edits and pods going away (#16) -----------------------------
@@ -445,10 +599,7 @@ def test_a_tier_edit_moves_the_monitor_by_the_handoff_both_ways(
     apply(cluster, namespace, counter_pod(cluster, "counter"))
     until("the first violations", lambda: status(cluster, namespace, name).get("lastVerdict"))
     for tier, moves in (("cloud", 1), ("edge", 2)):
-        cluster.run(
-            "patch", "monitor", name, "-n", namespace, "--type=merge",
-            "-p", json.dumps({"spec": {"placement": {"tier": tier}}}),
-        )  # fmt: skip
+        set_tier(cluster, namespace, name, tier)
         got = settled_on(cluster, namespace, name, tier, moves)
         assert got["migrations"]["last"]["reason"] == f"spec.placement.tier is {tier}", got
     violations, last_step = expected_verdicts(tmp_path)

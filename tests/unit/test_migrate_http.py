@@ -9,6 +9,7 @@ same migration again settles what a lost answer left held.
 from __future__ import annotations
 
 import contextlib
+import logging
 import socket
 import threading
 import time
@@ -16,14 +17,15 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import pytest
+import yaml
 from prometheus_client import CollectorRegistry
 
 from edgerv.handler.api import ControlApi
-from edgerv.handler.client import HandlerClient
+from edgerv.handler.client import Conflict, HandlerClient
 from edgerv.handler.engine import Engine
 from edgerv.handler.handoff_steps import HANDOFF_EXPIRES
 from edgerv.handler.migrate import MigrationFailed, Unsettled, migrate
-from helpers import ManualClock, compiled
+from helpers import ManualClock, compiled, monitor_doc
 
 TOKEN = "test-token"
 
@@ -119,6 +121,22 @@ def pair() -> Iterator[Pair]:
         api.stop()
 
 
+def test_each_handler_records_the_handoffs_it_took_part_in(
+    pair: Pair, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Who moved what is read back from the handlers' logs, one line a step that changes
+    who runs a monitor, under the handoff's epoch (two drivers would show two epochs)."""
+    with caplog.at_level(logging.INFO, logger="edgerv.handler.api"):
+        migrate(pair.source(), pair.destination(), ["m"], 5.0, 0.5)
+    records = [r.getMessage() for r in caplog.records if r.getMessage().startswith("handoff ")]
+    epochs = {line.split()[1] for line in records}
+    assert len(epochs) == 1, records
+    steps = [line.split(maxsplit=2)[2] for line in records]
+    cloud = pair.destination().base
+    assert steps == [f"held for {cloud}: m", "adopted: m", "committed: m"], records
+    assert pair.active() == ["cloud"]
+
+
 def test_an_adoption_whose_answer_is_lost_leaves_one_copy_and_settles(pair: Pair) -> None:
     def partition() -> None:
         pair.gate.mode = "mute"  # the adoption reaches the cloud; its answer does not come
@@ -131,6 +149,25 @@ def test_an_adoption_whose_answer_is_lost_leaves_one_copy_and_settles(pair: Pair
     moved = migrate(pair.source(), pair.destination(), ["m"], 5.0, 0.5)  # the same command
     assert "settle" in moved.steps and pair.active() == ["cloud"]
     assert pair.edge.slots["m"].handoff is None and pair.edge.slots["m"].runtime is None
+
+
+def test_a_monitor_held_by_a_handoff_is_not_redefined_until_it_is_settled(pair: Pair) -> None:
+    """A definition in the middle of a handoff would restart the monitor there and lose
+    the move: the handler refuses it (409) until the handoff is settled."""
+    doc = yaml.safe_dump(monitor_doc("m", "always (a -> x < 5)", {"a": "bool", "x": "float"}))
+
+    def partition() -> None:
+        pair.gate.mode = "black"
+
+    with pytest.raises(Unsettled):
+        migrate(pair.source(), pair.destination(), ["m"], 0.5, 0.5, after_release=partition)
+    with pytest.raises(Conflict, match="in a handoff \\(released\\): settle or abort it first"):
+        pair.source().define("m", doc, active=True)
+    pair.gate.mode = "pass"
+    migrate(pair.source(), pair.destination(), ["m"], 5.0, 0.5)  # settles, then moves
+    assert pair.active() == ["cloud"]
+    assert pair.source().define("m", doc, active=False) is False  # settled: it may be
+    assert pair.active() == ["cloud"]
 
 
 def test_an_adoption_that_never_arrived_leaves_none_and_settles(pair: Pair) -> None:

@@ -33,7 +33,7 @@ import logging
 import threading
 import time
 from collections.abc import Awaitable, Callable
-from typing import Any
+from typing import Any, cast
 
 from aiohttp import web
 from aiohttp.http_exceptions import HttpProcessingError
@@ -45,6 +45,15 @@ from edgerv.core.handoff import HandoffError, bundle, decode_frames, encode, unb
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.handler.engine import Engine
 from edgerv.handler.limits import Limits
+from edgerv.handler.payloads import (
+    AdoptAnswer,
+    CutAnswer,
+    HandoffRequest,
+    OutcomesAnswer,
+    StepAnswer,
+    WaitingAnswer,
+)
+from edgerv.handler.token import Token, current
 
 log = logging.getLogger("edgerv.handler.api")
 http_log = logging.getLogger("edgerv.handler.api.http")  # aiohttp's server logs here
@@ -237,32 +246,42 @@ def _seconds(value: Any, what: str) -> float:
     return min(float(value), 1e9)  # inf: never
 
 
-def _handoff_body(body: Any) -> tuple[dict[str, Any], int, list[str]]:
+def _record(epoch: int, what: str, names: list[str]) -> None:
+    """The handler's record of a handoff, one log line a step that changes who runs a
+    monitor (hold, adopt, commit, abort): who moved what, and when, read back from logs."""
+    log.info("handoff %d %s: %s", epoch, what, ", ".join(names))
+
+
+def _handoff_body(body: Any) -> HandoffRequest:
     """A handoff step's JSON body, checked: an object with an integer ``epoch`` and a list
-    of monitor names (raises ValueError naming what is wrong: the answer is 400)."""
+    of monitor names, a ``peer`` address if any (raises ValueError naming what is wrong:
+    the answer is 400). The release's own fields are checked by :func:`_release_body`."""
     if not isinstance(body, dict):
         raise ValueError("the body must be a JSON object")
     names = body["monitors"]
     if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
         raise ValueError("monitors must be a list of monitor names")
-    return body, _integer(body["epoch"], "epoch"), names
+    _integer(body["epoch"], "epoch")
+    if body.get("peer") is not None and not isinstance(body["peer"], str):
+        raise ValueError("peer must be a handler's address")
+    return cast(HandoffRequest, body)
 
 
 def _release_body(
-    body: dict[str, Any], names: list[str]
+    request: HandoffRequest,
 ) -> tuple[dict[str, int], dict[str, list[str]], float, float]:
     """The release step's fields: a cut for every monitor, the topics H2 vouched for,
     the grace and how long to wait (seconds)."""
-    cuts, quiet = body["cuts"], body.get("quiet") or {}
+    cuts, quiet = request["cuts"], request.get("quiet") or {}
     if not isinstance(cuts, dict):
         raise ValueError("cuts must map each monitor to its cut")
-    checked = {n: _integer(cuts[n], f"the cut of {n}") for n in names}
+    checked = {n: _integer(cuts[n], f"the cut of {n}") for n in request["monitors"]}
     if not isinstance(quiet, dict) or not all(
         isinstance(q, list) and all(isinstance(t, str) for t in q) for q in quiet.values()
     ):
         raise ValueError("quiet must map monitors to lists of topics")
-    grace = _seconds(body.get("grace", 1.0), "grace")
-    return checked, quiet, grace, _seconds(body.get("wait", 0), "wait")
+    grace = _seconds(request.get("grace", 1.0), "grace")
+    return checked, quiet, grace, _seconds(request.get("wait", 0), "wait")
 
 
 class ControlApi:
@@ -270,7 +289,7 @@ class ControlApi:
         self,
         engine: Engine,
         registry: CollectorRegistry,
-        token: str | None,
+        token: Token,
         on_change: Callable[[], None],
         on_routes: Callable[[], None] | None = None,
         limits: Limits | None = None,
@@ -294,9 +313,10 @@ class ControlApi:
         if request.path.startswith("/v1"):
             given = request.headers.get("Authorization", "")
             scheme, _, credential = given.partition(" ")
-            ok = self.token is None or (
+            token = current(self.token)
+            ok = token is None or (
                 scheme.lower() == "bearer"
-                and hmac.compare_digest(credential.strip().encode(), self.token.encode())
+                and hmac.compare_digest(credential.strip().encode(), token.encode())
             )
             if not ok:
                 return web.json_response(
@@ -434,7 +454,10 @@ class ControlApi:
         defined = len(self.engine.slots)
         if name not in self.engine.slots and defined >= self.limits.monitors:
             return _message(403, self.limits.full(defined))
-        created = self.engine.put(compiled[0], active=_active(request))
+        try:
+            created = self.engine.put(compiled[0], active=_active(request))
+        except HandoffError as exc:
+            return _message(409, str(exc))
         self.on_change()
         log.info("%s %s", "added" if created else "replaced", name)
         return web.json_response({"name": name, "created": created}, status=201 if created else 200)
@@ -472,13 +495,13 @@ class ControlApi:
                 snaps = decode_frames(unbundle(await request.read()))  # outside the engine's lock
                 names = e.adopt_many(epoch, snaps)  # all or nothing
                 self.on_routes()
-                return web.json_response({"active": names})
-            body, epoch, names = _handoff_body(await request.json())
+                _record(epoch, "adopted", names)
+                return web.json_response(AdoptAnswer(active=names))
+            body = _handoff_body(await request.json())
+            epoch, names = body["epoch"], body["monitors"]
             if step in ("hold", "receive"):
                 done: list[str] = []
                 peer = body.get("peer")
-                if peer is not None and not isinstance(peer, str):
-                    raise ValueError("peer must be a handler's address")
                 with e.lock:
                     try:
                         for name in names:
@@ -492,20 +515,22 @@ class ControlApi:
                             e.abort(name, epoch)
                         raise HandoffError(f"{name}: {exc}") from None
                 self.on_routes()
-                return web.json_response({"monitors": done})
+                if step == "hold":
+                    _record(epoch, f"held for {peer or 'a receiver'}", done)
+                return web.json_response(StepAnswer(monitors=done))
             if step == "cut":
                 with e.lock:
                     cuts = {n: e.cut(n, epoch) for n in names}
                     quiet = {n: list(e.slots[n].quiet) for n in names if cuts[n] is not None}
-                return web.json_response({"cuts": cuts, "quiet": quiet})
+                return web.json_response(CutAnswer(cuts=cuts, quiet=quiet))
             if step == "release":
-                at, quiet, grace, wait = _release_body(body, names)
+                at, vouched, grace, wait = _release_body(body)
                 # up to ``wait`` seconds for events past the cut here: no round trip a try
                 until = time.monotonic() + min(MAX_WAIT, wait)
                 while True:
                     with e.lock:
                         released = {
-                            n: e.release(n, epoch, at[n], grace, quiet=quiet.get(n, ()))
+                            n: e.release(n, epoch, at[n], grace, quiet=vouched.get(n, ()))
                             for n in names
                         }
                     waiting = [n for n, data in released.items() if data is None]
@@ -513,7 +538,7 @@ class ControlApi:
                         break
                     await asyncio.sleep(RELEASE_POLL)
                 if waiting:
-                    return web.json_response({"waiting": waiting}, status=202)
+                    return web.json_response(WaitingAnswer(waiting=waiting), status=202)
                 frames = (encode(snap) for snap in released.values() if snap is not None)
                 return web.Response(body=bundle(frames), content_type="application/octet-stream")
             if step in ("commit", "abort"):
@@ -521,7 +546,10 @@ class ControlApi:
                 with e.lock:
                     outcomes = {n: act(n, epoch) for n in names}
                 self.on_routes()
-                return web.json_response({"outcomes": outcomes})
+                for outcome in sorted(set(outcomes.values())):
+                    said = outcome if step == "commit" else f"aborted ({outcome})"
+                    _record(epoch, said, [n for n in names if outcomes[n] == outcome])
+                return web.json_response(OutcomesAnswer(outcomes=outcomes))
         except HandoffError as exc:
             return _message(409, str(exc))
         except (KeyError, ValueError, TypeError) as exc:

@@ -23,7 +23,8 @@ import urllib.parse
 from collections.abc import Sequence
 from typing import Any, cast
 
-from edgerv.handler.payloads import ErrorBody, MonitorListing, MonitorReport
+from edgerv.handler.payloads import ErrorBody, HandoffRequest, MonitorListing, MonitorReport
+from edgerv.handler.token import Token, current
 
 
 class ApiError(Exception):
@@ -102,7 +103,7 @@ class HandlerClient:
 
     Not thread-safe: one client per thread (they are cheap)."""
 
-    def __init__(self, address: str, token: str | None) -> None:
+    def __init__(self, address: str, token: Token) -> None:
         self.base = address if "://" in address else f"http://{address}"
         self.token = token
         parts = urllib.parse.urlsplit(self.base)
@@ -147,8 +148,8 @@ class HandlerClient:
             "Content-Type": content_type
             or ("application/octet-stream" if raw is not None else "application/json")
         }
-        if self.token:
-            headers["Authorization"] = f"Bearer {self.token}"
+        if token := current(self.token):
+            headers["Authorization"] = f"Bearer {token}"
         for attempt in (1, 2):
             reused = self._conn is not None and self._conn.sock is not None
             conn = self._connection(timeout)
@@ -187,15 +188,25 @@ class HandlerClient:
         monitors: Sequence[str],
         timeout: float,
         check: bool = True,
-        **body: Any,
+        peer: str | None = None,
+        cuts: dict[str, int] | None = None,
+        quiet: dict[str, list[str]] | None = None,
+        grace: float | None = None,
+        wait: float | None = None,
     ) -> tuple[int, bytes]:
         """One step of a handoff (docs/protocol.md) for ``monitors`` under ``epoch``."""
-        return self.call(
-            f"/v1/handoff/{step}",
-            {"epoch": epoch, "monitors": list(monitors), **body},
-            check=check,
-            timeout=timeout,
-        )
+        request: HandoffRequest = {"epoch": epoch, "monitors": list(monitors)}
+        if peer is not None:
+            request["peer"] = peer
+        if cuts is not None:
+            request["cuts"] = cuts
+        if quiet is not None:
+            request["quiet"] = quiet
+        if grace is not None:
+            request["grace"] = grace
+        if wait is not None:
+            request["wait"] = wait
+        return self.call(f"/v1/handoff/{step}", request, check=check, timeout=timeout)
 
     # -- monitors -------------------------------------------------------------------------
 

@@ -125,13 +125,18 @@ class Engine(HandoffSteps):
         and automaton state start afresh; except a definition that differs only in its
         placement, given with the activity the monitor has here: that updates the
         placement, and the monitor runs on (or stays idle) with its state and counts
-        (the operator's tier edits).
+        (the operator's tier edits). A monitor in a handoff is not redefined (HandoffError:
+        that would restart it and lose the move): settle or abort the handoff first.
         """
         with self.lock:
             old = self.slots.get(compiled.name)
+            if old is not None and old.handoff is not None:
+                raise HandoffError(
+                    f"monitor '{compiled.name}' is in a handoff ({old.handoff}): settle or "
+                    "abort it first (edgerv migrate settles it)"
+                )
             if (
                 old is not None
-                and old.handoff is None
                 and old.active == active
                 and compiled.spec.placement != old.compiled.spec.placement
                 and dataclasses.replace(compiled.spec, placement=old.compiled.spec.placement)
@@ -143,7 +148,6 @@ class Engine(HandoffSteps):
                 self.router.remove(old.name)
             slot = MonitorSlot(compiled)
             self.slots[compiled.name] = slot
-            self.in_handoff.pop(compiled.name, None)
             if active:
                 self._activate(slot)
             self.routes_version += 1

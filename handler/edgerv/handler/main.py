@@ -31,6 +31,7 @@ from edgerv.core.spot_worker import add_budget_argument, worker
 from edgerv.handler.engine import Engine, VerdictSink
 from edgerv.handler.limits import Limits
 from edgerv.handler.sinks import VerdictLog
+from edgerv.handler.token import Token, TokenFile
 
 log = logging.getLogger("edgerv.handler")
 EXIT_INPUT = 2
@@ -79,18 +80,20 @@ def drain_limit(text: str) -> float:
     raise argparse.ArgumentTypeError(f"'{text}' is not a number of seconds from 0 to 86400")
 
 
-def read_token(args: argparse.Namespace) -> str | None:
-    """The shared control token: --token-file, else $EDGERV_TOKEN."""
+def read_token(args: argparse.Namespace) -> Token:
+    """The shared control token: --token-file (followed: read again when it changes, as a
+    rotated Kubernetes Secret does), else $EDGERV_TOKEN."""
     if args.token_file:
         try:
-            token = Path(args.token_file).read_text(encoding="utf-8").strip()
+            return TokenFile(args.token_file)
         except OSError as exc:
             raise InputError(
                 [Diagnostic(Location(args.token_file), f"cannot read the token: {exc.strerror}")]
             ) from None
-        if not token:
-            raise InputError([Diagnostic(Location(args.token_file), "the token file is empty")])
-        return token
+        except (ValueError, UnicodeDecodeError):
+            raise InputError(
+                [Diagnostic(Location(args.token_file), "the token file is empty or not text")]
+            ) from None
     return os.environ.get("EDGERV_TOKEN") or None
 
 

@@ -26,6 +26,7 @@ from typing import Any, TypeVar
 from edgerv.core.handoff import HandoffError, frame_sizes, unbundle
 from edgerv.handler.client import ApiError, HandlerClient, HttpError, Refused, Unreachable
 from edgerv.handler.handoff_steps import HANDOFF_EXPIRES
+from edgerv.handler.payloads import CutAnswer
 
 EXIT_CODES = """\
 exit codes:
@@ -88,9 +89,7 @@ UNAUTHORIZED = "not authorized"  # a handler that refuses the token: it acted on
 DOWN = "down"  # its port refuses connections: it runs nothing
 
 
-def _cut_answer(
-    side: HandlerClient, raw: bytes, names: Sequence[str]
-) -> tuple[dict[str, Any], Any]:
+def _cut_answer(side: HandlerClient, raw: bytes, names: Sequence[str]) -> CutAnswer:
     """The cut step's answer, checked: a cut (integer nanoseconds, or null: not yet) for
     every monitor asked about, and the topics it vouched for (lists of names)."""
     answer = side.json("the cut", raw)
@@ -106,7 +105,7 @@ def _cut_answer(
                    for q in quiet.values())
     ):  # fmt: skip
         raise MigrationFailed(f"{side.base} answered the cut with {raw[:200]!r}: not a cut")
-    return cuts, quiet
+    return CutAnswer(cuts=cuts, quiet=quiet)
 
 
 def _retry(deadline: float, call: Callable[[], T]) -> T:
@@ -221,8 +220,8 @@ def _migrate(
                 receiving.result()  # re-raises its error after the hold's
             mark("receive")
         while True:
-            cuts, quiet = _cut_answer(destination, step(destination, "cut")[1], names)
-            waiting = sorted(n for n, c in cuts.items() if c is None)
+            answer = _cut_answer(destination, step(destination, "cut")[1], names)
+            waiting = sorted(n for n, c in answer["cuts"].items() if c is None)
             if not waiting:
                 break
             if time.monotonic() > deadline:
@@ -233,11 +232,12 @@ def _migrate(
                 )
             time.sleep(0.005)
         mark("cut")
+        cuts = {n: c for n, c in answer["cuts"].items() if c is not None}  # all of them
         while True:
             # the sender waits for events past the cut itself (a round trip saved a try)
             wait = max(0.0, min(grace + 0.5, deadline - time.monotonic()))
             release = functools.partial(
-                step, source, "release", cuts=cuts, quiet=quiet, grace=grace, wait=wait
+                step, source, "release", cuts=cuts, quiet=answer["quiet"], grace=grace, wait=wait
             )
             status, bundle = _retry(deadline, release)
             if status == 200:

@@ -42,6 +42,7 @@ from edgerv.core.placement import (
 )
 from edgerv.handler.client import ApiError, HandlerClient
 from edgerv.handler.migrate import NotMoved, Unsettled, migrate, settle
+from edgerv.handler.token import Token
 
 log = logging.getLogger("edgerv.orchestrate")
 
@@ -165,7 +166,7 @@ class Orchestrator:
         self,
         targets: Sequence[Target],
         config: PolicyConfig,
-        token: str | None,
+        token: Token,
         timeout: float = 30.0,
         grace: float = 1.0,
         starts: bool = True,

@@ -7,7 +7,7 @@ docs/handler.md describes each field; these types are the one place both sides n
 
 from __future__ import annotations
 
-from typing import Any, TypedDict
+from typing import Any, NotRequired, TypedDict
 
 
 class LastVerdict(TypedDict):
@@ -67,3 +67,50 @@ class ErrorBody(TypedDict):
     """Every 4xx/5xx answer."""
 
     errors: list[ErrorItem]
+
+
+# -- the handoff's steps (docs/protocol.md) ------------------------------------------------
+
+
+class HandoffRequest(TypedDict):
+    """``POST /v1/handoff/{hold,receive,cut,release,commit,abort}``: one step for a batch
+    of monitors under one epoch (``adopt``'s body is the snapshots' bundle instead)."""
+
+    epoch: int
+    monitors: list[str]
+    peer: NotRequired[str]  # hold: the receiver's address, kept for settling
+    cuts: NotRequired[dict[str, int]]  # release: each monitor's cut, nanoseconds
+    quiet: NotRequired[dict[str, list[str]]]  # release: the topics the receiver vouched for
+    grace: NotRequired[float]  # release: seconds
+    wait: NotRequired[float]  # release: seconds it may wait for events past the cut
+
+
+class StepAnswer(TypedDict):
+    """``hold`` and ``receive``: the monitors it took (all of them, or a 409)."""
+
+    monitors: list[str]
+
+
+class CutAnswer(TypedDict):
+    """``cut``: each monitor's cut (None: not yet) and the topics it vouches for."""
+
+    cuts: dict[str, int | None]
+    quiet: dict[str, list[str]]
+
+
+class WaitingAnswer(TypedDict):
+    """``release`` answered 202: the monitors still waiting for events past the cut."""
+
+    waiting: list[str]
+
+
+class AdoptAnswer(TypedDict):
+    """``adopt``: the monitors now running here."""
+
+    active: list[str]
+
+
+class OutcomesAnswer(TypedDict):
+    """``commit`` and ``abort``: what each monitor's step did (Engine.commit, Engine.abort)."""
+
+    outcomes: dict[str, str]
