@@ -110,6 +110,30 @@ def startup(settings: kopf.OperatorSettings, memo: kopf.Memo, **_: Any) -> None:
     memo["edgerv"] = Operator(config, policy)
 
 
+STOP_SECONDS = 60.0  # how long a stopping operator waits for its move in progress
+
+
+@kopf.on.cleanup()
+def stopping(memo: kopf.Memo, **_: Any) -> None:
+    """Graceful shutdown: wait for a move in progress to end (it holds the moves' lock),
+    keep the lock so no other starts, and settle what a move left held (the handlers
+    asked afresh): the operator leaves no handoff unsettled. The chart's grace period
+    (75 s) covers the wait; past it, the next operator settles what is left."""
+    op = memo.get("edgerv")
+    if not isinstance(op, Operator):
+        return
+    if not op.moving.acquire(timeout=STOP_SECONDS):
+        log.warning("stopping with a move still running after %.0f s", STOP_SECONDS)
+        return
+    for pod in list(op.reports):
+        try:
+            op.reports[pod] = {m["name"]: m for m in op.client(pod).monitors(timeout=5.0)}
+        except ApiError as exc:
+            log.warning("stopping: %s did not list its monitors: %s", pod.node, exc)
+    settle_orphans(op, list(op.reports))
+    log.info("stopped: no move of this operator in progress")
+
+
 @kopf.on.login()
 def login(**kwargs: Any) -> kopf.ConnectionInfo | None:
     """In a pod: its service account; elsewhere: $KUBECONFIG as it is now."""

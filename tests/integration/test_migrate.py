@@ -83,11 +83,16 @@ def test_migrating_mid_stream_loses_and_repeats_nothing(tmp_path: Path, domain: 
         assert [m["active"] for m in listing["monitors"]] == [True, True]
         _, listing = cloud.request("GET", "/v1/monitors")
         assert [m["active"] for m in listing["monitors"]] == [False, False]
+        unevaluated = {  # what the handlers could not evaluate: said in a failure
+            f"{h.name} {metric}": h.metric(f"edgerv_{metric}_total", monitor="speed-limit")
+            for h in (edge, cloud)
+            for metric in ("late_events", "events_dropped")
+        }
     finally:
         assert edge.stop() == 0, edge.stderr
         assert cloud.stop() == 0, cloud.stderr
     live, offline = live_verdicts(edge, cloud), offline_verdicts(monitors, trace)
-    assert live == offline
+    assert live == offline, (unevaluated, there.stderr, back.stderr, edge.stderr, cloud.stderr)
     assert any(v["monitor"] == "speed-limit" for v in cloud.verdicts()), "cloud ran it"
 
 

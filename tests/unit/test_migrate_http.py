@@ -403,3 +403,40 @@ def test_an_operator_that_restarts_mid_handoff_settles_it(
     assert pair.edge.slots["m"].handoff is None and pair.cloud.slots["m"].handoff is None
     settle_orphans(op, [edge])  # stale reports: it lists afresh, nothing to do
     assert pair.active() == [runs_on]
+
+
+def test_a_stopping_operator_ends_its_move_and_settles_what_it_left(pair: Pair) -> None:
+    """Graceful shutdown (Kopf's cleanup): it waits for the move in progress (the moves'
+    lock), keeps the lock so no other starts, and settles a handoff left held, asking the
+    handlers afresh (its last survey predates it)."""
+    import kopf
+
+    from edgerv.core.placement import PolicyConfig
+    from edgerv.handler.orchestrate import Orchestrator
+    from edgerv_operator.config import OperatorConfig
+    from edgerv_operator.documents import HandlerPod
+    from edgerv_operator.handlers import Operator, stopping
+
+    def partition() -> None:
+        pair.gate.mode = "black"
+
+    with pytest.raises(Unsettled):
+        migrate(pair.source(), pair.destination(), ["m"], 0.5, 0.5, after_release=partition)
+    pair.gate.mode = "pass"
+    config = OperatorConfig("ns", "a=b", pair.apis[0].port, TOKEN, ("edge", "cloud"))
+    op = Operator(config, Orchestrator([], PolicyConfig(tiers=config.tiers), TOKEN, starts=False))
+    op.reports = {HandlerPod("edge", "edge", f"127.0.0.1:{pair.apis[0].port}", "edge-pod"): {}}
+    op.moving.acquire()  # a move in progress, ending in 0.5 s
+    ended = threading.Event()
+
+    def move() -> None:
+        time.sleep(0.5)
+        ended.set()
+        op.moving.release()
+
+    threading.Thread(target=move, daemon=True).start()
+    memo = kopf.Memo()
+    memo["edgerv"] = op
+    stopping(memo=memo)
+    assert ended.is_set() and op.moving.locked()  # it waited, and holds the lock
+    assert pair.active() == ["edge"] and pair.edge.slots["m"].handoff is None

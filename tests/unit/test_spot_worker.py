@@ -4,6 +4,7 @@ monitor refused; the next one is built by a new child."""
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 
@@ -63,3 +64,52 @@ def test_a_monitor_over_budget_is_refused_at_its_assertion() -> None:
     text = str(info.value)
     assert "test.yaml:6:" in text and "took more than 0.5 s" in text, text
     assert compiled("always (a -> X[3] b)", SIGNALS).table.live > 1  # the next one builds
+
+
+EXITS = r"""
+import asyncio, os, signal, sys
+from edgerv.core.spot_worker import worker
+
+async def main() -> None:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    loop.add_signal_handler(signal.SIGTERM, stop.set)  # as Kopf's reactor does
+    loop.add_signal_handler(signal.SIGUSR1, lambda: print("woken", flush=True))
+    # a call forks the worker from an executor thread, as a sync Kopf handler does
+    assert await loop.run_in_executor(None, worker.call, os.getpid) != os.getpid()
+    print(worker._child.pid, flush=True)
+    os.kill(worker._child.pid, signal.SIGUSR1)  # the child's signal must not wake us
+    await asyncio.sleep(0.5)
+    print("ready", flush=True)
+    await stop.wait()
+
+asyncio.run(main())
+print("exiting", flush=True)  # then multiprocessing terminates and joins the child
+"""
+
+
+def test_a_process_with_an_event_loop_exits_though_it_forked_the_worker() -> None:
+    """The operator's exit hung forever (found on the cluster: its pods took the whole
+    grace period to go): the worker, forked from under Kopf's event loop, inherited the
+    loop's signal handling and ignored the SIGTERM multiprocessing ends it with at exit."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen(
+        [sys.executable, "-c", EXITS], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    child = 0
+    try:
+        assert proc.stdout is not None
+        child = int(proc.stdout.readline() or 0)
+        assert proc.stdout.readline() == "ready\n"  # not "woken": the child's signal
+        os.kill(proc.pid, signal.SIGTERM)
+        out, err = proc.communicate(timeout=20)  # the worker ended: the pipes close
+    finally:
+        proc.kill()
+        if child:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(child, signal.SIGKILL)  # else it would keep our pipes open
+    assert proc.returncode == 0 and out == "exiting\n", (out, err)

@@ -59,6 +59,12 @@ def _serve(conn: Connection, parents: Connection) -> None:
     """The child: answer calls until the pipe closes (the parent's end, inherited, is
     closed here: else the child would hold it open and never see the parent go)."""
     parents.close()
+    # Forked from a process whose asyncio loop handles signals (the operator under Kopf,
+    # the handler's API), the child inherits that loop's no-op handler and wakeup fd: it
+    # would ignore SIGTERM (multiprocessing terminates daemon children at exit, then
+    # waits for them: the parent never exits) and a signal here would wake the parent.
+    signal.set_wakeup_fd(-1)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     while True:
         try:
