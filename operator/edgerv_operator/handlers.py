@@ -3,7 +3,8 @@
 
 A Monitor resource is defined on every handler of the cluster (the pods of the
 chart's DaemonSet, one per node, host networking) and runs on one: where it runs
-already, else a handler of its ``placement.tier``, else of the lowest tier. What
+already, else a ready handler of its home tier (``placement.tier``, default the
+lowest), else of the nearest tier above (:func:`~edgerv_operator.placement.choose`). What
 the operator keeps between calls lives in Kopf's ``memo`` (an :class:`Operator`);
 the handler pods and the nodes' tiers come from Kopf indexes, kept by watching.
 
@@ -403,8 +404,11 @@ def place(
         running = [p for p, r in reports.items() if r and r.get("active")]
         target = running[0] if running else choose(ready, tier_of(spec), op.config.tiers)
         if target is None:
+            home = tier_of(spec) if tier_of(spec) in op.config.tiers else op.config.tiers[0]
             raise kopf.TemporaryError(
-                f"no handler runs on a node of the tiers {','.join(op.config.tiers)}", delay=30
+                f"no handler of tier {home} or above is ready (tiers, lowest first: "
+                f"{','.join(op.config.tiers)}): it starts when one is",
+                delay=15,
             )
         for p in sorted(ready, key=lambda p: p == target):  # idle everywhere first, then run
             if redefine or reports[p] is None:

@@ -24,12 +24,14 @@ def _ranked(handlers: Sequence[HandlerPod], tiers: Sequence[str]) -> list[Handle
 def choose(
     handlers: Sequence[HandlerPod], tier: str | None, tiers: Sequence[str]
 ) -> HandlerPod | None:
-    """Where a monitor starts: a handler of its ``placement.tier``, else of the lowest tier."""
-    ranked = _ranked(handlers, tiers)
-    for h in ranked:
-        if h.tier == tier:
-            return h
-    return ranked[0] if ranked else None
+    """Where a monitor starts, as the placement policy starts one: on its home tier
+    (``placement.tier``; the lowest tier when it names none or one not in ``tiers``),
+    else on the nearest tier above that has a handler among ``handlers`` (the ready
+    ones: its home tier's may still be starting; the policy brings it back down when
+    that handler is calm). Never below its home tier: None when none is found."""
+    home = tiers.index(tier) if tier in tiers else 0
+    above = [h for h in _ranked(handlers, tiers) if tiers.index(h.tier or "") >= home]
+    return above[0] if above else None
 
 
 def tier_of(spec: Mapping[str, Any] | None) -> str | None:

@@ -85,6 +85,18 @@ def install(cluster: Cluster, release: str, ns: str, *values: str) -> None:
         args += ["--set-string", f"handler.extraEnv.{key}={value}"]
     done = subprocess.run(args, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr + cluster.run("get", "pods", "-n", ns, "-o", "wide")
+    # helm's --wait takes a DaemonSet with all but maxUnavailable (1) of its pods Ready:
+    # the tests place monitors by tier, so every handler must be up
+    code, out, err = cluster.attempt(
+        "rollout",
+        "status",
+        f"daemonset/{release}-handler",
+        "-n",
+        ns,
+        "--timeout=240s",
+        timeout=260,
+    )
+    assert code == 0, out + err + cluster.run("get", "pods", "-n", ns, "-o", "wide")
 
 
 @pytest.fixture(scope="module")
@@ -231,7 +243,8 @@ def test_a_monitor_applied_runs_on_the_edge_and_reports_its_verdicts(
         ),
         timeout=180,
     )
-    assert got["phase"] == "Running" and got["tier"] == "edge", got
+    story = [(e["reason"], e["message"]) for e in events_of(cluster, namespace, "speed-limit")]
+    assert got["phase"] == "Running" and got["tier"] == "edge", (got, story)
     table = cluster.run("get", "monitors", "-n", namespace)
     assert "speed-limit" in table and "Running" in table
     path = f"/v1/monitors/{namespace}.speed-limit"

@@ -83,15 +83,16 @@ def test_problems_name_the_field(change: dict[str, Any], message: str) -> None:
     assert any(p.startswith(message) for p in found), found
 
 
-def test_a_monitor_starts_on_its_tier_else_on_the_lowest() -> None:
+def test_a_monitor_starts_on_its_tier_else_on_the_nearest_above() -> None:
     edge = HandlerPod("n1", "edge", "10.0.0.1:8470")
     cloud = HandlerPod("n2", "cloud", "10.0.0.2:8470")
     stray = HandlerPod("n3", None, "10.0.0.3:8470")
     tiers = ("edge", "cloud")
     assert choose([stray, cloud, edge], "cloud", tiers) == cloud
     assert choose([stray, cloud, edge], None, tiers) == edge
-    assert choose([stray, cloud, edge], "fog", tiers) == edge
-    assert choose([stray, cloud], None, tiers) == cloud
+    assert choose([stray, cloud, edge], "fog", tiers) == edge  # not a tier: the lowest
+    assert choose([stray, cloud], None, tiers) == cloud  # the edge's handler is starting
+    assert choose([stray, edge], "cloud", tiers) is None  # never below its home: it waits
     assert choose([stray], None, tiers) is None
 
 
