@@ -1,6 +1,8 @@
 """The ``edgerv`` command line.
 
-Exit codes: 0 no monitor violated, 1 a monitor was violated, 2 bad input.
+Exit codes: 0 no monitor violated, 1 a monitor was violated, 2 bad input (for
+``check`` also: no message of any monitored topic read, or with ``--strict`` a
+monitored topic without a message).
 """
 
 from __future__ import annotations
@@ -53,19 +55,23 @@ def _emit(results: list[MonitorResult], as_json: bool) -> None:
 
 def cmd_check(args: argparse.Namespace) -> int:
     worker.budget = args.synthesis_budget
-    try:
-        monitors = load_compiled(args.monitors)
-        run = CheckRun(monitors)
-        trace = Trace(Path(args.trace))
-        total = trace.inspect(run.topics)
-        type_errors = check_types(monitors, trace.msgtypes)
-        if type_errors:
-            raise InputError(type_errors)
-    except InputError as exc:
-        _report(exc.diagnostics)
-        return EXIT_INPUT
-    with _collecting_little():
-        return _check(args, run, trace, total)
+    trace = Trace(Path(args.trace))
+    try:  # the process may end without its teardown: the trace's temporary files go here
+        try:
+            trace.open()  # first: a bag's own message definitions serve the monitors' types
+            monitors = load_compiled(args.monitors)
+            run = CheckRun(monitors)
+            total = trace.inspect(run.topics)
+            type_errors = check_types(monitors, trace.msgtypes)
+            if type_errors:
+                raise InputError(type_errors)
+        except InputError as exc:
+            _report(exc.diagnostics)
+            return EXIT_INPUT
+        with _collecting_little():
+            return _check(args, run, trace, total)
+    finally:
+        trace.close()
 
 
 @contextlib.contextmanager
@@ -106,6 +112,21 @@ def _check(args: argparse.Namespace, run: CheckRun, trace: Trace, total: int) ->
         return EXIT_INPUT
     results = run.finish(trace.end)
     _emit(results, args.json)
+    unread = trace.unread(run.readers())
+    _report(unread)
+    if not any(trace.counts.values()):  # a verification tool never passes having read nothing
+        print(
+            f"edgerv: error: no message of any monitored topic was read from {args.trace}: "
+            "nothing was checked",
+            file=sys.stderr,
+        )
+        return EXIT_INPUT
+    if unread and args.strict:
+        print(
+            f"edgerv: error: --strict: {len(unread)} monitored topic(s) had no message",
+            file=sys.stderr,
+        )
+        return EXIT_INPUT
     return (
         EXIT_VIOLATED
         if any(v.verdict == "violated" for r in results for v in r.verdicts)
@@ -134,6 +155,11 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     )
     check.add_argument("--json", action="store_true", help="print the verdicts as JSON")
     check.add_argument("--no-progress", action="store_true", help="no progress bar")
+    check.add_argument(
+        "--strict",
+        action="store_true",
+        help="exit 2 when a monitored topic has no message in the trace (else a warning)",
+    )
     add_budget_argument(check)
     check.set_defaults(func=cmd_check)
     if command == "check":

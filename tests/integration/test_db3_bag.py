@@ -21,15 +21,7 @@ import pytest
 pytestmark = pytest.mark.integration
 
 import rclpy.serialization as rclpy_serialization  # noqa: E402  (real ROS 2 is installed)
-from test_cli import MONITORS, RUN, write_jsonl  # noqa: E402  (tests/unit: see conftest.py)
-
-TYPES = {
-    "/running": "std_msgs/msg/Bool",
-    "/stop": "std_msgs/msg/Bool",
-    "/speed": "std_msgs/msg/Float64",
-    "/target": "geometry_msgs/msg/PointStamped",
-    "/ignored": "std_msgs/msg/String",
-}
+from test_cli import MONITORS, RUN, TYPES, write_jsonl  # noqa: E402  (tests/unit: see conftest.py)
 
 
 def ros_message(msg_type: str, fields: dict[str, Any]) -> Any:

@@ -62,6 +62,13 @@ class CheckRun:
     def topics(self) -> set[str]:
         return set(self.router.routes)
 
+    def readers(self) -> dict[str, list[str]]:
+        """Each monitored topic, and the monitors reading it."""
+        return {
+            topic: [runtime.name for runtime, _ in route.readers]
+            for topic, route in self.router.routes.items()
+        }
+
     def feed(self, events: Iterable[TraceEvent]) -> None:
         """Check these events, a chunk at a time (a trace's own chunks when they come from
         :meth:`Trace.events`)."""

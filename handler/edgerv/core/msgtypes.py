@@ -119,6 +119,33 @@ def ensure_type(msg_type: str) -> bool:
     return True
 
 
+def register_definition(msg_type: str, encoding: str, text: str) -> bool:
+    """Make known the types that a bag's own definition of ``msg_type`` describes (an
+    MCAP schema, a row of rosbag2's ``message_definitions``: ``ros2msg`` text with its
+    dependencies after ``MSG:`` lines, or ``ros2idl``), those not known already:
+    installed definitions come first. False when the text cannot be read (a service
+    event's, an encoding not known): the type stays unknown unless installed."""
+    from rosbags.typesys import get_types_from_idl, get_types_from_msg
+
+    try:
+        if encoding == "ros2msg":
+            types = dict(get_types_from_msg(text, normalize_type(msg_type)))
+        elif encoding == "ros2idl":
+            sep = "=" * 80 + "\n"
+            parts = text.split(sep)[1:] if text.startswith(f"{sep}IDL: ") else [f"\n{text}"]
+            types = {}
+            for part in parts:
+                types.update(get_types_from_idl(part.split("\n", 1)[1]))
+        else:
+            return False
+    except Exception:  # rosbags reports what it cannot parse with several types
+        return False
+    store = typestore()
+    with _REGISTER:
+        store.register({k: v for k, v in types.items() if k not in store.fielddefs})
+    return True
+
+
 def starts_with_header(msg_type: str) -> bool:
     """``msg_type``'s first field is a ``std_msgs/msg/Header`` named ``header`` (so a CDR
     payload starts with its stamp: int32 sec, uint32 nanosec). False for a type not known."""

@@ -12,17 +12,20 @@ handler: a message's own header stamp, else when it was published).
 from __future__ import annotations
 
 import contextlib
+import difflib
 import itertools
 import json
-from collections.abc import Callable, Collection, Iterable, Iterator
+from collections import Counter
+from collections.abc import Callable, Collection, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from itertools import islice, repeat
 from operator import contains, itemgetter
 from pathlib import Path
 from typing import Any, BinaryIO, cast
 
+from edgerv.core.bags import Bag, BagError, looks_like_bag
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
-from edgerv.core.msgtypes import typestore
+from edgerv.core.msgtypes import register_definition, typestore
 from edgerv.core.pipeline import header_stamp
 
 Progress = Callable[[int], None]  # advance by n units (bytes or messages)
@@ -159,8 +162,11 @@ class Trace:
 
     def __init__(self, path: Path) -> None:
         self.path = path
-        self.is_bag = path.is_dir() or path.suffix in (".mcap", ".db3", ".bag")
+        self.is_bag = looks_like_bag(path)
+        self.bag: Bag | None = None  # opened by :meth:`open`
         self.msgtypes: dict[str, str] = {}  # topic -> message type, for bags
+        self.counts: Counter[str] = Counter()  # events read, per monitored topic
+        self.others: set[str] = set()  # JSON Lines: the topics seen that no monitor reads
         # The latest time the trace shows as passed: the largest stamp of any of its
         # events, read or not (a bag: also its last message's log time). Monitors with
         # timed atoms take their clock steps up to it at the end of a check.
@@ -206,9 +212,11 @@ class Trace:
                     lineno = self._read_lines(chunk, lineno, data, topics)
                 except InputError:  # a bad line: the events before it are still checked
                     if len(chunk):
+                        self.counts.update(chunk.topics)
                         yield chunk
                     raise
                 if len(chunk):
+                    self.counts.update(chunk.topics)
                     yield chunk
 
     def _read_lines(
@@ -252,12 +260,14 @@ class Trace:
             self.end = latest
             try:
                 if record is not _UNREAD:
-                    event = _record_event(path, lineno + i, line, record, topics, self._saw)
+                    event = _record_event(
+                        path, lineno + i, line, record, topics, self._saw, self.others
+                    )
                 else:
                     raws = data.split(b"\n") if raws is None else raws
                     if not raws[i].strip():
                         continue
-                    event = _jsonl_event(path, lineno + i, raws[i], topics, self._saw)
+                    event = _jsonl_event(path, lineno + i, raws[i], topics, self._saw, self.others)
             finally:
                 latest = self.end
             if event is not None:
@@ -305,49 +315,96 @@ class Trace:
 
     # -- rosbag2 -----------------------------------------------------------------------------
 
-    def _bag_chunks(
-        self, topics: Collection[str], progress: Progress | None
-    ) -> Iterator[EventChunk]:
-        from rosbags.highlevel import AnyReader
-
-        path = str(self.path)
+    def open(self) -> None:
+        """Open a bag's index: its topics and their types (``msgtypes``), and the message
+        definitions it carries made known (types not installed). Nothing for JSON Lines."""
+        if not self.path.exists():
+            raise InputError([Diagnostic(Location(str(self.path)), "no such file or directory")])
+        if not self.is_bag or self.bag is not None:
+            return
         try:
-            reader = AnyReader([self._bag_target()], default_typestore=typestore())
-            reader.open()
-        except Exception as exc:  # rosbags raises several error types for unreadable bags
+            self.bag = Bag(self.path)
+        except BagError as exc:
+            raise InputError(
+                [Diagnostic(Location(str(self.path)), f"cannot read bag: {exc}", hint=exc.hint)]
+            ) from None
+        for topic in self.bag.topics.values():
+            self.msgtypes[topic.name] = topic.msgtype
+            if topic.definition is not None:
+                register_definition(topic.msgtype, *topic.definition)
+        if self.bag.end is not None:
+            self._saw(self.bag.end)
+
+    def close(self) -> None:
+        """Remove what reading made on disk (a compressed bag's decompressed copy)."""
+        if self.bag is not None:
+            self.bag.close()
+
+    def inspect(self, topics: Collection[str]) -> int:
+        """Open the trace (:meth:`open`); return the progress total: bytes for a JSON trace,
+        the monitored messages for a bag (0 when its index does not say: a damaged file).
+        A monitored topic that a bag records in another serialization than CDR is an error."""
+        self.open()
+        if self.bag is None:
+            return self.path.stat().st_size
+        found = [self.bag.topics[t] for t in topics if t in self.bag.topics]
+        foreign = [t for t in found if t.serialization != "cdr"]
+        if foreign:
             raise InputError(
                 [
                     Diagnostic(
-                        Location(path),
-                        f"cannot read bag: {exc}",
-                        hint="give a rosbag2 directory, .mcap or .db3 file",
+                        Location(str(self.path)),
+                        f"{t.name} is recorded in the '{t.serialization}' serialization; "
+                        "edgerv reads ROS 2's CDR",
+                        hint="convert the bag with `ros2 bag convert`, or monitor other topics",
                     )
+                    for t in foreign
                 ]
-            ) from None
+            )
+        counts = [t.count for t in found]
+        return 0 if None in counts else sum(c for c in counts if c is not None)
+
+    def _bag_chunks(
+        self, topics: Collection[str], progress: Progress | None
+    ) -> Iterator[EventChunk]:
+        self.inspect(topics)
+        bag = self.bag
+        assert bag is not None
+        path = str(self.path)
+        types = {t: bag.topics[t].msgtype for t in topics if t in bag.topics}
+        deserialize = typestore().deserialize_cdr
         chunk = EventChunk(path)
+        index = 0
         try:
-            self._saw(reader.end_time - 1)  # rosbags: the instant after the last message
-            conns = [c for c in reader.connections if c.topic in topics]
-            index = 0
-            messages = reader.messages(connections=conns)
+            messages = bag.messages(types)
             while True:
                 try:
-                    conn, log_time, raw = next(messages)
-                    msg = reader.deserialize(raw, conn.msgtype)
+                    topic, log_time, raw = next(messages)
                 except StopIteration:
                     break
-                except Exception as exc:
+                except BagError as exc:
                     where = Location(path, index + 1) if index else Location(path)
                     raise InputError(
                         [
                             Diagnostic(
-                                where,
-                                f"bag is damaged after message {index}: {exc}",
-                                hint="verdicts above cover the messages before it",
+                                where, f"bag is damaged after message {index}: {exc}", hint=exc.hint
                             )
                         ]
                     ) from None
                 index += 1
+                try:
+                    msg = deserialize(raw, types[topic])
+                except Exception as exc:
+                    raise InputError(
+                        [
+                            Diagnostic(
+                                Location(path, index),
+                                f"message {index} on {topic} cannot be read as "
+                                f"{types[topic]}: {exc}",
+                                hint="verdicts above cover the messages before it",
+                            )
+                        ]
+                    ) from None
                 if progress:
                     progress(1)
                 stamp = log_time if (stamp := header_stamp(msg)) is None else stamp
@@ -356,61 +413,78 @@ class Trace:
                         [
                             Diagnostic(
                                 Location(path, index),
-                                f"message {index} on {conn.topic} is stamped {stamp} ns, "
+                                f"message {index} on {topic} is stamped {stamp} ns, "
                                 "out of the range of 64-bit nanoseconds",
                             )
                         ]
                     )
                 self._saw(stamp)
-                chunk.topics.append(conn.topic)
+                chunk.topics.append(topic)
                 chunk.stamps.append(stamp)
                 chunk.msgs.append(msg)
                 chunk.places.append(index)
                 if len(chunk) >= CHUNK_EVENTS:
+                    self.counts.update(chunk.topics)
                     yield chunk
                     chunk = EventChunk(path)
             if len(chunk):
+                self.counts.update(chunk.topics)
                 yield chunk
         except InputError:  # a damaged bag: the messages before it are still checked
             if len(chunk):
+                self.counts.update(chunk.topics)
                 yield chunk
             raise
-        finally:
-            reader.close()
 
-    def inspect(self, topics: Collection[str]) -> int:
-        """Read a bag's index (its topics' types into ``msgtypes``); return the progress total:
-        bytes for a JSON trace, monitored messages for a bag."""
-        if not self.path.exists():
-            raise InputError([Diagnostic(Location(str(self.path)), "no such file or directory")])
-        if not self.is_bag:
-            return self.path.stat().st_size
-        from rosbags.highlevel import AnyReader
+    # -- what was read -------------------------------------------------------------------------
 
-        try:
-            with AnyReader([self._bag_target()], default_typestore=typestore()) as reader:
-                self.msgtypes = {c.topic: c.msgtype for c in reader.connections}
-                total: int = sum(c.msgcount for c in reader.connections if c.topic in topics)
-        except Exception as exc:  # rosbags raises several error types for unreadable bags
-            raise InputError(
-                [
-                    Diagnostic(
-                        Location(str(self.path)),
-                        f"cannot read bag: {exc}",
-                        hint="give a rosbag2 directory, or its .mcap or .db3 file",
-                    )
-                ]
-            ) from None
-        return total
+    def unread(self, readers: Mapping[str, Collection[str]]) -> list[Diagnostic]:
+        """A warning for each monitored topic (``readers``: topic -> the monitors reading
+        it) of which no event was read, saying what the trace has instead."""
+        out = []
+        for topic in sorted(readers):
+            if self.counts[topic]:
+                continue
+            names = ", ".join(sorted(readers[topic]))
+            out.append(
+                Diagnostic(
+                    Location(str(self.path)),
+                    f"no message on {topic} was read (monitors reading it: {names})",
+                    severity="warning",
+                    hint=self._instead(topic),
+                )
+            )
+        return out
 
-    def _bag_target(self) -> Path:
-        if self.path.suffix == ".db3" and (self.path.parent / "metadata.yaml").exists():
-            return self.path.parent  # a sqlite3 bag is read through its directory
-        return self.path
+    def _instead(self, topic: str) -> str:
+        if self.bag is not None:
+            recorded = self.bag.topics.get(topic)
+            if recorded is not None:
+                return (
+                    f"the bag records {topic} as {recorded.msgtype} with no message on it"
+                    if not recorded.count
+                    else f"the bag has {recorded.count} messages on {topic}, none read: "
+                    "please report this bag"
+                )
+            have = {t.name: t.msgtype for t in self.bag.topics.values()}
+        else:
+            have = {t: "" for t in self.others}
+        if not have:
+            return "the trace holds no message of any topic"
+        close = difflib.get_close_matches(topic, list(have), n=3, cutoff=0.6)
+        shown = close or sorted(have)[:8]
+        listed = ", ".join(f"{t} ({have[t]})" if have[t] else t for t in shown)
+        more = "" if close or len(have) <= 8 else f" and {len(have) - 8} more"
+        return ("it has " if close else "it has no such topic; it has ") + listed + more
 
 
 def _jsonl_event(
-    path: str, lineno: int, raw: bytes, topics: Collection[str], saw: Callable[[int], None]
+    path: str,
+    lineno: int,
+    raw: bytes,
+    topics: Collection[str],
+    saw: Callable[[int], None],
+    others: set[str] | None = None,
 ) -> TraceEvent | None:
     """One line read with care: the event, None for a topic not read, or the located error."""
     text = raw.decode("utf-8", errors="replace").rstrip("\r\n")
@@ -424,7 +498,7 @@ def _jsonl_event(
         raise _bad_line(
             path, lineno, text, "nested too deep to read (a message has a few levels)"
         ) from None
-    return _record_event(path, lineno, text, record, topics, saw)
+    return _record_event(path, lineno, text, record, topics, saw, others)
 
 
 def _bad_line(
@@ -441,8 +515,10 @@ def _record_event(
     record: Any,
     topics: Collection[str],
     saw: Callable[[int], None],
+    others: set[str] | None = None,
 ) -> TraceEvent | None:
-    """The event a parsed line holds, None for a topic not read, or the located error."""
+    """The event a parsed line holds, None for a topic not read (added to ``others``), or
+    the located error."""
 
     def fail(message: str) -> InputError:
         return _bad_line(path, lineno, text, message)
@@ -453,6 +529,8 @@ def _record_event(
     if not isinstance(topic, str):
         raise fail("missing 'topic' (a string such as \"/speed\")")
     if topic not in topics:  # not read, but it shows that time passed
+        if others is not None:
+            others.add(topic)
         other = record.get("msg")
         shown = header_stamp(other) if isinstance(other, dict) else None
         shown = record.get("stamp") if shown is None else shown

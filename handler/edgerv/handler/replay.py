@@ -62,8 +62,11 @@ def run(args: argparse.Namespace) -> int:
         specs = load_monitors(args.monitors)
         types = {s.topic: s.msg_type for spec in specs for s in spec.signals.values()}
         trace = Trace(Path(args.trace))
-        trace.inspect(types)
-        events = sorted(trace.events(types), key=lambda e: e.stamp)
+        try:
+            trace.inspect(types)
+            events = sorted(trace.events(types), key=lambda e: e.stamp)
+        finally:
+            trace.close()
     except InputError as exc:
         print(exc, file=sys.stderr)
         return 2
