@@ -76,12 +76,14 @@ def main() -> list[dict[str, Any]]:
         mcap = write_mcap(Path(tmp) / "run.mcap", rows)
         for label, path in (("JSON Lines", jsonl), ("MCAP bag", mcap)):
 
+            fields = CheckRun(monitors).fields()  # a bag's fields read as `edgerv check` does
+
             def bare(path: Path = path) -> int:
-                return sum(1 for _ in Trace(path).events(topics))
+                return sum(map(len, Trace(path).events(topics, fields=fields).chunks()))
 
             def check(path: Path = path) -> int:
                 run = CheckRun(monitors)
-                run.feed(Trace(path).events(run.topics))
+                run.feed(Trace(path).events(run.topics, fields=fields))
                 return sum(len(r.verdicts) for r in run.finish())
 
             t_bare, n = timed(bare)

@@ -98,9 +98,9 @@ def _check(args: argparse.Namespace, run: CheckRun, trace: Trace, total: int) ->
 
             with Progress(transient=True) as bar:
                 task = bar.add_task(f"checking {args.trace}", total=total)
-                run.feed(trace.events(run.topics, lambda n: bar.advance(task, n)))
+                run.feed(trace.events(run.topics, lambda n: bar.advance(task, n), run.fields()))
         else:
-            run.feed(trace.events(run.topics))
+            run.feed(trace.events(run.topics, fields=run.fields()))
     except InputError as exc:
         _emit(run.finish(trace.end), args.json)
         _report(exc.diagnostics)

@@ -478,3 +478,24 @@ def test_a_ros1_bag_is_refused_with_the_way_to_convert_it(monitors: Path, tmp_pa
     bag.write_bytes(b"#ROSBAG V2.0\n")
     code, _, err = check(monitors, bag)
     assert code == 2 and "rosbags-convert" in err
+
+
+def test_fields_read_from_cdr_give_what_decoded_messages_give(tmp_path: Path) -> None:
+    """`edgerv check` reads a bag's fields straight from CDR (the live handler's readers);
+    decoding whole messages (rosbags) gives the same verdicts, header stamps included."""
+    from edgerv.core.checker import CheckRun
+    from edgerv.core.documents import load_monitors_text
+    from edgerv.core.monitor import compile_monitor
+    from edgerv.core.traces import Trace
+
+    monitors = [compile_monitor(s) for s in load_monitors_text("m.yaml", MONITORS)]
+    bag = write_mcap(tmp_path / "run.mcap", RUN)
+
+    def verdicts(cdr: bool) -> list[list[tuple[str, int, int]]]:
+        run = CheckRun(monitors)
+        trace = Trace(bag)
+        run.feed(trace.events(run.topics, fields=run.fields() if cdr else None))
+        return [[(v.verdict, v.stamp, v.step) for v in r.verdicts] for r in run.finish(trace.end)]
+
+    assert verdicts(cdr=True) == verdicts(cdr=False)
+    assert verdicts(cdr=True)[1] == [("satisfied", 145, 2)]  # /target's header stamp

@@ -62,6 +62,10 @@ class CheckRun:
     def topics(self) -> set[str]:
         return set(self.router.routes)
 
+    def fields(self) -> dict[str, list[str]]:
+        """Each monitored topic's fields, as its route reads them (in its values' order)."""
+        return {topic: list(route.fields) for topic, route in self.router.routes.items()}
+
     def readers(self) -> dict[str, list[str]]:
         """Each monitored topic, and the monitors reading it."""
         return {
@@ -82,7 +86,12 @@ class CheckRun:
         A message that lacks a field or holds a value of another kind sends the chunk
         through :meth:`_feed_events`, which stops at it with its place."""
         columns: dict[str, tuple[list[int], list[list[Any]]]] = {}
+        rows = chunk.rows
         for topic, indexes in _indexes_by_topic(chunk.topics, self.router.routes).items():
+            if rows is not None:  # read from CDR by the topic's fields: of their types
+                mine = map(rows.__getitem__, indexes)
+                columns[topic] = (indexes, list(map(list, zip(*mine, strict=True))))
+                continue
             msgs = list(map(chunk.msgs.__getitem__, indexes))
             values = self.router.routes[topic].extract_all(msgs, chunk.parsed_json)
             if values is None:

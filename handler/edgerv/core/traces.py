@@ -16,7 +16,7 @@ import difflib
 import itertools
 import json
 from collections import Counter
-from collections.abc import Callable, Collection, Iterable, Iterator, Mapping
+from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import islice, repeat
 from operator import contains, itemgetter
@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, BinaryIO, cast
 
 from edgerv.core.bags import Bag, BagError, looks_like_bag
+from edgerv.core.cdr import compile_reader
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
 from edgerv.core.msgtypes import register_definition, typestore
 from edgerv.core.pipeline import header_stamp
@@ -66,6 +67,9 @@ class EventChunk:
     places: list[int] = field(default_factory=list)  # lines of a JSON trace, indexes in a bag
     locations: list[Location] | None = None  # given instead of path and places
     parsed_json: bool = False  # the messages are what json.loads gives (dicts, lists, ...)
+    # each message's field values already read (a bag's, by its topic's fields: see
+    # Trace.events), its msgs then the raw bytes
+    rows: list[list[Any]] | None = None
 
     def __len__(self) -> int:
         return len(self.stamps)
@@ -176,9 +180,17 @@ class Trace:
         if self.end is None or stamp > self.end:
             self.end = stamp
 
-    def events(self, topics: Collection[str], progress: Progress | None = None) -> TraceEvents:
+    def events(
+        self,
+        topics: Collection[str],
+        progress: Progress | None = None,
+        fields: Mapping[str, Sequence[str]] | None = None,
+    ) -> TraceEvents:
+        """The events of ``topics``. ``fields``: for a bag, each topic's fields to read
+        straight from its CDR bytes (the live handler's readers, :mod:`edgerv.core.cdr`)
+        into the chunks' ``rows``, instead of decoding whole messages into ``msgs``."""
         if self.is_bag:
-            return TraceEvents(self._bag_chunks(topics, progress))
+            return TraceEvents(self._bag_chunks(topics, progress, fields))
         return TraceEvents(self._jsonl_chunks(topics, progress))
 
     # -- JSON Lines --------------------------------------------------------------------------
@@ -365,7 +377,10 @@ class Trace:
         return 0 if None in counts else sum(c for c in counts if c is not None)
 
     def _bag_chunks(
-        self, topics: Collection[str], progress: Progress | None
+        self,
+        topics: Collection[str],
+        progress: Progress | None,
+        fields: Mapping[str, Sequence[str]] | None = None,
     ) -> Iterator[EventChunk]:
         self.inspect(topics)
         bag = self.bag
@@ -373,7 +388,10 @@ class Trace:
         path = str(self.path)
         types = {t: bag.topics[t].msgtype for t in topics if t in bag.topics}
         deserialize = typestore().deserialize_cdr
-        chunk = EventChunk(path)
+        readers = (
+            None if fields is None else {t: compile_reader(m, fields[t]) for t, m in types.items()}
+        )
+        chunk = EventChunk(path, rows=None if readers is None else [])
         index = 0
         try:
             messages = bag.messages(types)
@@ -393,7 +411,12 @@ class Trace:
                     ) from None
                 index += 1
                 try:
-                    msg = deserialize(raw, types[topic])
+                    if readers is not None:
+                        values, stamp = readers[topic](raw)
+                        msg = raw
+                    else:
+                        msg = deserialize(raw, types[topic])
+                        stamp = header_stamp(msg)
                 except Exception as exc:
                     raise InputError(
                         [
@@ -407,7 +430,7 @@ class Trace:
                     ) from None
                 if progress:
                     progress(1)
-                stamp = log_time if (stamp := header_stamp(msg)) is None else stamp
+                stamp = stamp or log_time  # a header nobody stamped: its publication
                 if stamp not in STAMPS:
                     raise InputError(
                         [
@@ -423,10 +446,12 @@ class Trace:
                 chunk.stamps.append(stamp)
                 chunk.msgs.append(msg)
                 chunk.places.append(index)
+                if chunk.rows is not None:
+                    chunk.rows.append(values)
                 if len(chunk) >= CHUNK_EVENTS:
                     self.counts.update(chunk.topics)
                     yield chunk
-                    chunk = EventChunk(path)
+                    chunk = EventChunk(path, rows=None if readers is None else [])
             if len(chunk):
                 self.counts.update(chunk.topics)
                 yield chunk
