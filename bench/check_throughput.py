@@ -66,6 +66,7 @@ def main() -> list[dict[str, Any]]:
     specs = load_monitors_text("bench.yaml", MONITORS)
     monitors = [compile_monitor(s) for s in specs]
     topics = {"/speed", "/running", "/stop", "/target"}
+    fields = CheckRun(monitors).fields()  # a bag's fields, read as `edgerv check` reads them
     results = []
     with tempfile.TemporaryDirectory() as tmp:
         rows = make_rows(EVENTS)
@@ -75,8 +76,6 @@ def main() -> list[dict[str, Any]]:
         )
         mcap = write_mcap(Path(tmp) / "run.mcap", rows)
         for label, path in (("JSON Lines", jsonl), ("MCAP bag", mcap)):
-
-            fields = CheckRun(monitors).fields()  # a bag's fields read as `edgerv check` does
 
             def bare(path: Path = path) -> int:
                 return sum(map(len, Trace(path).events(topics, fields=fields).chunks()))

@@ -499,3 +499,33 @@ def test_fields_read_from_cdr_give_what_decoded_messages_give(tmp_path: Path) ->
 
     assert verdicts(cdr=True) == verdicts(cdr=False)
     assert verdicts(cdr=True)[1] == [("satisfied", 145, 2)]  # /target's header stamp
+
+
+def test_messages_left_in_a_write_ahead_log_are_read(monitors: Path, tmp_path: Path) -> None:
+    """A recording killed with sqlite3's write-ahead log not yet merged (rosbag2's
+    resilient preset writes one): the messages in the log are part of the bag."""
+    import shutil
+
+    first, later = RUN[:4], RUN[4:]
+    db = write_db3(tmp_path / "live.db3", first)
+    writer = sqlite3.connect(db)
+    writer.execute("PRAGMA journal_mode=WAL")
+    ids = dict(writer.execute("SELECT name, id FROM topics"))
+    for topic, stamp, msg in later:
+        if topic not in ids:
+            ids[topic] = len(ids) + 1
+            writer.execute(
+                "INSERT INTO topics VALUES (?, ?, ?, 'cdr', '')", (ids[topic], topic, TYPES[topic])
+            )
+        writer.execute(
+            "INSERT INTO messages(topic_id, timestamp, data) VALUES (?, ?, ?)",
+            (ids[topic], stamp, cdr(TYPES[topic], msg)),
+        )
+    writer.commit()
+    crashed = bag_dir(tmp_path, "crashed")
+    for suffix in ("", "-wal", "-shm"):  # as the killed recorder left them
+        shutil.copy(f"{db}{suffix}", crashed / f"run_0.db3{suffix}")
+    writer.close()
+    code, out, err = check(monitors, crashed / "run_0.db3")
+    reference = check(monitors, write_jsonl(tmp_path / "all.jsonl", RUN))
+    assert (code, out) == reference[:2], err

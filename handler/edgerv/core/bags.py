@@ -375,7 +375,15 @@ def _metadata(path: Path) -> dict[str, Any]:
 
 
 def _connect(path: Path) -> sqlite3.Connection:
-    return sqlite3.connect(f"file:{path}?mode=ro&immutable=1", uri=True)
+    """Read-only, reading a write-ahead log a recording left beside it (rosbag2's resilient
+    preset writes one); where that cannot be opened (a read-only directory), the file as
+    it is."""
+    try:
+        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+        con.execute("SELECT 1 FROM sqlite_master LIMIT 1").fetchall()
+        return con
+    except sqlite3.OperationalError:
+        return sqlite3.connect(f"file:{path}?mode=ro&immutable=1", uri=True)
 
 
 def _sqlite_definitions(con: sqlite3.Connection) -> dict[str, Definition]:
