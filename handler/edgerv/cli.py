@@ -12,7 +12,8 @@ import contextlib
 import gc
 import os
 import sys
-from collections.abc import Iterator, Sequence
+import time
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import NoReturn
 
@@ -90,15 +91,37 @@ def _collecting_little() -> Iterator[None]:
         gc.unfreeze()
 
 
+@contextlib.contextmanager
+def _progress_bar(name: str, total: int, trace: Trace) -> Iterator[Callable[[int], None]]:
+    """A progress bar on the terminal (bytes of a JSON trace, messages of a bag) with the
+    events checked per second; the function that advances it."""
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    started = time.monotonic()
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.percentage:>3.0f}%"),
+        TextColumn("{task.fields[rate]}"),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, console=Console(stderr=True), transient=True) as bar:
+        task = bar.add_task(f"checking {Path(name).name}", total=total, rate="")
+
+        def advance(n: int) -> None:
+            rate = sum(trace.counts.values()) / max(time.monotonic() - started, 1e-6)
+            bar.update(task, advance=n, rate=f"{rate:,.0f} events/s")
+
+        yield advance
+
+
 def _check(args: argparse.Namespace, run: CheckRun, trace: Trace, total: int) -> int:
     """Feed the trace to the monitors and print the verdicts; the exit code."""
     try:
         if sys.stderr.isatty() and total and not args.no_progress:
-            from rich.progress import Progress
-
-            with Progress(transient=True) as bar:
-                task = bar.add_task(f"checking {args.trace}", total=total)
-                run.feed(trace.events(run.topics, lambda n: bar.advance(task, n), run.fields()))
+            with _progress_bar(args.trace, total, trace) as advance:
+                run.feed(trace.events(run.topics, advance, run.fields()))
         else:
             run.feed(trace.events(run.topics, fields=run.fields()))
     except InputError as exc:

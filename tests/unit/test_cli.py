@@ -305,3 +305,43 @@ def test_an_assertion_spot_cannot_build_in_time_exits_2_with_a_hint(tmp_path: Pa
     assert "error: building this monitor's automaton took more than 0.5 s" in proc.stderr
     assert "hint: write the bound as a duration" in proc.stderr
     assert "Traceback" not in proc.stderr and proc.stdout == ""
+
+
+def test_a_long_check_on_a_terminal_shows_events_per_second(monitors: Path, tmp_path: Path) -> None:
+    """On a terminal (stderr a tty), a progress bar with the events checked per second;
+    stdout (here a file) gets the verdicts alone."""
+    import os
+    import pty
+
+    rows = [("/speed", 1000 + i, {"data": float(i % 90)}) for i in range(300_000)]
+    trace = write_jsonl(tmp_path / "long.jsonl", rows)
+    out_path = tmp_path / "out.json"
+    pid, fd = pty.fork()
+    if pid == 0:
+        import fcntl
+        import struct
+        import termios
+
+        fcntl.ioctl(
+            0, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0)
+        )  # the child: stderr on the terminal, stdout into a file
+        out = os.open(out_path, os.O_WRONLY | os.O_CREAT)
+        os.dup2(out, 1)
+        os.execv(
+            sys.executable,
+            [sys.executable, "-m", "edgerv", "check", str(monitors), str(trace), "--json"],
+        )
+    shown = b""
+    while True:
+        try:
+            data = os.read(fd, 65536)
+        except OSError:  # the terminal closed: the child ended
+            break
+        if not data:
+            break
+        shown += data
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0, shown
+    assert b"events/s" in shown and b"checking long.jsonl" in shown, shown
+    assert b"it has /speed" in shown  # the topics without messages: what the trace has
+    assert json.loads(out_path.read_text())["monitors"][0]["name"] == "speed-limit"

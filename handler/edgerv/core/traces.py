@@ -428,8 +428,6 @@ class Trace:
                             )
                         ]
                     ) from None
-                if progress:
-                    progress(1)
                 stamp = stamp or log_time  # a header nobody stamped: its publication
                 if stamp not in STAMPS:
                     raise InputError(
@@ -450,6 +448,8 @@ class Trace:
                     chunk.rows.append(values)
                 if len(chunk) >= CHUNK_EVENTS:
                     self.counts.update(chunk.topics)
+                    if progress:
+                        progress(len(chunk))
                     yield chunk
                     chunk = EventChunk(path, rows=None if readers is None else [])
             if len(chunk):
@@ -493,7 +493,7 @@ class Trace:
                 )
             have = {t.name: t.msgtype for t in self.bag.topics.values()}
         else:
-            have = {t: "" for t in self.others}
+            have = {t: "" for t in self.others | {t for t, n in self.counts.items() if n}}
         if not have:
             return "the trace holds no message of any topic"
         close = difflib.get_close_matches(topic, list(have), n=3, cutoff=0.6)
