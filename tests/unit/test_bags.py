@@ -529,3 +529,11 @@ def test_messages_left_in_a_write_ahead_log_are_read(monitors: Path, tmp_path: P
     code, out, err = check(monitors, crashed / "run_0.db3")
     reference = check(monitors, write_jsonl(tmp_path / "all.jsonl", RUN))
     assert (code, out) == reference[:2], err
+
+
+@pytest.mark.parametrize("name", ["junk.db3", "junk.mcap", "junk.mcap.zstd"])
+def test_a_file_that_is_no_bag_is_named(monitors: Path, tmp_path: Path, name: str) -> None:
+    junk = tmp_path / name
+    junk.write_bytes(b"this is not a recording\n" * 100)
+    code, out, err = check(monitors, junk)
+    assert code == 2 and out is None and "cannot read bag" in err and name in err, err

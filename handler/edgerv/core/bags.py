@@ -243,21 +243,24 @@ class Bag:
     def _index_sqlite(self, path: Path) -> None:
         try:
             con = _connect(path)
-            with con:
-                columns = {row[1] for row in con.execute("PRAGMA table_info(topics)")}
-                if not {"id", "name", "type"} <= columns:
-                    raise BagError(f"{path}: not a rosbag2 sqlite3 file (no topics table)")
-                fmt = "serialization_format" if "serialization_format" in columns else "'cdr'"
-                rows = con.execute(f"SELECT id, name, type, {fmt} FROM topics").fetchall()
-                definitions = _sqlite_definitions(con)
-                counts = None  # metadata.yaml's, when it has them; else counted here
-                if self._metadata_counts is None:
-                    query = "SELECT topic_id, COUNT(*) FROM messages GROUP BY topic_id"
-                    counts = dict(con.execute(query).fetchall())
-                end = con.execute("SELECT MAX(timestamp) FROM messages").fetchone()[0]
-            con.close()
         except sqlite3.Error as exc:
             raise BagError(f"{path}: cannot read it as a rosbag2 sqlite3 file: {exc}") from None
+        try:
+            columns = {row[1] for row in con.execute("PRAGMA table_info(topics)")}
+            if not {"id", "name", "type"} <= columns:
+                raise BagError(f"{path}: not a rosbag2 sqlite3 file (no topics table)")
+            fmt = "serialization_format" if "serialization_format" in columns else "'cdr'"
+            rows = con.execute(f"SELECT id, name, type, {fmt} FROM topics").fetchall()
+            definitions = _sqlite_definitions(con)
+            counts = None  # metadata.yaml's, when it has them; else counted here
+            if self._metadata_counts is None:
+                query = "SELECT topic_id, COUNT(*) FROM messages GROUP BY topic_id"
+                counts = dict(con.execute(query).fetchall())
+            end = con.execute("SELECT MAX(timestamp) FROM messages").fetchone()[0]
+        except sqlite3.Error as exc:
+            raise BagError(f"{path}: cannot read it as a rosbag2 sqlite3 file: {exc}") from None
+        finally:
+            con.close()
         for _id, name, msgtype, fmt_value in rows:
             count = None if counts is None else int(counts.get(_id, 0))
             self._add(str(name), str(msgtype), str(fmt_value), count, definitions.get(str(msgtype)))
@@ -290,9 +293,9 @@ class Bag:
 
     def messages(self, wanted: Collection[str]) -> Iterator[Message]:
         """The messages of the topics ``wanted`` (as :attr:`topics` names them), file by
-        file in the bag's order, each file's in log-time order (sqlite3) or as recorded
-        (MCAP, whose writers append in arrival order). Raises :class:`BagError` at
-        damage, with the count of messages yielded before it."""
+        file in the bag's order (rosbag2 splits a recording in time), each file's in
+        log-time order. Raises :class:`BagError` at damage, with the count of messages
+        yielded before it."""
         read = 0
         for storage in self.storages:
             source = (
