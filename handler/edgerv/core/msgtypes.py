@@ -122,9 +122,11 @@ def ensure_type(msg_type: str) -> bool:
 def register_definition(msg_type: str, encoding: str, text: str) -> bool:
     """Make known the types that a bag's own definition of ``msg_type`` describes (an
     MCAP schema, a row of rosbag2's ``message_definitions``: ``ros2msg`` text with its
-    dependencies after ``MSG:`` lines, or ``ros2idl``), those not known already:
-    installed definitions come first. False when the text cannot be read (a service
-    event's, an encoding not known): the type stays unknown unless installed."""
+    dependencies after ``MSG:`` lines, or ``ros2idl``), those not known already: the
+    built-in definitions come first; a ``.msg`` file found later (:func:`ensure_type`)
+    does not replace one registered here, which is what the bag's bytes were written
+    with. False when the text cannot be read (a service event's, an encoding not known):
+    the type stays unknown unless installed."""
     from rosbags.typesys import get_types_from_idl, get_types_from_msg
 
     try:
