@@ -190,8 +190,19 @@ class Trace:
         straight from its CDR bytes (the live handler's readers, :mod:`edgerv.core.cdr`)
         into the chunks' ``rows``, instead of decoding whole messages into ``msgs``."""
         if self.is_bag:
-            return TraceEvents(self._bag_chunks(topics, progress, fields))
-        return TraceEvents(self._jsonl_chunks(topics, progress))
+            return TraceEvents(self._counted(self._bag_chunks(topics, fields), progress))
+        return TraceEvents(self._counted(self._jsonl_chunks(topics, progress), None))
+
+    def _counted(
+        self, chunks: Iterator[EventChunk], progress: Progress | None
+    ) -> Iterator[EventChunk]:
+        """The chunks, each counted per topic as it is handed on (and, for a bag, advancing
+        ``progress`` by its messages: a JSON trace advances by bytes as it reads)."""
+        for chunk in chunks:
+            self.counts.update(chunk.topics)
+            if progress:
+                progress(len(chunk))
+            yield chunk
 
     # -- JSON Lines --------------------------------------------------------------------------
 
@@ -224,11 +235,9 @@ class Trace:
                     lineno = self._read_lines(chunk, lineno, data, topics)
                 except InputError:  # a bad line: the events before it are still checked
                     if len(chunk):
-                        self.counts.update(chunk.topics)
                         yield chunk
                     raise
                 if len(chunk):
-                    self.counts.update(chunk.topics)
                     yield chunk
 
     def _read_lines(
@@ -379,7 +388,6 @@ class Trace:
     def _bag_chunks(
         self,
         topics: Collection[str],
-        progress: Progress | None,
         fields: Mapping[str, Sequence[str]] | None = None,
     ) -> Iterator[EventChunk]:
         self.inspect(topics)
@@ -447,17 +455,12 @@ class Trace:
                 if chunk.rows is not None:
                     chunk.rows.append(values)
                 if len(chunk) >= CHUNK_EVENTS:
-                    self.counts.update(chunk.topics)
-                    if progress:
-                        progress(len(chunk))
                     yield chunk
                     chunk = EventChunk(path, rows=None if readers is None else [])
             if len(chunk):
-                self.counts.update(chunk.topics)
                 yield chunk
         except InputError:  # a damaged bag: the messages before it are still checked
             if len(chunk):
-                self.counts.update(chunk.topics)
                 yield chunk
             raise
 
