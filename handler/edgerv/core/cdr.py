@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import functools
 import struct
-from collections.abc import Callable, Sequence
-from typing import Any
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, TypeVar
 
 from edgerv.core.msgtypes import (
     make_getter,
@@ -164,15 +164,7 @@ class _Gen:
         nested message is walked to its end (what follows it starts there); the top-level
         one only up to its last wanted field.
         """
-        fields = typestore().fielddefs[msg_type][1]
-        depth = len(prefix)
-        if top:
-            needed = {path[depth] for path in wanted if len(path) > depth}
-            last = max((i for i, (name, _) in enumerate(fields) if name in needed), default=-1)
-            fields = fields[: last + 1]
-        for name, node in fields:
-            here = (*prefix, name)
-            under = {p: s for p, s in wanted.items() if p[: depth + 1] == here}
+        for node, under, here in fields_to_walk(msg_type, wanted, prefix, top):
             if under:
                 self.value(node, under, here, indent)
             else:
@@ -238,6 +230,27 @@ class _Gen:
             self.skip(elem, indent + 1, self.lines)
         else:
             raise _Unsupported(str(node))
+
+
+Slots = TypeVar("Slots")
+
+
+def fields_to_walk(
+    msg_type: str, wanted: dict[tuple[Any, ...], Slots], prefix: tuple[Any, ...], top: bool
+) -> Iterator[tuple[tuple[Any, Any], dict[tuple[Any, ...], Slots], tuple[Any, ...]]]:
+    """The fields of a ``msg_type`` value at ``prefix``, in order: each one's type node,
+    the ``wanted`` paths under it (none: it is skipped) and its path. A nested message is
+    walked to its end (what follows it starts there); the top-level one (``top``) only up
+    to its last wanted field."""
+    fields = typestore().fielddefs[msg_type][1]
+    depth = len(prefix)
+    if top:
+        needed = {path[depth] for path in wanted if len(path) > depth}
+        last = max((i for i, (name, _) in enumerate(fields) if name in needed), default=-1)
+        fields = fields[: last + 1]
+    for name, node in fields:
+        here = (*prefix, name)
+        yield node, {p: s for p, s in wanted.items() if p[: depth + 1] == here}, here
 
 
 @functools.cache

@@ -18,7 +18,10 @@ import heapq
 import struct
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import BinaryIO, NamedTuple
+from typing import Any, BinaryIO, NamedTuple
+
+import numpy as np
+import numpy.typing as npt
 
 MAGIC = b"\x89MCAP0\r\n"
 _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _FOOTER, _DATA_END = 0x03, 0x04, 0x05, 0x06, 0x02, 0x0F
@@ -99,12 +102,7 @@ def _ordered(
     if f.read(len(MAGIC)) != MAGIC:
         raise Cut("it does not start as an MCAP file")
     while True:
-        head = f.read(_HEAD.size)
-        if len(head) < _HEAD.size:
-            raise Cut(f"it ends at byte {size}, before its footer")
-        op, length = _HEAD.unpack(head)
-        if f.tell() + length > size:
-            raise Cut(f"a record of {length} bytes at byte {f.tell() - 9} runs past its end")
+        head, op, length = _next_record(f, size)
         if op == _CHUNK:
             start, records = _open_chunk(f.read(length))
             bound = after[chunk] if chunk < len(after) else start
@@ -137,6 +135,17 @@ def _ordered(
         for (topic, log_time, data), i in zip(got, range(order, order + len(got)), strict=True):
             heapq.heappush(waiting, (log_time, i, topic, data))
         order += len(got)
+
+
+def _next_record(f: BinaryIO, size: int) -> tuple[bytes, int, int]:
+    """The next record's header (its bytes, opcode and length), its body whole in the file."""
+    head = f.read(_HEAD.size)
+    if len(head) < _HEAD.size:
+        raise Cut(f"it ends at byte {size}, before its footer")
+    op, length = _HEAD.unpack(head)
+    if f.tell() + length > size:
+        raise Cut(f"a record of {length} bytes at byte {f.tell() - 9} runs past its end")
+    return head, op, length
 
 
 def _later(starts: Sequence[int]) -> list[int]:
@@ -313,3 +322,331 @@ def summary(path: Path) -> Summary | None:
     if not stats:
         return Summary(chans, schemas, None, None, starts)
     return Summary(chans, schemas, stats[0][0], stats[0][1], starts)
+
+
+# -- column-wise: a chunk's messages as arrays ------------------------------------------------
+
+_MESSAGE_INDEX = 0x07
+BATCH_MESSAGES = 65_536  # messages gathered before a batch is handed on
+
+
+class Batch(NamedTuple):
+    """Messages in log-time order (ties in file order), as arrays: message i is
+    ``buffers[buffer[i]][start[i]:end[i]]`` (its CDR bytes) on channel ``channel[i]``,
+    logged at ``log_time[i]`` (u64, as the file holds it)."""
+
+    buffers: list[npt.NDArray[np.uint8]]
+    buffer: npt.NDArray[np.int64]
+    channel: npt.NDArray[np.int64]
+    log_time: npt.NDArray[np.uint64]
+    start: npt.NDArray[np.int64]
+    end: npt.NDArray[np.int64]
+
+    def __len__(self) -> int:
+        return len(self.start)
+
+
+def batches(
+    path: Path,
+    wanted: Wanted,
+    starts: Sequence[int] | None = None,
+    size: int = BATCH_MESSAGES,
+) -> Iterator[tuple[Batch, dict[int, str]]]:
+    """:func:`messages` as arrays: the same messages in the same order, a batch of about
+    ``size`` at a time, each with the topics of its channels. No object is made per
+    message: a chunk's message records are found from its message indexes (the records
+    an MCAP writer puts after each chunk, with each message's offset in it) when they
+    cover every channel read, else by a walk over its records; their fields are taken
+    with NumPy. Raises :class:`Cut` after the messages read before the damage."""
+    reading: dict[int, str | None] = {}
+    order = _Order(_later(starts) if starts else [], size)
+    try:
+        with path.open("rb") as f:
+            yield from _chunk_columns(f, path.stat().st_size, reading, wanted, order)
+    except Cut:
+        yield from order.drain(reading)
+        raise
+    yield from order.drain(reading)
+
+
+class _Order:
+    """What :func:`_ordered` does with its heap, an array at a time: messages wait until
+    no later record can hold an earlier one, then leave sorted by (log time, file order)."""
+
+    def __init__(self, after: list[int], size: int) -> None:
+        self.after = after
+        self.size = size
+        self.chunk = 0
+        self.buffers: dict[int, npt.NDArray[np.uint8]] = {}
+        self.next_buffer = 0
+        self.waiting: list[_Columns] = []  # not let go yet (in arrival order)
+        self.ready: list[_Columns] = []  # let go, in order, not handed on yet
+        self.ready_count = 0
+
+    def add(
+        self, buf: npt.NDArray[np.uint8], cols: _Columns | None, bound: int, chunk: bool
+    ) -> None:
+        """A record's messages (``cols``, buffer ids still 0) after letting go those logged
+        before ``bound``."""
+        self._release(bound)
+        if cols is None or not len(cols[0]):
+            return
+        ident = self.next_buffer
+        self.next_buffer += 1
+        self.buffers[ident] = buf
+        cols = (np.full(len(cols[0]), ident, np.int64), *cols[1:])
+        times = cols[2]
+        limit = self.after[self.chunk] if chunk and self.chunk < len(self.after) else _NEVER
+        if (  # the usual file: nothing waits, in order, and later chunks start later
+            chunk
+            and self.after
+            and not self.waiting
+            and int(times[-1]) < limit
+            and not bool(np.any(times[1:] < times[:-1]))
+        ):
+            self._hand(cols)
+            return
+        self.waiting.append(cols)
+
+    def _release(self, bound: int) -> None:
+        if not self.waiting or bound <= 0:
+            return
+        cols = _sorted(_concat(self.waiting))
+        times = cols[2]
+        cut = int(np.searchsorted(times, np.uint64(min(bound, _NEVER - 1)), side="left"))
+        if cut == 0:
+            self.waiting = [cols]
+            return
+        self._hand(tuple(c[:cut] for c in cols))  # type: ignore[arg-type]
+        rest = tuple(c[cut:] for c in cols)
+        self.waiting = [rest] if len(rest[0]) else []  # type: ignore[list-item]
+
+    def _hand(self, cols: _Columns) -> None:
+        self.ready.append(cols)
+        self.ready_count += len(cols[0])
+
+    def full(self) -> bool:
+        return self.ready_count >= self.size
+
+    def take(self, reading: dict[int, str | None]) -> tuple[Batch, dict[int, str]]:
+        cols = _concat(self.ready)
+        self.ready, self.ready_count = [], 0
+        used = np.unique(cols[0])
+        remap = np.zeros(int(used[-1]) + 1, np.int64)
+        remap[used] = np.arange(len(used))
+        buffers = [self.buffers[int(i)] for i in used]
+        held = set() if not self.waiting else set(np.unique(_concat(self.waiting)[0]).tolist())
+        for i in used.tolist():
+            if i not in held:
+                del self.buffers[i]
+        channels = {int(c): reading[int(c)] for c in np.unique(cols[1]).tolist()}
+        batch = Batch(buffers, remap[cols[0]], cols[1], cols[2], cols[3], cols[4])
+        return batch, {c: t for c, t in channels.items() if t is not None}
+
+    def drain(self, reading: dict[int, str | None]) -> Iterator[tuple[Batch, dict[int, str]]]:
+        if self.waiting:
+            self._hand(_sorted(_concat(self.waiting)))
+            self.waiting = []
+        if self.ready_count:
+            yield self.take(reading)
+
+
+# buffer id, channel id, log time, data start, data end: one array each
+_Columns = tuple[
+    npt.NDArray[np.int64],
+    npt.NDArray[np.int64],
+    npt.NDArray[np.uint64],
+    npt.NDArray[np.int64],
+    npt.NDArray[np.int64],
+]
+
+
+def _concat(parts: list[_Columns]) -> _Columns:
+    if len(parts) == 1:
+        return parts[0]
+    return tuple(np.concatenate(c) for c in zip(*parts, strict=True))  # type: ignore[return-value]
+
+
+def _sorted(cols: _Columns) -> _Columns:
+    """Sorted by log time, ties in arrival order (a stable sort)."""
+    times = cols[2]
+    if not bool(np.any(times[1:] < times[:-1])):
+        return cols
+    order = np.argsort(times, kind="stable")
+    return tuple(c[order] for c in cols)  # type: ignore[return-value]
+
+
+def _chunk_columns(
+    f: BinaryIO,
+    size: int,
+    reading: dict[int, str | None],
+    wanted: Wanted,
+    order: _Order,
+) -> Iterator[tuple[Batch, dict[int, str]]]:
+    """The loop of :func:`batches`, :func:`_ordered`'s twin. A chunk waits for the message
+    indexes that follow it before it is read."""
+    if f.read(len(MAGIC)) != MAGIC:
+        raise Cut("it does not start as an MCAP file")
+    pending: tuple[bytes, int] | None = None  # a chunk's records and first log time
+    indexes: dict[int, bytes] = {}  # its message indexes: channel id -> (time, offset) pairs
+
+    def settle() -> None:
+        nonlocal pending
+        if pending is not None:
+            records, start = pending
+            bound = order.after[order.chunk] if order.chunk < len(order.after) else start
+            cols = _chunk_messages(records, reading, wanted, indexes)
+            order.chunk += 1
+            order.add(np.frombuffer(records, np.uint8), cols, bound, chunk=True)
+            pending = None
+            indexes.clear()
+
+    try:
+        while True:
+            head, op, length = _next_record(f, size)
+            if op == _MESSAGE_INDEX and pending is not None:
+                body = f.read(length)
+                if len(body) >= 6:
+                    indexes[_U16.unpack_from(body, 0)[0]] = body[2:]
+                continue
+            settle()
+            if order.full():
+                yield order.take(reading)
+            if op == _CHUNK:
+                start, records = _open_chunk(f.read(length))
+                pending = (records, start)
+            elif op in (_SCHEMA, _CHANNEL, _MESSAGE):
+                record = head + f.read(length)
+                message = op == _MESSAGE and length >= _MESSAGE_HEAD
+                bound = _U64.unpack_from(record, 9 + 6)[0] if message else -1
+                cols = _chunk_messages(record, reading, wanted, {})
+                order.add(np.frombuffer(record, np.uint8), cols, bound, chunk=False)
+            elif op in (_FOOTER, _DATA_END):  # the summary follows: no message in it
+                break
+            else:
+                f.seek(length, 1)
+    except Cut:
+        indexes.clear()  # they may be cut short: the chunk is walked instead
+        settle()
+        raise
+    settle()
+
+
+def _chunk_messages(
+    records: bytes,
+    reading: dict[int, str | None],
+    wanted: Wanted,
+    indexes: dict[int, bytes],
+) -> _Columns | None:
+    """The messages of the channels read among ``records`` (a chunk's, or one record), in
+    file order; None when there is none. From the chunk's message indexes when every
+    channel they name is known and each index is whole, else by walking the records."""
+    buf = np.frombuffer(records, np.uint8)
+    found = None
+    if indexes and all(c in reading for c in indexes):
+        found = _indexed(buf, indexes)
+    if found is None:
+        offsets = _walk(records, reading, wanted)
+        lengths = _gather(buf, offsets + 1, "<u8")
+    else:
+        offsets, lengths = found
+    if not len(offsets):
+        return None
+    if bool(np.any(lengths < _MESSAGE_HEAD)):
+        raise Cut("a message record is shorter than its header")
+    channel = _gather(buf, offsets + 9, "<u2").astype(np.int64)
+    read = np.array([c for c, topic in reading.items() if topic is not None], np.int64)
+    mine = np.isin(channel, read)
+    if not bool(mine.all()):
+        offsets, channel, lengths = offsets[mine], channel[mine], lengths[mine]
+    log_time = _gather(buf, offsets + 15, "<u8")
+    start = offsets + (9 + _MESSAGE_HEAD)
+    return (
+        np.zeros(len(start), np.int64),
+        channel,
+        log_time,
+        start,
+        start + (lengths.astype(np.int64) - _MESSAGE_HEAD),
+    )
+
+
+def _indexed(buf: npt.NDArray[np.uint8], indexes: dict[int, bytes]) -> Any:
+    """The offsets of the chunk's message records, in file order, from its message
+    indexes, and the records' lengths; None unless the indexes hold exactly what the
+    chunk holds: each offset a whole message record, none overlapping another, and
+    between them only records of other kinds (a lost or damaged index must not lose a
+    message: the chunk is then walked)."""
+    parts = []
+    for body in indexes.values():
+        if len(body) < 4:
+            return None
+        (n,) = _U32.unpack_from(body, 0)
+        if n % 16 or 4 + n > len(body):
+            return None
+        parts.append(np.frombuffer(body, "<u8", n // 8, 4)[1::2])
+    offsets = np.sort(np.concatenate(parts))
+    if not len(offsets) or int(offsets[-1]) > len(buf) - 9 - _MESSAGE_HEAD:
+        return None
+    offsets = offsets.astype(np.int64)
+    if not bool(np.all(buf[offsets] == _MESSAGE)):
+        return None
+    lengths = _gather(buf, offsets + 1, "<u8")
+    if bool(np.any(lengths > len(buf))):
+        return None
+    ends = offsets + 9 + lengths.astype(np.int64)
+    if bool(np.any(ends[:-1] > offsets[1:])) or int(ends[-1]) > len(buf):
+        return None
+    gaps = np.flatnonzero(np.concatenate(([offsets[0] > 0], ends[:-1] < offsets[1:])))
+    for i in gaps.tolist():  # what no index names: schema and channel records only
+        if not _no_message(buf, int(ends[i - 1]) if i else 0, int(offsets[i])):
+            return None
+    if int(ends[-1]) < len(buf) and not _no_message(buf, int(ends[-1]), len(buf)):
+        return None
+    return offsets, lengths
+
+
+def _no_message(buf: npt.NDArray[np.uint8], pos: int, end: int) -> bool:
+    """Whether the bytes from ``pos`` to ``end`` are whole records, none a message."""
+    while pos < end:
+        if pos + 9 > end or buf[pos] == _MESSAGE:
+            return False
+        pos += 9 + int(_gather(buf, np.array([pos + 1]), "<u8")[0])
+    return pos == end
+
+
+def _walk(records: bytes, reading: dict[int, str | None], wanted: Wanted) -> Any:
+    """The offsets of the message records among ``records``, read one by one (the schema
+    and channel records among them are taken as :func:`_records` takes them)."""
+    offsets: list[int] = []
+    add = offsets.append
+    pos, end = 0, len(records)
+    u64 = _U64.unpack_from
+    while pos < end:
+        op = records[pos]
+        if pos + 9 > end:
+            raise Cut("a record's header is cut short")
+        (length,) = u64(records, pos + 1)
+        nxt = pos + 9 + length
+        if nxt > end:
+            raise Cut(f"a record of {length} bytes runs past its chunk")
+        if op == _MESSAGE:
+            add(pos)
+        elif op in (_SCHEMA, _CHANNEL):
+            for _ in _records(records[pos:nxt], reading, wanted, _no_schema):
+                pass
+        pos = nxt
+    return np.array(offsets, np.int64)
+
+
+def _no_schema(_: Schema) -> None:
+    pass
+
+
+def _gather(buf: npt.NDArray[np.uint8], at: npt.NDArray[np.int64], dtype: str) -> Any:
+    """The little-endian values of ``dtype`` at byte offsets ``at`` of ``buf``: one fancy
+    index into a view of ``buf`` whose elements start at every byte (unaligned reads)."""
+    width = np.dtype(dtype).itemsize
+    if len(buf) < width:
+        return np.zeros(0, dtype)[at]  # (an IndexError for any offset, as for any past the end)
+    every = np.ndarray((len(buf) - width + 1,), dtype, buf, 0, (1,))
+    return every[at]
