@@ -27,6 +27,7 @@ ROS 1 bags are refused with the command that converts them (``rosbags-convert``)
 
 from __future__ import annotations
 
+import contextlib
 import re
 import sqlite3
 import tempfile
@@ -41,6 +42,9 @@ from edgerv.core import mcap_stream
 
 Definition = tuple[Literal["ros2msg", "ros2idl"], str]  # its encoding, its text
 Message = tuple[str, int, bytes]  # topic (as monitors name it), log time (ns), CDR bytes
+# a batch of messages: an MCAP file's as arrays (with its channels' topics), else a list
+Batch = tuple[mcap_stream.Batch, dict[int, str]] | list[Message]
+ROWS_BATCH = 512  # messages of a list batch
 
 _OLD_TYPE = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)/([A-Za-z_][A-Za-z0-9_]*)$")
 STORAGE_SUFFIXES = (".db3", ".mcap")
@@ -296,22 +300,51 @@ class Bag:
         file in the bag's order (rosbag2 splits a recording in time), each file's in
         log-time order. Raises :class:`BagError` at damage, with the count of messages
         yielded before it."""
+        for item in self.batches(wanted, columns=False):
+            assert isinstance(item, list)
+            yield from item
+
+    def batches(self, wanted: Collection[str], columns: bool = True) -> Iterator[Batch]:
+        """:meth:`messages` a batch at a time: an MCAP file's (whose messages are not
+        compressed one by one) as arrays (:func:`mcap_stream.batches`) when ``columns``,
+        any other's as lists of messages. At damage, what was read before it comes first."""
         read = 0
         for storage in self.storages:
-            source = (
-                self._sqlite_messages(storage.path, wanted)
-                if storage.path.suffix == ".db3"
-                else self._mcap_messages(storage.path, wanted)
-            )
+            if columns and storage.path.suffix == ".mcap" and not storage.compressed_messages:
+                try:
+                    for batch in self._mcap_batches(storage.path, wanted):
+                        read += len(batch[0])
+                        yield batch
+                except BagError as exc:
+                    exc.read = read
+                    raise
+                continue
+            rows: list[Message] = []
             try:
-                for topic, stamp, data in source:
-                    if storage.compressed_messages:
-                        data = _unzstd(data)
-                    read += 1
-                    yield topic, stamp, data
+                for message in self._storage_messages(storage, wanted):
+                    rows.append(message)
+                    if len(rows) >= ROWS_BATCH:
+                        read += len(rows)
+                        yield rows
+                        rows = []
             except BagError as exc:
+                if rows:
+                    read += len(rows)
+                    yield rows
                 exc.read = read
                 raise
+            read += len(rows)
+            if rows:
+                yield rows
+
+    def _storage_messages(self, storage: _Storage, wanted: Collection[str]) -> Iterator[Message]:
+        source = (
+            self._sqlite_messages(storage.path, wanted)
+            if storage.path.suffix == ".db3"
+            else self._mcap_messages(storage.path, wanted)
+        )
+        for topic, stamp, data in source:
+            yield topic, stamp, _unzstd(data) if storage.compressed_messages else data
 
     def _sqlite_messages(self, path: Path, wanted: Collection[str]) -> Iterator[Message]:
         try:
@@ -340,18 +373,40 @@ class Bag:
             con.close()
 
     def _mcap_messages(self, path: Path, wanted: Collection[str]) -> Iterator[Message]:
-        def reads(channel: mcap_stream.Channel) -> str | None:
-            name = topic_name(channel.topic)
-            return name if name in wanted else None
+        with _cut_is_damage(path):
+            yield from mcap_stream.messages(
+                path, _reads(wanted), starts=self._chunk_starts.get(path)
+            )
 
-        try:
-            yield from mcap_stream.messages(path, reads, starts=self._chunk_starts.get(path))
-        except mcap_stream.Cut as exc:
-            raise BagError(
-                f"{path}: the recording is damaged or cut short: {exc}",
-                hint="the verdicts cover the messages before it (a recording cut by a crash "
-                "or a full disk ends this way; `ros2 bag reindex` may recover the rest)",
-            ) from None
+    def _mcap_batches(
+        self, path: Path, wanted: Collection[str]
+    ) -> Iterator[tuple[mcap_stream.Batch, dict[int, str]]]:
+        with _cut_is_damage(path):
+            yield from mcap_stream.batches(
+                path, _reads(wanted), starts=self._chunk_starts.get(path)
+            )
+
+
+def _reads(wanted: Collection[str]) -> mcap_stream.Wanted:
+    """An MCAP channel's topic as monitors name it, when one of them is ``wanted``."""
+
+    def reads(channel: mcap_stream.Channel) -> str | None:
+        name = topic_name(channel.topic)
+        return name if name in wanted else None
+
+    return reads
+
+
+@contextlib.contextmanager
+def _cut_is_damage(path: Path) -> Iterator[None]:
+    try:
+        yield
+    except mcap_stream.Cut as exc:
+        raise BagError(
+            f"{path}: the recording is damaged or cut short: {exc}",
+            hint="the verdicts cover the messages before it (a recording cut by a crash "
+            "or a full disk ends this way; `ros2 bag reindex` may recover the rest)",
+        ) from None
 
 
 def _metadata(path: Path) -> dict[str, Any]:

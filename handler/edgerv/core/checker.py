@@ -85,6 +85,9 @@ class CheckRun:
         monitor handed its events column by column (:meth:`MonitorRuntime.offer_arrivals`).
         A message that lacks a field or holds a value of another kind sends the chunk
         through :meth:`_feed_events`, which stops at it with its place."""
+        if chunk.columns is not None:
+            self._feed_columns(chunk)
+            return
         columns: dict[str, tuple[list[int], list[list[Any]]]] = {}
         rows = chunk.rows
         for topic, indexes in _indexes_by_topic(chunk.topics, self.router.routes).items():
@@ -104,6 +107,20 @@ class CheckRun:
             here = [(columns[t], binding) for t, binding in reads if t in columns]
             if here and runtime.offer_arrivals(_arrivals(chunk, here, len(runtime.values))):
                 self.results[name].verdicts += runtime.evaluate()
+
+    def _feed_columns(self, chunk: EventChunk) -> None:
+        """:meth:`feed_chunk` for a chunk read column-wise: each monitor handed its events
+        in arrays."""
+        columns = chunk.columns
+        assert columns is not None
+        self.router.seq += len(chunk)
+        for name, reads in self.reads.items():
+            runtime = self.router.runtimes[name]
+            here = [(columns[t], binding) for t, binding in reads if t in columns]
+            if here and not runtime.halted:
+                arrivals = _column_arrivals(chunk.stamps, here, len(runtime.values))
+                if runtime.offer_arrivals(arrivals):
+                    self.results[name].verdicts += runtime.evaluate()
 
     def _feed_events(self, events: Iterable[TraceEvent]) -> None:
         """Check these events one by one."""
@@ -210,3 +227,25 @@ def _positions(indexes: list[list[int]], chunk: int) -> tuple[Sequence[int], lis
     keys = sorted(chain.from_iterable(indexes))
     rank = dict(zip(keys, count()))
     return keys, [list(map(rank.__getitem__, mine)) for mine in indexes]
+
+
+def _column_arrivals(stamps: Any, reads: list[tuple[Any, Binding]], signals: int) -> Arrivals:
+    """:func:`_arrivals` for a chunk read column-wise: the same, in arrays."""
+    import numpy as np  # (a chunk read column-wise comes with NumPy loaded)
+
+    changes: list[tuple[Any, Any]] = [((), ())] * signals
+    groups: list[tuple[Any, tuple[int, ...]]] = []
+    indexes = [at for (at, _), _ in reads]
+    if len(indexes) == 1:
+        keys, positions = indexes[0], [np.arange(len(indexes[0]))]
+    elif sum(map(len, indexes)) == len(stamps):
+        keys, positions = None, indexes
+    else:
+        keys = np.sort(np.concatenate(indexes))
+        positions = [np.searchsorted(keys, at) for at in indexes]
+    for ((_, values), binding), at in zip(reads, positions, strict=True):
+        for s, f in binding:
+            changes[s] = (at, values[f])
+        groups.append((at, tuple(s for s, _ in binding)))
+    mine = stamps if keys is None else stamps[keys]
+    return Arrivals(mine, changes, groups, columnar=True)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from operator import eq, ge, gt, le, lt
 from typing import Any
 
 from edgerv.core.assertion import (
@@ -28,6 +29,12 @@ class TimedAtom:
     signal: int  # signal index: the age of the last message on its topic
     op: str  # < <= > >= == (!= is the negation of ==)
     duration: int  # nanoseconds
+
+
+AGE_CMP: dict[str, Callable[[Any, Any], bool]] = {"<": lt, "<=": le, ">": gt, ">=": ge, "==": eq}
+# For each comparison of an age with d: the instants, after the message at ``last``,
+# at which its truth changes (age is d at last + d): ``age < d`` turns false at last + d.
+EDGES: dict[str, tuple[int, ...]] = {"<": (0,), ">=": (0,), "<=": (1,), ">": (1,), "==": (0, 1)}
 
 
 @dataclass(frozen=True)

@@ -19,11 +19,11 @@ from bisect import bisect_left, bisect_right
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from itertools import accumulate, chain, compress, islice, repeat
-from operator import add, and_, eq, ge, gt, itemgetter, le, lt, ne, sub
+from operator import add, and_, itemgetter, lt, ne, sub
 from typing import Any, Literal, NamedTuple
 
 from edgerv.core.documents import QosSpec
-from edgerv.core.monitor import AtomRead, CompiledMonitor, TimedAtom
+from edgerv.core.monitor import AGE_CMP, EDGES, AtomRead, CompiledMonitor, TimedAtom
 from edgerv.core.msgtypes import ValueKind, make_getter, parse_field_path
 from edgerv.core.past import Past
 from edgerv.core.snapshot import HandoffError, Snapshot, deciding_steps, runs_of
@@ -68,6 +68,16 @@ class Arrivals:
     changes: list[tuple[Sequence[int], Sequence[Any]]]
     # per topic: its events (positions, ascending) and the signals each of them updates
     groups: list[tuple[Sequence[int], tuple[int, ...]]]
+    # the stamps, positions and values are NumPy arrays (a bag read column-wise)
+    columnar: bool = False
+
+    def as_lists(self) -> Arrivals:
+        """The same arrivals in lists of Python values."""
+        return Arrivals(
+            _listed(self.stamps),
+            [(_listed(p), _listed(v)) for p, v in self.changes],
+            [(_listed(p), signals) for p, signals in self.groups],
+        )
 
     def held(self, signal: int, k: int, before: Any) -> Any:
         """The signal's value after the ``k``-th event (``before``: its value before any)."""
@@ -95,15 +105,13 @@ class Arrivals:
         return out
 
 
+def _listed(values: Any) -> list[Any]:
+    return values.tolist() if hasattr(values, "tolist") else list(values)
+
+
 def letter_typecode(bits: int) -> str:
     """The narrowest array type holding ``bits`` placeholder bits per letter."""
     return "B" if bits <= 8 else "H" if bits <= 16 else "L"
-
-
-_AGE_CMP: dict[str, Callable[[Any, Any], bool]] = {"<": lt, "<=": le, ">": gt, ">=": ge, "==": eq}
-# For each comparison of an age with d: the instants, after the message at ``last``,
-# at which its truth changes (age is d at last + d): ``age < d`` turns false at last + d.
-_EDGES: dict[str, tuple[int, ...]] = {"<": (0,), ">=": (0,), "<=": (1,), ">": (1,), "==": (0, 1)}
 
 
 @dataclass
@@ -132,7 +140,7 @@ class Clock:
         for a in self.atoms:
             last = self.last[a.signal]  # when set, now is too; unset: an infinite age
             if (
-                a.op in (">", ">=") if last is None else _AGE_CMP[a.op](now - last, a.duration)  # type: ignore[operator]
+                a.op in (">", ">=") if last is None else AGE_CMP[a.op](now - last, a.duration)  # type: ignore[operator]
             ):
                 out |= 1 << a.bit
         return out
@@ -144,7 +152,7 @@ class Clock:
             last = self.last[a.signal]
             if last is None or now is None:  # an infinite age stays infinite
                 continue
-            for edge in _EDGES[a.op]:
+            for edge in EDGES[a.op]:
                 at = last + a.duration + edge
                 if at > now:
                     if best is None or at < best:
@@ -288,9 +296,14 @@ class MonitorRuntime:
         Returns True when letters were produced and :meth:`evaluate` has work.
         """
         stamps = arrivals.stamps
-        if not stamps:
+        if not len(stamps) or self.halted:
             return False
-        if self.threshold != 1 or self.holding or self.halted or min(stamps) <= self.floor:
+        if arrivals.columnar:
+            if self._offer_columns(arrivals):
+                return len(self.letters) > 0
+            arrivals = arrivals.as_lists()
+            stamps = arrivals.stamps
+        if self.threshold != 1 or self.holding or min(stamps) <= self.floor:
             for stamp, updates in zip(stamps, arrivals.every_update(), strict=True):
                 self.offer(stamp, 0, updates)
             return len(self.letters) > 0
@@ -302,6 +315,44 @@ class MonitorRuntime:
         self.last_released = stamps[-1]
         self._compress_arrivals(arrivals, in_order=not late)
         return len(self.letters) > 0
+
+    def _offer_columns(self, arrivals: Arrivals) -> bool:
+        """:meth:`offer_arrivals` for arrivals in arrays, a column at a time
+        (:func:`edgerv.core.columns.compress`) where that gives the same letters: False
+        where it does not, having changed nothing."""
+        if self.threshold != 1 or self.holding or self.missing or self.past is not None:
+            return False
+        from edgerv.core import columns  # here: NumPy, for a check's bag alone
+
+        stamps: Any = arrivals.stamps  # an int64 array
+        clock = self.clock
+        if int(stamps.min()) <= self.floor:
+            return False
+        got = columns.compress(
+            self.monitor,
+            stamps,
+            arrivals.changes,  # type: ignore[arg-type]
+            self.values,
+            self.valuation,
+            None if clock is None else clock.now,
+            [] if clock is None else clock.last,
+        )
+        if got is None:
+            return False
+        late = int((stamps[1:] < stamps[:-1]).sum())
+        if self.last_released is not None and int(stamps[0]) < self.last_released:
+            late += 1
+        self.late_events += late
+        self.last_released = int(stamps[-1])
+        self.values[:] = got.values
+        self.valuation = int(got.letters[-1])
+        self.letters.frombytes(got.letters.astype(self.letters.typecode).tobytes())
+        self.stamps.frombytes(got.stamps.tobytes())
+        if clock is not None:
+            clock.last = got.last
+            clock.now = int(stamps[-1])
+            clock.deadline = clock.next_deadline()
+        return True
 
     def _compress_arrivals(self, arrivals: Arrivals, in_order: bool) -> None:
         """What :meth:`_compress_one` does event by event, a run of equal letters at once.
@@ -378,7 +429,7 @@ class MonitorRuntime:
         Each computed for every event, a column at a time: the time of the signal's
         last message (``last``: before these events; none is an infinite age, -inf
         here), the age, the atom's truth, and whether one of the instants its truth
-        changes at (``_EDGES``) falls after the event's time and before the next
+        changes at (``EDGES``) falls after the event's time and before the next
         event's stamp.
         """
         n, stamps = len(nows), arrivals.stamps
@@ -389,10 +440,10 @@ class MonitorRuntime:
             for p in arrivals.changes[atom.signal][0]:
                 marks[p] = nows[p]
             lasts = list(accumulate(marks, max))  # times only grow: the latest is the last
-            truths = list(map(_AGE_CMP[atom.op], map(sub, nows, lasts), repeat(atom.duration)))
+            truths = list(map(AGE_CMP[atom.op], map(sub, nows, lasts), repeat(atom.duration)))
             changed = map(ne, islice(truths, k + 1, None), islice(truths, k, None))
             out.update(compress(range(k + 1, n), changed))
-            for edge in _EDGES[atom.op]:
+            for edge in EDGES[atom.op]:
                 at = list(map(add, islice(lasts, k, n - 1), repeat(atom.duration + edge)))
                 after = map(lt, islice(nows, k, n - 1), at)
                 before_next = map(lt, at, islice(stamps, k + 1, None))

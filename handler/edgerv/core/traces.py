@@ -23,10 +23,15 @@ from operator import contains, itemgetter
 from pathlib import Path
 from typing import Any, BinaryIO, cast
 
-from edgerv.core.bags import Bag, BagError, looks_like_bag
+import numpy as np
+import numpy.typing as npt
+
+from edgerv.core import mcap_stream
+from edgerv.core.bags import Bag, BagError, Message, looks_like_bag
 from edgerv.core.cdr import compile_reader
+from edgerv.core.cdr_columns import compile_column_reader
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
-from edgerv.core.msgtypes import register_definition, typestore
+from edgerv.core.msgtypes import normalize_type, register_definition, starts_with_header, typestore
 from edgerv.core.pipeline import header_stamp
 
 Progress = Callable[[int], None]  # advance by n units (bytes or messages)
@@ -62,7 +67,7 @@ class EventChunk:
 
     path: str
     topics: list[str] = field(default_factory=list)
-    stamps: list[int] = field(default_factory=list)
+    stamps: Any = field(default_factory=list)  # list[int], or an int64 array (columns)
     msgs: list[Any] = field(default_factory=list)
     places: list[int] = field(default_factory=list)  # lines of a JSON trace, indexes in a bag
     locations: list[Location] | None = None  # given instead of path and places
@@ -70,6 +75,12 @@ class EventChunk:
     # each message's field values already read (a bag's, by its topic's fields: see
     # Trace.events), its msgs then the raw bytes
     rows: list[list[Any]] | None = None
+    # an MCAP file's messages read column-wise (Trace.events with fields): each topic's
+    # events (positions in the chunk, ascending) and its fields' values, NumPy arrays; the
+    # stamps are then an array too, and topics, msgs and places are left empty: event i
+    # is the bag's message ``first + i``
+    columns: dict[str, tuple[npt.NDArray[np.int64], list[Any]]] | None = None
+    first: int = 1
 
     def __len__(self) -> int:
         return len(self.stamps)
@@ -77,7 +88,15 @@ class EventChunk:
     def where(self, i: int) -> Location:
         if self.locations is not None:
             return self.locations[i]
+        if self.columns is not None:
+            return Location(self.path, self.first + i)
         return Location(self.path, self.places[i])
+
+    def topic_counts(self) -> Mapping[str, int]:
+        """The events of each topic in the chunk."""
+        if self.columns is not None:
+            return {topic: len(at) for topic, (at, _) in self.columns.items()}
+        return Counter(self.topics)
 
     def __iter__(self) -> Iterator[TraceEvent]:
         wheres = self.locations or map(Location, repeat(self.path), self.places)
@@ -199,7 +218,7 @@ class Trace:
         """The chunks, each counted per topic as it is handed on (and, for a bag, advancing
         ``progress`` by its messages: a JSON trace advances by bytes as it reads)."""
         for chunk in chunks:
-            self.counts.update(chunk.topics)
+            self.counts.update(chunk.topic_counts())
             if progress:
                 progress(len(chunk))
             yield chunk
@@ -395,74 +414,26 @@ class Trace:
         assert bag is not None
         path = str(self.path)
         types = {t: bag.topics[t].msgtype for t in topics if t in bag.topics}
-        deserialize = typestore().deserialize_cdr
-        readers = (
-            None if fields is None else {t: compile_reader(m, fields[t]) for t, m in types.items()}
-        )
-        chunk = EventChunk(path, rows=None if readers is None else [])
-        index = 0
+        reading = _BagReading(path, types, fields)
+        index = 0  # the messages read
         try:
-            messages = bag.messages(types)
-            while True:
-                try:
-                    topic, log_time, raw = next(messages)
-                except StopIteration:
-                    break
-                except BagError as exc:
-                    where = Location(path, index + 1) if index else Location(path)
-                    raise InputError(
-                        [
-                            Diagnostic(
-                                where, f"bag is damaged after message {index}: {exc}", hint=exc.hint
-                            )
-                        ]
-                    ) from None
-                index += 1
-                try:
-                    if readers is not None:
-                        values, stamp = readers[topic](raw)
-                        msg = raw
-                    else:
-                        msg = deserialize(raw, types[topic])
-                        stamp = header_stamp(msg)
-                except Exception as exc:
-                    raise InputError(
-                        [
-                            Diagnostic(
-                                Location(path, index),
-                                f"message {index} on {topic} cannot be read as "
-                                f"{types[topic]}: {exc}",
-                                hint="verdicts above cover the messages before it",
-                            )
-                        ]
-                    ) from None
-                stamp = stamp or log_time  # a header nobody stamped: its publication
-                if stamp not in STAMPS:
-                    raise InputError(
-                        [
-                            Diagnostic(
-                                Location(path, index),
-                                f"message {index} on {topic} is stamped {stamp} ns, "
-                                "out of the range of 64-bit nanoseconds",
-                            )
-                        ]
-                    )
-                self._saw(stamp)
-                chunk.topics.append(topic)
-                chunk.stamps.append(stamp)
-                chunk.msgs.append(msg)
-                chunk.places.append(index)
-                if chunk.rows is not None:
-                    chunk.rows.append(values)
-                if len(chunk) >= CHUNK_EVENTS:
+            for batch in bag.batches(types, columns=fields is not None):
+                if not isinstance(batch, list):
+                    chunk = reading.columns(batch, index)
+                    if chunk is not None:
+                        index += len(chunk)
+                        self._saw(int(chunk.stamps.max()))
+                        yield chunk
+                        continue
+                    batch = _messages_of(batch)  # read one by one: an error at its place
+                for chunk in reading.rows(batch, index, self._saw):
+                    index += len(chunk)
                     yield chunk
-                    chunk = EventChunk(path, rows=None if readers is None else [])
-            if len(chunk):
-                yield chunk
-        except InputError:  # a damaged bag: the messages before it are still checked
-            if len(chunk):
-                yield chunk
-            raise
+        except BagError as exc:
+            where = Location(path, index + 1) if index else Location(path)
+            raise InputError(
+                [Diagnostic(where, f"bag is damaged after message {index}: {exc}", hint=exc.hint)]
+            ) from None
 
     # -- what was read -------------------------------------------------------------------------
 
@@ -577,3 +548,173 @@ def _record_event(
         raise fail(f"stamp {stamp} is out of the range of 64-bit nanoseconds")
     saw(stamp)
     return TraceEvent(topic, stamp, msg, Location(path, lineno))
+
+
+class _BagReading:
+    """How a check reads a bag's messages: each topic's fields straight from the CDR
+    bytes, column-wise for a batch of an MCAP file (:mod:`edgerv.core.cdr_columns`),
+    one by one otherwise (:mod:`edgerv.core.cdr`); without ``fields``, whole messages."""
+
+    def __init__(
+        self, path: str, types: Mapping[str, str], fields: Mapping[str, Sequence[str]] | None
+    ) -> None:
+        self.path = path
+        self.types = types
+        self.fields = fields
+        self.readers = (
+            None if fields is None else {t: compile_reader(m, fields[t]) for t, m in types.items()}
+        )
+        self.column_readers = (
+            {}
+            if fields is None
+            else {t: compile_column_reader(m, fields[t]) for t, m in types.items()}
+        )
+
+    def columns(
+        self, batch: tuple[mcap_stream.Batch, dict[int, str]], index: int
+    ) -> EventChunk | None:
+        """A batch of an MCAP file read column-wise, or None where it must be read one
+        message at a time (a message that is not what its type says, a field that has
+        no column reader, a log time beyond 64-bit nanoseconds)."""
+        b, channels = batch
+        if len(b) and int(b.log_time.max()) > _LAST_STAMP:
+            return None
+        stamps = b.log_time.astype(np.int64)
+        by_topic: dict[str, list[int]] = {}
+        for cid, topic in channels.items():
+            by_topic.setdefault(topic, []).append(cid)
+        columns: dict[str, tuple[npt.NDArray[np.int64], list[Any]]] = {}
+        for topic, cids in by_topic.items():
+            mine = b.channel == cids[0] if len(cids) == 1 else np.isin(b.channel, cids)
+            at = np.flatnonzero(mine)
+            read = self._topic_columns(topic, b, at)
+            if read is None:
+                return None
+            values, stamped = read
+            if stamped is not None:  # a header nobody stamped: its publication
+                stamps[at] = np.where(stamped != 0, stamped, stamps[at])
+            columns[topic] = (at, values)
+        return EventChunk(self.path, stamps=stamps, columns=columns, first=index + 1)
+
+    def _topic_columns(
+        self, topic: str, b: mcap_stream.Batch, at: npt.NDArray[np.int64]
+    ) -> tuple[list[Any], npt.NDArray[np.int64] | None] | None:
+        reader = self.column_readers.get(topic)
+        if reader is None:  # (a string field) one by one, into columns of Python values
+            return self._topic_rows(topic, b, at)
+        if len(b.buffers) == 1:
+            got = reader(b.buffers[0], b.start[at], b.end[at])
+            return None if got is None else (got.values, got.stamps)
+        parts = []
+        buffer = b.buffer[at]
+        for i, buf in enumerate(b.buffers):
+            here = buffer == i
+            got = reader(buf, b.start[at][here], b.end[at][here])
+            if got is None:
+                return None
+            parts.append((here, got))
+        values = [np.empty(len(at), c.dtype) for c in parts[0][1].values]
+        stamped = None if parts[0][1].stamps is None else np.empty(len(at), np.int64)
+        for here, got in parts:
+            for out, column in zip(values, got.values, strict=True):
+                out[here] = column
+            if stamped is not None and got.stamps is not None:
+                stamped[here] = got.stamps
+        return values, stamped
+
+    def _topic_rows(
+        self, topic: str, b: mcap_stream.Batch, at: npt.NDArray[np.int64]
+    ) -> tuple[list[Any], npt.NDArray[np.int64] | None] | None:
+        """A topic's messages of a batch read one by one (:mod:`edgerv.core.cdr`) into
+        columns of Python objects; None at a message that cannot be read."""
+        assert self.readers is not None
+        read, buffers = self.readers[topic], b.buffers
+        rows, stamps = [], []
+        try:
+            for buf, start, end in zip(
+                b.buffer[at].tolist(), b.start[at].tolist(), b.end[at].tolist(), strict=True
+            ):
+                values, stamp = read(buffers[buf][start:end].tobytes())
+                rows.append(values)
+                stamps.append(stamp or 0)
+        except Exception:
+            return None
+        columns = []
+        for held in zip(*rows, strict=True):
+            column = np.empty(len(held), object)
+            column[:] = held
+            columns.append(column)
+        stamped = (
+            None
+            if self.readers is None or not _stamped(self.types[topic])
+            else np.array(stamps, np.int64)
+        )
+        return columns, stamped
+
+    def rows(
+        self, messages: list[Message], index: int, saw: Callable[[int], None]
+    ) -> Iterator[EventChunk]:
+        """Messages read one by one, in chunks; a message that cannot be read is an
+        error at its place, after the chunk of those before it."""
+        path, types, readers = self.path, self.types, self.readers
+        deserialize = typestore().deserialize_cdr
+        chunk = EventChunk(path, rows=None if readers is None else [])
+        for topic, log_time, raw in messages:
+            index += 1
+            try:
+                if readers is not None:
+                    values, stamp = readers[topic](raw)
+                    msg: Any = raw
+                else:
+                    msg = deserialize(raw, types[topic])
+                    stamp = header_stamp(msg)
+            except Exception as exc:
+                error = f"message {index} on {topic} cannot be read as {types[topic]}: {exc}"
+                hint = "verdicts above cover the messages before it"
+                yield from _nonempty(chunk)
+                raise InputError([Diagnostic(Location(path, index), error, hint=hint)]) from None
+            stamp = stamp or log_time  # a header nobody stamped: its publication
+            if stamp not in STAMPS:
+                error = (
+                    f"message {index} on {topic} is stamped {stamp} ns, "
+                    "out of the range of 64-bit nanoseconds"
+                )
+                yield from _nonempty(chunk)
+                raise InputError([Diagnostic(Location(path, index), error)])
+            saw(stamp)
+            chunk.topics.append(topic)
+            chunk.stamps.append(stamp)
+            chunk.msgs.append(msg)
+            chunk.places.append(index)
+            if chunk.rows is not None:
+                chunk.rows.append(values)
+            if len(chunk) >= CHUNK_EVENTS:
+                yield chunk
+                chunk = EventChunk(path, rows=None if readers is None else [])
+        yield from _nonempty(chunk)
+
+
+def _stamped(msg_type: str) -> bool:
+    """Whether messages of the type carry a header stamp."""
+    return starts_with_header(normalize_type(msg_type))
+
+
+def _nonempty(chunk: EventChunk) -> Iterator[EventChunk]:
+    if len(chunk):
+        yield chunk
+
+
+def _messages_of(batch: tuple[mcap_stream.Batch, dict[int, str]]) -> list[Message]:
+    """A batch's messages one by one: (topic, log time, CDR bytes)."""
+    b, channels = batch
+    return [
+        (channels[channel], log_time, b.buffers[buf][start:end].tobytes())
+        for buf, channel, log_time, start, end in zip(
+            b.buffer.tolist(),
+            b.channel.tolist(),
+            b.log_time.tolist(),
+            b.start.tolist(),
+            b.end.tolist(),
+            strict=True,
+        )
+    ]
