@@ -62,8 +62,7 @@ def read_batches(
     try:
         for batch, topics in mcap_stream.batches(path, wanted, starts=starts, size=size):
             for i in range(len(batch)):
-                buf = batch.buffers[int(batch.buffer[i])]
-                data = buf[int(batch.start[i]) : int(batch.end[i])].tobytes()
+                data = batch.buffer[int(batch.start[i]) : int(batch.end[i])].tobytes()
                 got.append((topics[int(batch.channel[i])], int(batch.log_time[i]), data))
     except mcap_stream.Cut as exc:
         return got, str(exc)

@@ -240,9 +240,13 @@ def _column_arrivals(stamps: Any, reads: list[tuple[Any, Binding]], signals: int
         keys, positions = indexes[0], [np.arange(len(indexes[0]))]
     elif sum(map(len, indexes)) == len(stamps):
         keys, positions = None, indexes
-    else:
-        keys = np.sort(np.concatenate(indexes))
-        positions = [np.searchsorted(keys, at) for at in indexes]
+    else:  # the monitor's events among the chunk's, and each one's rank among them
+        mine = np.zeros(len(stamps), bool)
+        for at in indexes:
+            mine[at] = True
+        keys = np.flatnonzero(mine)
+        rank = np.cumsum(mine) - 1
+        positions = [rank[at] for at in indexes]
     for ((_, values), binding), at in zip(reads, positions, strict=True):
         for s, f in binding:
             changes[s] = (at, values[f])

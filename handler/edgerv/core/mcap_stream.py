@@ -332,11 +332,10 @@ BATCH_MESSAGES = 65_536  # messages gathered before a batch is handed on
 
 class Batch(NamedTuple):
     """Messages in log-time order (ties in file order), as arrays: message i is
-    ``buffers[buffer[i]][start[i]:end[i]]`` (its CDR bytes) on channel ``channel[i]``,
-    logged at ``log_time[i]`` (u64, as the file holds it)."""
+    ``buffer[start[i]:end[i]]`` (its CDR bytes) on channel ``channel[i]``, logged at
+    ``log_time[i]`` (u64, as the file holds it)."""
 
-    buffers: list[npt.NDArray[np.uint8]]
-    buffer: npt.NDArray[np.int64]
+    buffer: npt.NDArray[np.uint8]  # the chunks the messages are in, one after the other
     channel: npt.NDArray[np.int64]
     log_time: npt.NDArray[np.uint64]
     start: npt.NDArray[np.int64]
@@ -353,7 +352,7 @@ def batches(
     size: int = BATCH_MESSAGES,
 ) -> Iterator[tuple[Batch, dict[int, str]]]:
     """:func:`messages` as arrays: the same messages in the same order, a batch of about
-    ``size`` at a time, each with the topics of its channels. No object is made per
+    ``size`` at a time, with the topics of the channels read. No object is made per
     message: a chunk's message records are found from its message indexes (the records
     an MCAP writer puts after each chunk, with each message's offset in it) when they
     cover every channel read, else by a walk over its records; their fields are taken
@@ -381,6 +380,7 @@ class _Order:
         self.next_buffer = 0
         self.waiting: list[_Columns] = []  # not let go yet (in arrival order)
         self.ready: list[_Columns] = []  # let go, in order, not handed on yet
+        self.ready_buffers: set[int] = set()  # the chunks they are in
         self.ready_count = 0
 
     def add(
@@ -404,7 +404,7 @@ class _Order:
             and int(times[-1]) < limit
             and not bool(np.any(times[1:] < times[:-1]))
         ):
-            self._hand(cols)
+            self._hand(cols, {ident})
             return
         self.waiting.append(cols)
 
@@ -421,27 +421,36 @@ class _Order:
         rest = tuple(c[cut:] for c in cols)
         self.waiting = [rest] if len(rest[0]) else []  # type: ignore[list-item]
 
-    def _hand(self, cols: _Columns) -> None:
+    def _hand(self, cols: _Columns, buffers: set[int] | None = None) -> None:
         self.ready.append(cols)
+        self.ready_buffers |= set(np.unique(cols[0]).tolist()) if buffers is None else buffers
         self.ready_count += len(cols[0])
 
     def full(self) -> bool:
         return self.ready_count >= self.size
 
     def take(self, reading: dict[int, str | None]) -> tuple[Batch, dict[int, str]]:
+        """The messages let go so far, their chunks' bytes joined in one buffer."""
         cols = _concat(self.ready)
-        self.ready, self.ready_count = [], 0
-        used = np.unique(cols[0])
-        remap = np.zeros(int(used[-1]) + 1, np.int64)
-        remap[used] = np.arange(len(used))
-        buffers = [self.buffers[int(i)] for i in used]
-        held = set() if not self.waiting else set(np.unique(_concat(self.waiting)[0]).tolist())
-        for i in used.tolist():
+        used = sorted(self.ready_buffers)
+        self.ready, self.ready_buffers, self.ready_count = [], set(), 0
+        base = np.zeros(used[-1] + 1, np.int64)  # where each chunk starts in the buffer
+        at = 0
+        for i in used:
+            base[i] = at
+            at += len(self.buffers[i])
+        buffer = (
+            self.buffers[used[0]]
+            if len(used) == 1
+            else np.concatenate([self.buffers[i] for i in used])
+        )
+        held = set(np.unique(_concat(self.waiting)[0]).tolist()) if self.waiting else set()
+        for i in used:
             if i not in held:
                 del self.buffers[i]
-        channels = {int(c): reading[int(c)] for c in np.unique(cols[1]).tolist()}
-        batch = Batch(buffers, remap[cols[0]], cols[1], cols[2], cols[3], cols[4])
-        return batch, {c: t for c, t in channels.items() if t is not None}
+        shift = base[cols[0]]
+        batch = Batch(buffer, cols[1], cols[2], cols[3] + shift, cols[4] + shift)
+        return batch, {c: t for c, t in reading.items() if t is not None}
 
     def drain(self, reading: dict[int, str | None]) -> Iterator[tuple[Batch, dict[int, str]]]:
         if self.waiting:
@@ -546,33 +555,43 @@ def _chunk_messages(
     if indexes and all(c in reading for c in indexes):
         found = _indexed(buf, indexes)
     if found is None:
-        offsets = _walk(records, reading, wanted)
-        lengths = _gather(buf, offsets + 1, "<u8")
+        offsets, lengths = _walk(records, reading, wanted)
+        if bool(np.any(lengths < _MESSAGE_HEAD)):
+            raise Cut("a message record is shorter than its header")
+        heads = _heads(buf, offsets)
     else:
-        offsets, lengths = found
+        offsets, heads = found
     if not len(offsets):
         return None
-    if bool(np.any(lengths < _MESSAGE_HEAD)):
-        raise Cut("a message record is shorter than its header")
-    channel = _gather(buf, offsets + 9, "<u2").astype(np.int64)
+    channel = heads["channel"].astype(np.int64)
     read = np.array([c for c, topic in reading.items() if topic is not None], np.int64)
     mine = np.isin(channel, read)
     if not bool(mine.all()):
-        offsets, channel, lengths = offsets[mine], channel[mine], lengths[mine]
-    log_time = _gather(buf, offsets + 15, "<u8")
+        offsets, channel, heads = offsets[mine], channel[mine], heads[mine]
     start = offsets + (9 + _MESSAGE_HEAD)
-    return (
-        np.zeros(len(start), np.int64),
-        channel,
-        log_time,
-        start,
-        start + (lengths.astype(np.int64) - _MESSAGE_HEAD),
-    )
+    size = heads["length"].astype(np.int64) - _MESSAGE_HEAD
+    return (np.zeros(len(start), np.int64), channel, heads["log_time"], start, start + size)
+
+
+# A message record after its opcode: its length, then channel id, sequence and log time.
+_MESSAGE_RECORD = np.dtype(
+    {
+        "names": ["length", "channel", "log_time"],
+        "formats": ["<u8", "<u2", "<u8"],
+        "offsets": [0, 8, 14],
+        "itemsize": 22,
+    }
+)
+
+
+def _heads(buf: npt.NDArray[np.uint8], offsets: npt.NDArray[np.int64]) -> Any:
+    """The heads of the message records at ``offsets`` (each whole in ``buf``)."""
+    return _gather(buf, offsets + 1, "V22").view(_MESSAGE_RECORD)
 
 
 def _indexed(buf: npt.NDArray[np.uint8], indexes: dict[int, bytes]) -> Any:
     """The offsets of the chunk's message records, in file order, from its message
-    indexes, and the records' lengths; None unless the indexes hold exactly what the
+    indexes, and the records' heads; None unless the indexes hold exactly what the
     chunk holds: each offset a whole message record, none overlapping another, and
     between them only records of other kinds (a lost or damaged index must not lose a
     message: the chunk is then walked)."""
@@ -590,8 +609,9 @@ def _indexed(buf: npt.NDArray[np.uint8], indexes: dict[int, bytes]) -> Any:
     offsets = offsets.astype(np.int64)
     if not bool(np.all(buf[offsets] == _MESSAGE)):
         return None
-    lengths = _gather(buf, offsets + 1, "<u8")
-    if bool(np.any(lengths > len(buf))):
+    heads = _heads(buf, offsets)
+    lengths = heads["length"]
+    if bool(np.any(lengths > len(buf))) or bool(np.any(lengths < _MESSAGE_HEAD)):
         return None
     ends = offsets + 9 + lengths.astype(np.int64)
     if bool(np.any(ends[:-1] > offsets[1:])) or int(ends[-1]) > len(buf):
@@ -602,7 +622,7 @@ def _indexed(buf: npt.NDArray[np.uint8], indexes: dict[int, bytes]) -> Any:
             return None
     if int(ends[-1]) < len(buf) and not _no_message(buf, int(ends[-1]), len(buf)):
         return None
-    return offsets, lengths
+    return offsets, heads
 
 
 def _no_message(buf: npt.NDArray[np.uint8], pos: int, end: int) -> bool:
@@ -614,11 +634,11 @@ def _no_message(buf: npt.NDArray[np.uint8], pos: int, end: int) -> bool:
     return pos == end
 
 
-def _walk(records: bytes, reading: dict[int, str | None], wanted: Wanted) -> Any:
-    """The offsets of the message records among ``records``, read one by one (the schema
-    and channel records among them are taken as :func:`_records` takes them)."""
+def _walk(records: bytes, reading: dict[int, str | None], wanted: Wanted) -> tuple[Any, Any]:
+    """The offsets and lengths of the message records among ``records``, read one by one
+    (the schema and channel records among them are taken as :func:`_records` takes them)."""
     offsets: list[int] = []
-    add = offsets.append
+    lengths: list[int] = []
     pos, end = 0, len(records)
     u64 = _U64.unpack_from
     while pos < end:
@@ -630,12 +650,13 @@ def _walk(records: bytes, reading: dict[int, str | None], wanted: Wanted) -> Any
         if nxt > end:
             raise Cut(f"a record of {length} bytes runs past its chunk")
         if op == _MESSAGE:
-            add(pos)
+            offsets.append(pos)
+            lengths.append(length)
         elif op in (_SCHEMA, _CHANNEL):
             for _ in _records(records[pos:nxt], reading, wanted, _no_schema):
                 pass
         pos = nxt
-    return np.array(offsets, np.int64)
+    return np.array(offsets, np.int64), np.array(lengths, np.uint64)
 
 
 def _no_schema(_: Schema) -> None:

@@ -43,6 +43,7 @@ STAMPS = range(-(2**63), 2**63)  # a stamp is signed 64-bit nanoseconds, as ROS 
 # in chunks of 4,096, in a process holding 200,000 other objects).
 BLOCK_BYTES = 1 << 15
 CHUNK_EVENTS = 512
+_COLUMN_READS = 4096  # messages whose fields one column read gathers
 # json.loads' own parser (the C scanner that JSONDecoder.raw_decode calls), without the checks
 # and the whitespace matching around it: a line is parsed exactly as json.loads parses it
 _SCAN: Callable[[str, int], tuple[Any, int]] = json.JSONDecoder().scan_once  # type: ignore[attr-defined]
@@ -587,6 +588,8 @@ class _BagReading:
         for topic, cids in by_topic.items():
             mine = b.channel == cids[0] if len(cids) == 1 else np.isin(b.channel, cids)
             at = np.flatnonzero(mine)
+            if not len(at):
+                continue
             read = self._topic_columns(topic, b, at)
             if read is None:
                 return None
@@ -602,25 +605,19 @@ class _BagReading:
         reader = self.column_readers.get(topic)
         if reader is None:  # (a string field) one by one, into columns of Python values
             return self._topic_rows(topic, b, at)
-        if len(b.buffers) == 1:
-            got = reader(b.buffers[0], b.start[at], b.end[at])
+        starts, ends = b.start[at], b.end[at]
+        if len(at) <= _COLUMN_READS:
+            got = reader(b.buffer, starts, ends)
             return None if got is None else (got.values, got.stamps)
-        parts = []
-        buffer = b.buffer[at]
-        for i, buf in enumerate(b.buffers):
-            here = buffer == i
-            got = reader(buf, b.start[at][here], b.end[at][here])
+        parts = []  # a few thousand messages a call: each read's bytes still in the cache
+        for i in range(0, len(at), _COLUMN_READS):
+            got = reader(b.buffer, starts[i : i + _COLUMN_READS], ends[i : i + _COLUMN_READS])
             if got is None:
                 return None
-            parts.append((here, got))
-        values = [np.empty(len(at), c.dtype) for c in parts[0][1].values]
-        stamped = None if parts[0][1].stamps is None else np.empty(len(at), np.int64)
-        for here, got in parts:
-            for out, column in zip(values, got.values, strict=True):
-                out[here] = column
-            if stamped is not None and got.stamps is not None:
-                stamped[here] = got.stamps
-        return values, stamped
+            parts.append(got)
+        values = [np.concatenate(c) for c in zip(*(p.values for p in parts), strict=True)]
+        stamps = None if parts[0].stamps is None else np.concatenate([p.stamps for p in parts])
+        return values, stamps
 
     def _topic_rows(
         self, topic: str, b: mcap_stream.Batch, at: npt.NDArray[np.int64]
@@ -628,13 +625,11 @@ class _BagReading:
         """A topic's messages of a batch read one by one (:mod:`edgerv.core.cdr`) into
         columns of Python objects; None at a message that cannot be read."""
         assert self.readers is not None
-        read, buffers = self.readers[topic], b.buffers
+        read, buffer = self.readers[topic], b.buffer
         rows, stamps = [], []
         try:
-            for buf, start, end in zip(
-                b.buffer[at].tolist(), b.start[at].tolist(), b.end[at].tolist(), strict=True
-            ):
-                values, stamp = read(buffers[buf][start:end].tobytes())
+            for start, end in zip(b.start[at].tolist(), b.end[at].tolist(), strict=True):
+                values, stamp = read(buffer[start:end].tobytes())
                 rows.append(values)
                 stamps.append(stamp or 0)
         except Exception:
@@ -707,14 +702,10 @@ def _nonempty(chunk: EventChunk) -> Iterator[EventChunk]:
 def _messages_of(batch: tuple[mcap_stream.Batch, dict[int, str]]) -> list[Message]:
     """A batch's messages one by one: (topic, log time, CDR bytes)."""
     b, channels = batch
+    buffer = b.buffer
     return [
-        (channels[channel], log_time, b.buffers[buf][start:end].tobytes())
-        for buf, channel, log_time, start, end in zip(
-            b.buffer.tolist(),
-            b.channel.tolist(),
-            b.log_time.tolist(),
-            b.start.tolist(),
-            b.end.tolist(),
-            strict=True,
+        (channels[channel], log_time, buffer[start:end].tobytes())
+        for channel, log_time, start, end in zip(
+            b.channel.tolist(), b.log_time.tolist(), b.start.tolist(), b.end.tolist(), strict=True
         )
     ]
