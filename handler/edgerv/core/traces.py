@@ -23,6 +23,7 @@ from operator import contains, itemgetter
 from pathlib import Path
 from typing import Any, BinaryIO, cast
 
+import msgspec
 import numpy as np
 import numpy.typing as npt
 
@@ -49,6 +50,35 @@ _COLUMN_READS = 4096  # messages whose fields one column read gathers
 _SCAN: Callable[[str, int], tuple[Any, int]] = json.JSONDecoder().scan_once  # type: ignore[attr-defined]
 _FIRST_STAMP, _LAST_STAMP = STAMPS[0], STAMPS[-1]
 _UNREAD = object()  # a line the quick reading did not parse
+
+
+class _Record(msgspec.Struct):
+    """A JSON Lines record as msgspec decodes it: its message left undecoded."""
+
+    topic: str
+    msg: msgspec.Raw
+    stamp: int | None = None
+
+
+class _Headed(msgspec.Struct):
+    """A message as far as its header: the rest is skipped, not decoded."""
+
+    header: Any = None
+
+
+_LINES = msgspec.json.Decoder(_Record)
+_ANY = msgspec.json.Decoder()
+_HEADED = msgspec.json.Decoder(_Headed)
+
+
+def _header_of(raw: bytes) -> Any:
+    """A message with only its header decoded, as :func:`header_stamp` reads it."""
+    try:
+        return {"header": _HEADED.decode(raw).header}
+    except msgspec.ValidationError:  # not an object: decoded whole
+        return _ANY.decode(raw)
+
+
 _FIRST, _SECOND = itemgetter(0), itemgetter(1)
 _HAS: Callable[[Any, str], bool] = contains
 
@@ -266,9 +296,11 @@ class Trace:
         """Read the lines of ``data`` (each ending with a newline) into ``chunk``; return
         the number of the last one. Raises :class:`InputError` at a bad line, ``chunk``
         holding the events before it."""
+        lineno += 1  # the first line's number
+        if self._take_decoded(chunk, lineno, data, topics):
+            return lineno + data.count(b"\n") - 1
         lines = data.decode("utf-8", errors="replace").split("\n")
         lines.pop()  # after the last newline
-        lineno += 1  # the first line's number
         parsed = _scan_lines(lines)
         if self._take_block(chunk, lineno, lines, parsed, topics):
             return lineno + len(lines) - 1
@@ -315,6 +347,59 @@ class Trace:
                 chunk.add(event)
         self.end = latest
         return lineno + len(lines) - 1
+
+    def _take_decoded(
+        self, chunk: EventChunk, lineno: int, data: bytes, topics: Collection[str]
+    ) -> bool:
+        """Take the whole block into ``chunk`` if msgspec's decoder reads every line as a
+        record of the usual shape (a topic read: an integer stamp in range, a msg object
+        without a header; any other topic: what it shows of time); else leave it to the
+        readers below. The messages of other topics are not decoded (msgspec.Raw) unless
+        they may hold a header. A line msgspec refuses (JSON's NaN, a number beyond a
+        float, a lone surrogate, invalid UTF-8, a blank line) sends the block below."""
+        try:
+            records = _LINES.decode_lines(data)
+        except (msgspec.DecodeError, RecursionError, UnicodeDecodeError):  # named below
+            return False
+        if len(records) != data.count(b"\n"):  # a blank line, skipped: the lines' numbers
+            return False
+        tops: list[str] = []
+        stamps: list[int] = []
+        msgs: list[dict[str, Any]] = []
+        places: list[int] = []
+        others: set[str] = set()
+        latest = self.end
+        try:  # (a message's number beyond a float: refused only as it is decoded)
+            for i, record in enumerate(records):
+                topic, raw, stamp = record.topic, record.msg, record.stamp
+                if topic in topics:
+                    msg = _ANY.decode(raw)
+                    if type(msg) is not dict or "header" in msg or stamp is None:
+                        return False  # (a stamp from the header, or an error: below)
+                    if not _FIRST_STAMP <= stamp <= _LAST_STAMP:
+                        return False
+                    tops.append(topic)
+                    stamps.append(stamp)
+                    msgs.append(msg)
+                    places.append(lineno + i)
+                    at = stamp
+                else:  # not read, but it shows that time passed
+                    others.add(topic)
+                    held = bytes(raw)
+                    if b"header" in held or b"\\" in held:  # (a key spelled with escapes)
+                        stamped = header_stamp(_header_of(held))
+                        stamp = stamp if stamped is None else stamped
+                    if stamp is None or not _FIRST_STAMP <= stamp <= _LAST_STAMP:
+                        continue
+                    at = stamp
+                if latest is None or at > latest:
+                    latest = at
+        except (msgspec.DecodeError, RecursionError, UnicodeDecodeError):  # named below
+            return False
+        chunk.topics, chunk.stamps, chunk.msgs, chunk.places = tops, stamps, msgs, places
+        self.others |= others
+        self.end = latest
+        return True
 
     def _take_block(
         self,
