@@ -11,7 +11,16 @@ from pathlib import Path
 
 BENCH = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH))
-MODULES = ["evaluate", "ingest", "scale", "check_throughput", "timed_check", "migrate"]
+MODULES = [
+    "evaluate",
+    "ingest",
+    "scale",
+    "check_throughput",
+    "check_bag",
+    "check_jsonl",
+    "timed_check",
+    "migrate",
+]
 
 
 def machine() -> str:
