@@ -23,7 +23,7 @@ from edgerv.core import columns
 from edgerv.core.checker import CheckRun
 from edgerv.core.diagnostics import Location
 from edgerv.core.monitor import CompiledMonitor
-from edgerv.core.traces import EventChunk, TraceEvent
+from edgerv.core.traces import EventChunk, TraceEvent, chunks_of
 from helpers import compiled
 
 MS = 1_000_000
@@ -79,14 +79,22 @@ def column_chunk(events: list[TraceEvent], first: int) -> EventChunk:
     return EventChunk("t", stamps=stamps, columns=cols, first=first)
 
 
-def check_side_by_side(m: CompiledMonitor, events: list[TraceEvent], sizes: list[int]) -> None:
+def check_side_by_side(
+    m: CompiledMonitor, events: list[TraceEvent], sizes: list[int], arrays: bool = True
+) -> None:
+    """Chunks of ``sizes`` (read column-wise, or with ``arrays`` False as a JSON trace's
+    chunks of messages) against one event at a time."""
     batched, single = CheckRun([m]), CheckRun([m])
     fed = 0
     for size in sizes:
         part = events[fed : fed + size]
         if not part:
             break
-        batched.feed_chunk(column_chunk(part, fed + 1))
+        if arrays:
+            batched.feed_chunk(column_chunk(part, fed + 1))
+        else:
+            (chunk,) = chunks_of(part, len(part))
+            batched.feed_chunk(chunk)
         single._feed_events(part)
         fed += len(part)
         (b_rt,), (s_rt,) = batched.router.runtimes.values(), single.router.runtimes.values()
@@ -103,16 +111,29 @@ def test_column_chunks_give_what_one_event_at_a_time_gives(seed: int) -> None:
     rng = random.Random(seed)
     text = random_untimed_past_free(rng) if seed % 3 else random_assertion(rng)
     halt = rng.random() < 0.2
-    m = compiled(text, SIGNALS, onVerdict="halt" if halt else "reset")
+    threshold = rng.choice([1, 1, 2, 3, 7])
+    m = compiled(text, SIGNALS, onVerdict="halt" if halt else "reset", sortThreshold=threshold)
     events = random_run(rng, rng.randint(1, 300), late=0.0 if seed % 2 else 0.03)
     sizes = [rng.choice([1, 2, 5, 17, 64, 300]) for _ in range(300)]
     check_side_by_side(m, events, sizes)
 
 
-def test_the_column_path_is_taken() -> None:
+@pytest.mark.parametrize("seed", range(40))
+def test_a_sort_window_over_json_chunks_gives_what_one_event_at_a_time_gives(seed: int) -> None:
+    """A JSON trace's long chunks, for a monitor with a sort window: compressed a column at
+    a time (values as the Python objects they are) where the events come in order."""
+    rng = random.Random(seed)
+    m = compiled(random_untimed_past_free(rng), SIGNALS, sortThreshold=rng.choice([2, 3, 7]))
+    events = random_run(rng, rng.randint(100, 600), late=0.0 if seed % 2 else 0.02)
+    check_side_by_side(m, events, [rng.choice([130, 200, 333]) for _ in range(10)], arrays=False)
+
+
+@pytest.mark.parametrize("threshold", [1, 3])
+def test_the_column_path_is_taken(threshold: int) -> None:
     """A monitor of ages and comparisons on an in-order run: its chunks are compressed by
-    columns.compress (the side-by-side tests above would pass if it never were)."""
-    m = compiled("always (age(x) < 7ms & x < 2)", SIGNALS)
+    columns.compress (the side-by-side tests above would pass if it never were), with a
+    sort window too (its whole windows; the rest waits in the buffer)."""
+    m = compiled("always (age(x) < 7ms & x < 2)", SIGNALS, sortThreshold=threshold)
     rng = random.Random(1)
     events = random_run(rng, 200, late=0.0)
     called = []

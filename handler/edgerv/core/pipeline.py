@@ -71,6 +71,47 @@ class Arrivals:
     # the stamps, positions and values are NumPy arrays (a bag read column-wise)
     columnar: bool = False
 
+    def split(self, at: int) -> tuple[Arrivals, Arrivals]:
+        """Arrivals in arrays cut before the ``at``-th event: its events before and after."""
+        heads: list[tuple[Any, Any]] = []
+        tails: list[tuple[Any, Any]] = []
+        for positions, values in self.changes:
+            p: Any = positions
+            i = int(p.searchsorted(at)) if len(p) else 0
+            heads.append((p[:i], values[:i]))
+            tails.append((p[i:] - at if len(p) else p, values[i:]))
+        head_groups: list[tuple[Any, tuple[int, ...]]] = []
+        tail_groups: list[tuple[Any, tuple[int, ...]]] = []
+        for positions, signals in self.groups:
+            p = positions
+            i = int(p.searchsorted(at))
+            head_groups.append((p[:i], signals))
+            tail_groups.append((p[i:] - at, signals))
+        return (
+            Arrivals(self.stamps[:at], heads, head_groups, columnar=True),
+            Arrivals(self.stamps[at:], tails, tail_groups, columnar=True),
+        )
+
+    def as_arrays(self) -> Arrivals:
+        """The same arrivals in arrays: positions and stamps of int64, values as the Python
+        objects they are (compared as Python compares them)."""
+        import numpy as np  # here: a check with a sort window over a long chunk
+
+        def objects(values: Sequence[Any]) -> Any:
+            out = np.empty(len(values), object)
+            out[:] = values
+            return out
+
+        def ints(values: Sequence[int]) -> Any:
+            return np.array(values, np.int64)
+
+        return Arrivals(
+            ints(self.stamps),
+            [(ints(p), objects(v)) for p, v in self.changes],
+            [(ints(p), signals) for p, signals in self.groups],
+            columnar=True,
+        )
+
     def as_lists(self) -> Arrivals:
         """The same arrivals in lists of Python values."""
         return Arrivals(
@@ -303,6 +344,12 @@ class MonitorRuntime:
                 return len(self.letters) > 0
             arrivals = arrivals.as_lists()
             stamps = arrivals.stamps
+        elif (  # a sort window over a long chunk: else offered one by one
+            self.threshold != 1
+            and len(stamps) >= COLUMNS_FROM
+            and self._offer_columns(arrivals.as_arrays())
+        ):
+            return len(self.letters) > 0
         if self.threshold != 1 or self.holding or min(stamps) <= self.floor:
             for stamp, updates in zip(stamps, arrivals.every_update(), strict=True):
                 self.offer(stamp, 0, updates)
@@ -319,19 +366,33 @@ class MonitorRuntime:
     def _offer_columns(self, arrivals: Arrivals) -> bool:
         """:meth:`offer_arrivals` for arrivals in arrays, a column at a time
         (:func:`edgerv.core.columns.compress`) where that gives the same letters: False
-        where it does not, having changed nothing."""
-        if self.threshold != 1 or self.holding or self.missing or self.past is not None:
+        where it does not, having changed nothing.
+
+        With ``sortThreshold`` k > 1, events in stamp order arriving at an empty sort
+        buffer are released k at a time in the order they came: the chunk's whole windows
+        are compressed as with k = 1, and the events after the last whole window wait in
+        the buffer, offered one by one."""
+        if self.holding or self.missing or self.past is not None:
             return False
         from edgerv.core import columns  # here: NumPy, for a check's bag alone
 
         stamps: Any = arrivals.stamps  # an int64 array
-        clock = self.clock
+        clock, n, last = self.clock, len(stamps), self.last_released
         if int(stamps.min()) <= self.floor:
             return False
+        whole = n
+        if self.threshold != 1:
+            in_order = not bool((stamps[1:] < stamps[:-1]).any())
+            if self.events or not in_order or (last is not None and int(stamps[0]) < last):
+                return False
+            whole = n - n % self.threshold
+            if not whole:
+                return False
+        head, tail = arrivals.split(whole) if whole < n else (arrivals, None)
         got = columns.compress(
             self.monitor,
-            stamps,
-            arrivals.changes,  # type: ignore[arg-type]
+            head.stamps,  # type: ignore[arg-type]
+            head.changes,  # type: ignore[arg-type]
             self.values,
             self.valuation,
             None if clock is None else clock.now,
@@ -339,19 +400,24 @@ class MonitorRuntime:
         )
         if got is None:
             return False
-        late = int((stamps[1:] < stamps[:-1]).sum())
-        if self.last_released is not None and int(stamps[0]) < self.last_released:
+        released = stamps[:whole]
+        late = int((released[1:] < released[:-1]).sum())
+        if last is not None and int(released[0]) < last:
             late += 1
         self.late_events += late
-        self.last_released = int(stamps[-1])
+        self.last_released = int(released[-1])
         self.values[:] = got.values
         self.valuation = int(got.letters[-1])
         self.letters.frombytes(got.letters.astype(self.letters.typecode).tobytes())
         self.stamps.frombytes(got.stamps.tobytes())
         if clock is not None:
             clock.last = got.last
-            clock.now = int(stamps[-1])
+            clock.now = int(released[-1])
             clock.deadline = clock.next_deadline()
+        if tail is not None:  # the start of a window: into the sort buffer
+            rest = tail.as_lists()
+            for stamp, updates in zip(rest.stamps, rest.every_update(), strict=True):
+                self.offer(stamp, 0, updates)
         return True
 
     def _compress_arrivals(self, arrivals: Arrivals, in_order: bool) -> None:

@@ -352,9 +352,9 @@ class Trace:
         self, chunk: EventChunk, lineno: int, data: bytes, topics: Collection[str]
     ) -> bool:
         """Take the whole block into ``chunk`` if msgspec's decoder reads every line as a
-        record of the usual shape (a topic read: an integer stamp in range, a msg object
-        without a header; any other topic: what it shows of time); else leave it to the
-        readers below. The messages of other topics are not decoded (msgspec.Raw) unless
+        record of the usual shape (a topic read: a msg object, its header's stamp or an
+        integer stamp, in range; any other topic: what it shows of time); else leave it
+        to the readers below. The messages of other topics are not decoded (msgspec.Raw) unless
         they may hold a header. A line msgspec refuses (JSON's NaN, a number beyond a
         float, a lone surrogate, invalid UTF-8, a blank line) sends the block below."""
         try:
@@ -374,10 +374,13 @@ class Trace:
                 topic, raw, stamp = record.topic, record.msg, record.stamp
                 if topic in topics:
                     msg = _ANY.decode(raw)
-                    if type(msg) is not dict or "header" in msg or stamp is None:
-                        return False  # (a stamp from the header, or an error: below)
-                    if not _FIRST_STAMP <= stamp <= _LAST_STAMP:
+                    if type(msg) is not dict:
                         return False
+                    if "header" in msg:  # its stamp, when it was stamped
+                        stamped = header_stamp(msg)
+                        stamp = stamp if stamped is None else stamped
+                    if stamp is None or not _FIRST_STAMP <= stamp <= _LAST_STAMP:
+                        return False  # (an error: named below)
                     tops.append(topic)
                     stamps.append(stamp)
                     msgs.append(msg)
