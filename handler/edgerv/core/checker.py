@@ -206,15 +206,23 @@ def _indexes_by_topic(topics: list[str], wanted: Collection[str]) -> dict[str, l
 
 def _arrivals(chunk: EventChunk, reads: list[tuple[Column, Binding]], signals: int) -> Arrivals:
     """A monitor's events of the chunk, from the columns of the topics it reads."""
-    changes: list[tuple[Sequence[int], Sequence[Any]]] = [((), ())] * signals
-    groups: list[tuple[Sequence[int], tuple[int, ...]]] = []
     keys, positions = _positions([indexes for (indexes, _), _ in reads], len(chunk))
+    stamps = chunk.stamps if len(keys) == len(chunk) else list(map(chunk.stamps.__getitem__, keys))
+    return Arrivals(stamps, *_updates(reads, positions, signals))
+
+
+def _updates(
+    reads: list[tuple[Any, Binding]], positions: list[Any], signals: int
+) -> tuple[list[tuple[Any, Any]], list[tuple[Any, tuple[int, ...]]]]:
+    """A monitor's changes and groups (:class:`Arrivals`): each topic's events at
+    ``positions`` among the monitor's, with the values of the fields its signals read."""
+    changes: list[tuple[Any, Any]] = [((), ())] * signals
+    groups: list[tuple[Any, tuple[int, ...]]] = []
     for ((_, values), binding), at in zip(reads, positions, strict=True):
         for s, f in binding:
             changes[s] = (at, values[f])
         groups.append((at, tuple(s for s, _ in binding)))
-    stamps = chunk.stamps if len(keys) == len(chunk) else list(map(chunk.stamps.__getitem__, keys))
-    return Arrivals(stamps, changes, groups)
+    return changes, groups
 
 
 def _positions(indexes: list[list[int]], chunk: int) -> tuple[Sequence[int], list[Sequence[int]]]:
@@ -233,8 +241,6 @@ def _column_arrivals(stamps: Any, reads: list[tuple[Any, Binding]], signals: int
     """:func:`_arrivals` for a chunk read column-wise: the same, in arrays."""
     import numpy as np  # (a chunk read column-wise comes with NumPy loaded)
 
-    changes: list[tuple[Any, Any]] = [((), ())] * signals
-    groups: list[tuple[Any, tuple[int, ...]]] = []
     indexes = [at for (at, _), _ in reads]
     if len(indexes) == 1:
         keys, positions = indexes[0], [np.arange(len(indexes[0]))]
@@ -247,9 +253,5 @@ def _column_arrivals(stamps: Any, reads: list[tuple[Any, Binding]], signals: int
         keys = np.flatnonzero(mine)
         rank = np.cumsum(mine) - 1
         positions = [rank[at] for at in indexes]
-    for ((_, values), binding), at in zip(reads, positions, strict=True):
-        for s, f in binding:
-            changes[s] = (at, values[f])
-        groups.append((at, tuple(s for s, _ in binding)))
     mine = stamps if keys is None else stamps[keys]
-    return Arrivals(mine, changes, groups, columnar=True)
+    return Arrivals(mine, *_updates(reads, positions, signals), columnar=True)
