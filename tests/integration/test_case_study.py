@@ -74,18 +74,14 @@ def test_once_the_robot_parks_the_policy_brings_monitors_back_down(
     assert "calm below" in summary["migrationReasons"], text
     parked = summary["phases"]["orchestrated"]["parked"]
     assert summary["monitorsMovedBack"] == parked["monitorsBack"] > 0, text
-    assert parked["firstBackAfterSeconds"] >= 8, parked  # the demo's --calm 8
+    # The policy's hysteresis (--calm 8, --cooldown 20) is its own, tested in
+    # test_placement.py. Not asserted here: that the first move back comes 8 s after the
+    # arrival. The loop, once shed, can be calm (p95 under 0.95 of its deadline) in the
+    # robot's last seconds to its goal, and then the first move back comes with the
+    # policy's first decision after it parks (0.1 s after, seen on 2026-11-25).
+    assert parked["firstBackAfterSeconds"] is not None, parked
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="on 2026-11-25 this machine ran 35-50 % slower than on 11-24 (bench/RESULTS.md's "
-    "RTAMT and Reelay baselines) and the edge handler, starved on its CPU beside the "
-    "real-time stage by design, fell behind and lost events: time-decided verdicts of "
-    "3-7 monitors differed live (the same with the code of 33a4fc7, green in CI the day "
-    "before); the handler must report what the middleware dropped before this can hold "
-    "on any machine (see the stop's note)",
-)
 def test_live_verdicts_across_moves_equal_edgerv_check_on_the_recorded_bag(
     run: tuple[int, dict[str, Any], str],
 ) -> None:

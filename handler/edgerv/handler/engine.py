@@ -79,8 +79,9 @@ class Engine(HandoffSteps):
         # topic -> its subscription here is matched with every publisher the ROS graph
         # shows (the ROS layer's; None: no ROS, a silent topic never vouched for)
         self.matched = matched
-        # wall ns at which the ROS layer last found every subscription empty and nothing in
-        # its reorder window: nothing had reached this handler that it had not taken
+        # wall ns before which everything that reached this handler's subscriptions is in
+        # the engine (taken, and out of the reorder window): the ROS layer's, advanced by
+        # each round over every subscription (None: no ROS layer, the wall clock says)
         self.drained_at: int | None = None
         self.lock = threading.RLock()
         self.ready = threading.Condition(self.lock)
@@ -271,9 +272,15 @@ class Engine(HandoffSteps):
 
     def advance_clocks(self, wall_ns: int) -> None:
         """Time passes for the monitors with timed atoms: each takes its clock steps up to
-        ``wall_ns - flush_after`` (this handler's clock; stamps are ROS time), the moment
-        before which it takes every event as in (docs/semantics.md, "Time")."""
-        until = wall_ns - int(self.flush_after * 1e9)
+        ``min(wall_ns, drained_at) - flush_after`` (this handler's clock; stamps are ROS
+        time), the moment before which it takes every event as in (docs/semantics.md,
+        "Time"): a handler that fell behind (starved of CPU, a burst to take) holds its
+        clocks until it has taken what came, so it never steps past an event it has not
+        seen yet."""
+        drained = self.drained_at
+        until = (wall_ns if drained is None else min(wall_ns, drained)) - int(
+            self.flush_after * 1e9
+        )
         with self.lock:
             for slot in self.slots.values():
                 rt = slot.runtime

@@ -354,8 +354,13 @@ class RosIngest:
 
     # -- the take loop ---------------------------------------------------------------------
 
-    def _take_all(self, subs: list[_Sub]) -> list[Taken]:
+    def _take_all(self, subs: list[_Sub]) -> tuple[list[Taken], int]:
+        """One round over ``subs``: up to TAKE_PER_WAKE messages from each, in timestamp
+        order across topics; and the instant (wall ns) before which everything that had
+        reached these subscriptions is now taken: the round's start, or earlier where a
+        subscription still holds messages (the source timestamp of the last one taken)."""
         batch: list[Taken] = []
+        through = time.time_ns()
         version = self._version
         append = batch.append
         oldest_source: int | None = None
@@ -372,28 +377,31 @@ class RosIngest:
             first = got[1]["source_timestamp"]  # a subscription's first message is its oldest
             oldest_source = first if oldest_source is None else min(oldest_source, first)
             lag = 0  # the most a message here was published after its header stamp
-            for _ in range(TAKE_PER_WAKE):
+            left = TAKE_PER_WAKE
+            while got is not None:
                 raw, info = got
+                source = info["source_timestamp"]
                 try:
                     values, stamp = reader(raw)
                 except Exception:  # a malformed message is counted and skipped
                     self._bad_message(topic, sub.route.msg_type)
                 else:
-                    source = info["source_timestamp"]
                     if stamp and source - stamp > lag:
                         lag = source - stamp
                     # unstamped: 0; the bytes and the routes' version: read again if they change
                     append((stamp or source, topic, values, raw, version))
-                got = take(cls, True)
-                if got is None:
+                left -= 1
+                if not left:  # messages may be left: taken up to this one's publication
+                    through = min(through, source)
                     break
+                got = take(cls, True)
             if lag > lags.get(topic, 0):
                 lags[topic] = min(lag, lag_cap)
         if oldest_source is not None:
             self.engine.ingest_lag = max(0.0, (time.time_ns() - oldest_source) / 1e9)
         if delivered > 1:
             batch.sort(key=_FIRST)  # one order across topics: by timestamp
-        return batch
+        return batch, through
 
     def _ingest(self, items: list[Taken]) -> None:
         """Hand taken messages to the engine, read for the fields its routes have now.
@@ -426,6 +434,16 @@ class RosIngest:
         n = self.bad_messages[topic] = self.bad_messages.get(topic, 0) + 1
         if n in (1, 10, 100) or n % 1000 == 0:
             log.warning("%s: %d messages could not be read as %s", topic, n, msg_type)
+
+    def _drained(self, through: int, reorder: ReorderWindow[Taken] | None) -> None:
+        """Everything that reached this handler before ``through`` (wall ns) is taken:
+        it is in the engine once no older stamp waits in the reorder window. The
+        monitors' clocks and a handoff's cut wait for this instant (engine.drained_at)."""
+        if reorder is not None and reorder.pending:
+            through = min(through, reorder.pending[0][0])
+        drained = self.engine.drained_at
+        if drained is None or through > drained:
+            self.engine.drained_at = through
 
     def _loop(self) -> None:
         stack = contextlib.ExitStack()
@@ -469,6 +487,7 @@ class RosIngest:
                 holding = reorder is not None and reorder.pending
                 timeout = self.reorder_window if holding else 0.1
                 wait_set.wait(int(timeout * 1e9))  # 100 ms at most: reconfiguration goes on
+                waited_at = time.time_ns()
                 if reorder is not None:
                     ingest(reorder.due(time.monotonic()))
                 ready = set(wait_set.get_ready_entities("subscription"))
@@ -476,21 +495,27 @@ class RosIngest:
                     ready.discard(timed.subscription.handle.pointer)  # not a monitor's topic
                     self._take_deadline(timed)
                 if not ready:  # (the monitors' topics: the deadline's does not count)
-                    if reorder is None or not reorder.pending:  # everything here was taken
-                        self.engine.drained_at = time.time_ns()
+                    self._drained(waited_at, reorder)  # everything here was taken
                     continue
                 time.sleep(COALESCE_SECONDS)  # let a burst gather: fewer, larger batches
-                subs = [s for s in self.subs.values() if s.subscription.handle.pointer in ready]
-                batch = self._take_all(subs)
+                # Every round takes from every subscription, not only from those ready at
+                # the wait: a topic that was quiet then is not left behind while the
+                # others keep coming (it would reach the monitors later than the reorder
+                # window allows), and a round over all of them says how far this
+                # handler has taken everything (the monitors' clocks wait for that).
+                subs = list(self.subs.values())
+                batch, through = self._take_all(subs)
                 while batch:  # keep taking while messages keep coming, then wait again
                     if reorder is not None and (several or reorder.pending):
                         taken(batch)  # a monitor being received learns its cut sooner
                         ingest(reorder.add(batch, time.monotonic()))
                     else:
                         ingest(batch)
+                    self._drained(through, reorder)
                     if timed is not None:  # an overloaded handler measures on, too
                         self._take_deadline(timed)
-                    batch = self._take_all(subs)
+                    batch, through = self._take_all(subs)
+                self._drained(through, reorder)
         finally:
             if reorder is not None:
                 ingest(reorder.drain())  # nothing taken is lost at shutdown
