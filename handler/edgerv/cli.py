@@ -23,7 +23,7 @@ from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import load_monitors
 from edgerv.core.monitor import CompiledMonitor, compile_monitors
 from edgerv.core.spot_worker import add_budget_argument, worker
-from edgerv.core.traces import Trace
+from edgerv.core.trace_set import TraceSet, expand
 from edgerv.report import print_table, to_json
 
 EXIT_OK, EXIT_VIOLATED, EXIT_INPUT = 0, 1, 2
@@ -56,7 +56,11 @@ def _emit(results: list[MonitorResult], as_json: bool) -> None:
 
 def cmd_check(args: argparse.Namespace) -> int:
     worker.budget = args.synthesis_budget
-    trace = Trace(Path(args.trace))
+    try:
+        trace = TraceSet(expand([Path(p) for p in args.traces]))
+    except InputError as exc:
+        _report(exc.diagnostics)
+        return EXIT_INPUT
     try:  # the process may end without its teardown: the trace's temporary files go here
         try:
             trace.open()  # first: a bag's own message definitions serve the monitors' types
@@ -92,7 +96,7 @@ def _collecting_little() -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def _progress_bar(name: str, total: int, trace: Trace) -> Iterator[Callable[[int], None]]:
+def _progress_bar(name: str, total: int, trace: TraceSet) -> Iterator[Callable[[int], None]]:
     """A progress bar on the terminal (bytes of a JSON trace, messages of a bag) with the
     events checked per second; the function that advances it."""
     from rich.console import Console
@@ -116,11 +120,11 @@ def _progress_bar(name: str, total: int, trace: Trace) -> Iterator[Callable[[int
         yield advance
 
 
-def _check(args: argparse.Namespace, run: CheckRun, trace: Trace, total: int) -> int:
+def _check(args: argparse.Namespace, run: CheckRun, trace: TraceSet, total: int) -> int:
     """Feed the trace to the monitors and print the verdicts; the exit code."""
     try:
         if sys.stderr.isatty() and total and not args.no_progress:
-            with _progress_bar(args.trace, total, trace) as advance:
+            with _progress_bar(trace.name, total, trace) as advance:
                 run.feed(trace.events(run.topics, advance, run.fields()))
         else:
             run.feed(trace.events(run.topics, fields=run.fields()))
@@ -139,7 +143,7 @@ def _check(args: argparse.Namespace, run: CheckRun, trace: Trace, total: int) ->
     _report(unread)
     if not any(trace.counts.values()):  # a verification tool never passes having read nothing
         print(
-            f"edgerv: error: no message of any monitored topic was read from {args.trace}: "
+            f"edgerv: error: no message of any monitored topic was read from {trace.name}: "
             "nothing was checked",
             file=sys.stderr,
         )
@@ -174,7 +178,11 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         "monitors", help="a Monitor YAML file (several documents allowed) or a directory of them"
     )
     check.add_argument(
-        "trace", help="a .jsonl trace, or a rosbag2 bag (.mcap, .db3 or its directory)"
+        "traces",
+        nargs="+",
+        metavar="trace",
+        help="a .jsonl trace, or a rosbag2 bag (.mcap, .db3 or its directory), or a "
+        "directory of them; several are checked as one run, merged in stamp order",
     )
     check.add_argument("--json", action="store_true", help="print the verdicts as JSON")
     check.add_argument("--no-progress", action="store_true", help="no progress bar")

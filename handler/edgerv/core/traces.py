@@ -539,12 +539,13 @@ class Trace:
                     Location(str(self.path)),
                     f"no message on {topic} was read (monitors reading it: {names})",
                     severity="warning",
-                    hint=self._instead(topic),
+                    hint=self.instead(topic),
                 )
             )
         return out
 
-    def _instead(self, topic: str) -> str:
+    def instead(self, topic: str) -> str:
+        """What the trace has instead of ``topic`` (a hint for a topic it gave no event of)."""
         if self.bag is not None:
             recorded = self.bag.topics.get(topic)
             if recorded is not None:
