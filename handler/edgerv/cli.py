@@ -66,6 +66,7 @@ def cmd_check(args: argparse.Namespace) -> int:
             trace.open()  # first: a bag's own message definitions serve the monitors' types
             monitors = load_compiled(args.monitors)
             run = CheckRun(monitors)
+            trace.ends_needed = run.clocked
             total = trace.inspect(run.topics)
             type_errors = check_types(monitors, trace.msgtypes)
             if type_errors:

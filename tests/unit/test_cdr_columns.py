@@ -20,12 +20,11 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
-from rosbags.typesys import get_types_from_msg
 from test_cdr import _NP
 
 from edgerv.core.cdr import MALFORMED, compile_reader
 from edgerv.core.cdr_columns import ColumnReader, Columns, compile_column_reader
-from edgerv.core.msgtypes import parse_field_path, typestore
+from edgerv.core.msgtypes import parse_field_path, register_definition, typestore
 
 PKG = "edgerv_columns_test/msg/"
 DEFINITIONS = {
@@ -85,11 +84,8 @@ int64 last
 
 
 def _register() -> None:
-    store = typestore()
-    types: dict[str, Any] = {}
     for name, text in DEFINITIONS.items():
-        types.update(get_types_from_msg(text, PKG + name))
-    store.register({k: v for k, v in types.items() if k not in store.fielddefs})
+        assert register_definition(PKG + name, "ros2msg", text)
 
 
 _register()

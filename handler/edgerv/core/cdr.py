@@ -26,6 +26,7 @@ from collections.abc import Callable, Iterator, Sequence
 from typing import Any, TypeVar
 
 from edgerv.core.msgtypes import (
+    fielddefs,
     make_getter,
     normalize_type,
     parse_field_path,
@@ -142,7 +143,7 @@ class _Gen:
             name = f"_skip{len(self.skippers)}"
             self.skippers[msg_type] = name
             body: list[str] = [f"def {name}(b, p):"]
-            for _, node in typestore().fielddefs[msg_type][1]:
+            for _, node in fielddefs()[msg_type][1]:
                 self.skip(node, 1, body)
             body.append("    return p")
             self.helpers.append("\n".join(body))
@@ -242,7 +243,7 @@ def fields_to_walk(
     the ``wanted`` paths under it (none: it is skipped) and its path. A nested message is
     walked to its end (what follows it starts there); the top-level one (``top``) only up
     to its last wanted field."""
-    fields = typestore().fielddefs[msg_type][1]
+    fields = fielddefs()[msg_type][1]
     depth = len(prefix)
     if top:
         needed = {path[depth] for path in wanted if len(path) > depth}
@@ -255,7 +256,7 @@ def fields_to_walk(
 
 @functools.cache
 def _message_min_size(msg_type: str) -> int:
-    fields: list[tuple[str, Any]] = typestore().fielddefs[msg_type][1]
+    fields: list[tuple[str, Any]] = fielddefs()[msg_type][1]
     return sum(min_size(node) for _, node in fields)
 
 

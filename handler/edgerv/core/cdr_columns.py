@@ -59,9 +59,9 @@ from edgerv.core.cdr import (
 from edgerv.core.msgtypes import (
     FieldError,
     ensure_type,
+    fielddefs,
     normalize_type,
     starts_with_header,
-    typestore,
 )
 
 Int64s = npt.NDArray[np.int64]
@@ -371,7 +371,7 @@ def _fixed(node: tuple[Any, Any]) -> bool:
 
 @functools.cache
 def _fixed_message(msg_type: str) -> bool:
-    return all(_fixed(node) for _, node in typestore().fielddefs[msg_type][1])
+    return all(_fixed(node) for _, node in fielddefs()[msg_type][1])
 
 
 def _largest(node: tuple[Any, Any]) -> int:
@@ -380,7 +380,7 @@ def _largest(node: tuple[Any, Any]) -> int:
     if kind == _BASE:
         return _PRIMITIVES[payload[0]][1]
     if kind == _NAME:
-        return max((_largest(n) for _, n in typestore().fielddefs[payload][1]), default=1)
+        return max((_largest(n) for _, n in fielddefs()[payload][1]), default=1)
     return _largest(payload[0])
 
 
@@ -391,7 +391,7 @@ def _walk_fixed(node: tuple[Any, Any], p: int, budget: list[int]) -> int:
         size = _PRIMITIVES[payload[0]][1]
         return ((p + size - 1) & -size) + size
     if kind == _NAME:
-        for _, field in typestore().fielddefs[payload][1]:
+        for _, field in fielddefs()[payload][1]:
             p = _walk_fixed(field, p, budget)
         return p
     elem, count = payload
@@ -491,7 +491,7 @@ class _Plan:
             else:
                 raise _Unsupported(base)
         elif kind == _NAME:
-            for _, field in typestore().fielddefs[payload][1]:
+            for _, field in fielddefs()[payload][1]:
                 self.skip(field)
         elif kind in (_ARRAY, _SEQUENCE):
             elem, count = payload

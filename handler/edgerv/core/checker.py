@@ -62,6 +62,11 @@ class CheckRun:
     def topics(self) -> set[str]:
         return set(self.router.routes)
 
+    @property
+    def clocked(self) -> bool:
+        """Some monitor takes clock steps: the end of the trace's time matters (finish)."""
+        return any(rt.clock is not None for rt in self.router.runtimes.values())
+
     def fields(self) -> dict[str, list[str]]:
         """Each monitored topic's fields, as its route reads them (in its values' order)."""
         return {topic: list(route.fields) for topic, route in self.router.routes.items()}

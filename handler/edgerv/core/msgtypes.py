@@ -14,12 +14,13 @@ of an array or sequence (``ranges[0]``).
 
 from __future__ import annotations
 
+import contextlib
+import json
 import os
 import re
 import sys
 import threading
 from dataclasses import dataclass
-from functools import cache
 from pathlib import Path
 from typing import Any, Literal
 
@@ -58,15 +59,95 @@ class FieldStep:
     indexes: tuple[int, ...]
 
 
-@cache
+_REGISTER = threading.Lock()
+# ROS 2 Jazzy's standard definitions as rosbags' store for Jazzy holds them, written out
+# (write_snapshot): read in a millisecond, where the store takes 120 ms to build (it makes
+# a class per type), a quarter of a short check's startup. Used only with the rosbags
+# release it was written from (test_msgtypes.py keeps it equal to that store).
+SNAPSHOT = Path(__file__).with_name("jazzy_types.json")
+_store: Any = None  # rosbags' store, made when a message is first decoded whole
+_known: dict[str, Any] | None = None  # fielddefs()
+
+
+def _rosbags_release() -> str | None:
+    """The installed rosbags' version, from its dist-info directory's name (importlib's
+    metadata costs 60 ms to import)."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("rosbags")
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    site = Path(next(iter(spec.submodule_search_locations))).parent
+    with os.scandir(site) as entries:
+        for entry in entries:
+            name = entry.name
+            if name.startswith("rosbags-") and name.endswith(".dist-info"):
+                return name[len("rosbags-") : -len(".dist-info")]
+    return None
+
+
+def _tuples(value: Any) -> Any:
+    return tuple(map(_tuples, value)) if isinstance(value, list) else value
+
+
+def _snapshot() -> dict[str, Any] | None:
+    """The snapshot's definitions, if it was written from the installed rosbags."""
+    with contextlib.suppress(OSError, ValueError, KeyError, TypeError):
+        snapshot = json.loads(SNAPSHOT.read_text(encoding="utf-8"))
+        if snapshot["rosbags"] == _rosbags_release():
+            return {name: _tuples(d) for name, d in snapshot["types"].items()}
+    return None
+
+
+def fielddefs() -> dict[str, Any]:
+    """Every type known: name -> (constants, fields) in rosbags' form (node kinds as
+    ints). The standard Jazzy definitions, then the types registered as found (a bag's
+    own definitions, .msg files: :func:`ensure_type`, :func:`register_definition`)."""
+    global _known
+    if _known is None:
+        loaded = _snapshot()
+        if loaded is None:  # another rosbags release: its own definitions
+            loaded = dict(typestore().fielddefs)
+        with _REGISTER:
+            if _known is None:
+                _known = loaded
+    return _known
+
+
 def typestore() -> Any:
-    """The message definitions of ROS 2 Jazzy's standard packages (rosbags' type store)."""
+    """rosbags' type store for ROS 2 Jazzy, with every type registered here since: what
+    decodes a message whole (a bag's messages in a merged check, a CDR reader's fallback)."""
+    global _store
+    if _store is None:
+        from rosbags.typesys import Stores, get_typestore
+
+        store = get_typestore(Stores.ROS2_JAZZY)
+        with _REGISTER:
+            if _store is None:
+                if _known is not None:
+                    extra = {k: v for k, v in _known.items() if k not in store.fielddefs}
+                    if extra:
+                        store.register(extra)
+                _store = store
+    return _store
+
+
+def _register(known: dict[str, Any], types: dict[str, Any]) -> None:
+    """Make ``types`` known (those not known already); the caller holds _REGISTER."""
+    new = {k: v for k, v in types.items() if k not in known}
+    known.update(new)
+    if _store is not None and new:
+        _store.register(new)
+
+
+def write_snapshot(path: Path = SNAPSHOT) -> None:
+    """Write the standard Jazzy definitions of the installed rosbags to ``path``
+    (`python -c "from edgerv.core.msgtypes import write_snapshot; write_snapshot()"`)."""
     from rosbags.typesys import Stores, get_typestore
 
-    return get_typestore(Stores.ROS2_JAZZY)
-
-
-_REGISTER = threading.Lock()
+    types = get_typestore(Stores.ROS2_JAZZY).fielddefs
+    text = json.dumps({"rosbags": _rosbags_release(), "types": types}, sort_keys=True)
+    path.write_text(text + "\n", encoding="utf-8")
 
 
 def _definition_dirs() -> list[Path]:
@@ -90,8 +171,8 @@ def ensure_type(msg_type: str) -> bool:
 
     Returns False when no definition is found. Types it refers to are resolved too.
     """
-    store = typestore()
-    if msg_type in store.fielddefs:
+    known = fielddefs()
+    if msg_type in known:
         return True
     from rosbags.typesys import get_types_from_msg
 
@@ -99,7 +180,7 @@ def ensure_type(msg_type: str) -> bool:
         pending, found = [msg_type], {}
         while pending:
             name = pending.pop()
-            if name in store.fielddefs or name in found:
+            if name in known or name in found:
                 continue
             path = _find_definition(name)
             if path is None:
@@ -115,7 +196,7 @@ def ensure_type(msg_type: str) -> bool:
                     node = node[1][0]
                 if int(node[0]) == 2:
                     pending.append(normalize_type(str(node[1])))
-        store.register(found)
+        _register(known, found)
     return True
 
 
@@ -142,9 +223,9 @@ def register_definition(msg_type: str, encoding: str, text: str) -> bool:
             return False
     except Exception:  # rosbags reports what it cannot parse with several types
         return False
-    store = typestore()
+    known = fielddefs()
     with _REGISTER:
-        store.register({k: v for k, v in types.items() if k not in store.fielddefs})
+        _register(known, types)
     return True
 
 
@@ -157,12 +238,12 @@ def starts_with_header(msg_type: str) -> bool:
             return False
     except FieldError:
         return False
-    fields = typestore().fielddefs[name][1]
+    fields = fielddefs()[name][1]
     return bool(fields) and fields[0][0] == "header" and fields[0][1][1] == "std_msgs/msg/Header"
 
 
 def known_types() -> list[str]:
-    return sorted(typestore().fielddefs)
+    return sorted(fielddefs())
 
 
 def normalize_type(msg_type: str) -> str:
@@ -193,12 +274,12 @@ def parse_field_path(path: str) -> tuple[FieldStep, ...]:
 
 def field_kind(msg_type: str, path: str) -> ValueKind:
     """The kind of value at ``path`` in ``msg_type``; raises :class:`FieldError`."""
-    store = typestore()
+    known = fielddefs()
     current = normalize_type(msg_type)
     if not ensure_type(current):
         import difflib
 
-        close = difflib.get_close_matches(current, store.fielddefs, n=2, cutoff=0.7)
+        close = difflib.get_close_matches(current, known, n=2, cutoff=0.7)
         own = "a package of your own: put its msg/ directory under a directory of $EDGERV_MSG_PATH"
         hint = (
             ("did you mean " + " or ".join(close) + "? Or, for " + own)
@@ -215,7 +296,7 @@ def field_kind(msg_type: str, path: str) -> ValueKind:
                 f"field '{'.'.join(walked)}' of {msg_type} is not a message, "
                 f"so it has no field '{step.name}'"
             )
-        fields = dict(store.fielddefs[payload][1])
+        fields = dict(known[payload][1])
         if step.name not in fields:
             raise FieldError(
                 f"{payload} has no field '{step.name}'"
@@ -235,7 +316,7 @@ def field_kind(msg_type: str, path: str) -> ValueKind:
             f"pick one element, e.g. {path}[0]",
         )
     if kind_code == 2:
-        sub = ", ".join(name for name, _ in store.fielddefs[payload][1])
+        sub = ", ".join(name for name, _ in known[payload][1])
         raise FieldError(
             f"field '{path}' of {msg_type} is a {payload} message, not a value",
             f"pick one of its fields: {sub}",

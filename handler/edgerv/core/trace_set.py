@@ -84,6 +84,16 @@ class TraceSet:
         self.name = shown if len(paths) <= 3 else f"{shown} and {len(paths) - 3} more"
 
     @property
+    def ends_needed(self) -> bool:
+        """Whether the end of the traces' time is read from topics no monitor reads."""
+        return all(t.ends_needed for t in self.traces)
+
+    @ends_needed.setter
+    def ends_needed(self, needed: bool) -> None:
+        for trace in self.traces:
+            trace.ends_needed = needed
+
+    @property
     def counts(self) -> Counter[str]:
         total: Counter[str] = Counter()
         for trace in self.traces:

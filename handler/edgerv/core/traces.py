@@ -18,8 +18,8 @@ import json
 from collections import Counter
 from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from itertools import islice, repeat
-from operator import contains, itemgetter
+from itertools import compress, islice, repeat
+from operator import attrgetter, contains, itemgetter
 from pathlib import Path
 from typing import Any, BinaryIO, cast
 
@@ -37,12 +37,13 @@ from edgerv.core.pipeline import header_stamp
 
 Progress = Callable[[int], None]  # advance by n units (bytes or messages)
 STAMPS = range(-(2**63), 2**63)  # a stamp is signed 64-bit nanoseconds, as ROS time is
-# A JSON trace is read this much at a time (about 2,000 short lines), a bag's (or any
-# stream's) events handed on this many at a time. Small: a chunk's messages live until it is
-# checked, and what outlives a few thousand allocations moves to the cycle collector's
-# oldest generation, whose collections walk every object (a bag's check took 30% longer
-# in chunks of 4,096, in a process holding 200,000 other objects).
-BLOCK_BYTES = 1 << 15
+# A JSON trace is read this much at a time (about 8,000 short lines: the work per block,
+# not per line, took a sixth of a check of 300,000 robot events in blocks of 32 KiB), a
+# bag's (or any stream's) events handed on this many at a time. Small: a chunk's messages
+# live until it is checked, and what outlives a few thousand allocations moves to the
+# cycle collector's oldest generation, whose collections walk every object (a bag's check
+# took 30% longer in chunks of 4,096, in a process holding 200,000 other objects).
+BLOCK_BYTES = 1 << 17
 CHUNK_EVENTS = 512
 _COLUMN_READS = 4096  # messages whose fields one column read gathers
 # json.loads' own parser (the C scanner that JSONDecoder.raw_decode calls), without the checks
@@ -79,8 +80,22 @@ def _header_of(raw: bytes) -> Any:
         return _ANY.decode(raw)
 
 
+def _other_stamp(record: _Record) -> int | None:
+    """The time a record of a topic no monitor reads shows: its header's stamp, else its
+    ``stamp``; None when neither is a stamp in range. Its message is decoded only as far
+    as its header, and only if it may hold one."""
+    stamp, held = record.stamp, bytes(record.msg)
+    if b"header" in held or b"\\" in held:  # (a key spelled with escapes)
+        stamped = header_stamp(_header_of(held))
+        stamp = stamp if stamped is None else stamped
+    if stamp is None or not _FIRST_STAMP <= stamp <= _LAST_STAMP:
+        return None
+    return stamp
+
+
 _FIRST, _SECOND = itemgetter(0), itemgetter(1)
 _HAS: Callable[[Any, str], bool] = contains
+_TOPIC, _MSG, _STAMP = attrgetter("topic"), attrgetter("msg"), attrgetter("stamp")
 
 
 @dataclass(frozen=True)
@@ -225,6 +240,9 @@ class Trace:
         # events, read or not (a bag: also its last message's log time). Monitors with
         # timed atoms take their clock steps up to it at the end of a check.
         self.end: int | None = None
+        # False: no monitor has timed atoms, so the stamps of topics no monitor reads need
+        # not be read (a JSON trace's headers of other topics, decoded only for them)
+        self.ends_needed = True
 
     def _saw(self, stamp: int) -> None:
         if self.end is None or stamp > self.end:
@@ -297,8 +315,9 @@ class Trace:
         the number of the last one. Raises :class:`InputError` at a bad line, ``chunk``
         holding the events before it."""
         lineno += 1  # the first line's number
-        if self._take_decoded(chunk, lineno, data, topics):
-            return lineno + data.count(b"\n") - 1
+        count = data.count(b"\n")
+        if self._take_decoded(chunk, lineno, data, count, topics):
+            return lineno + count - 1
         lines = data.decode("utf-8", errors="replace").split("\n")
         lines.pop()  # after the last newline
         parsed = _scan_lines(lines)
@@ -349,7 +368,7 @@ class Trace:
         return lineno + len(lines) - 1
 
     def _take_decoded(
-        self, chunk: EventChunk, lineno: int, data: bytes, topics: Collection[str]
+        self, chunk: EventChunk, lineno: int, data: bytes, count: int, topics: Collection[str]
     ) -> bool:
         """Take the whole block into ``chunk`` if msgspec's decoder reads every line as a
         record of the usual shape (a topic read: a msg object, its header's stamp or an
@@ -361,8 +380,57 @@ class Trace:
             records = _LINES.decode_lines(data)
         except (msgspec.DecodeError, RecursionError, UnicodeDecodeError):  # named below
             return False
-        if len(records) != data.count(b"\n"):  # a blank line, skipped: the lines' numbers
+        if len(records) != count:  # a blank line, skipped: the lines' numbers
             return False
+        taken = self._take_columns(chunk, lineno, records, topics)
+        if taken is not None:
+            return taken
+        return self._take_records(chunk, lineno, records, topics)
+
+    def _take_columns(
+        self, chunk: EventChunk, lineno: int, records: list[_Record], topics: Collection[str]
+    ) -> bool | None:
+        """:meth:`_take_decoded` a column at a time, with no Python code per line, for a
+        block whose messages read have no header (else None: read record by record). The
+        messages read are decoded in one call, as one JSON array of them."""
+        tops = list(map(_TOPIC, records))
+        try:
+            mine = list(compress(range(len(tops)), map(topics.__contains__, tops)))
+        except TypeError:  # (a topic of another type than a string: not read below)
+            return None
+        chosen = list(map(records.__getitem__, mine))
+        try:
+            msgs = _ANY.decode(b"[" + b",".join(map(_MSG, chosen)) + b"]")
+        except (msgspec.DecodeError, RecursionError, UnicodeDecodeError):  # named below
+            return False
+        if set(map(type, msgs)) - {dict} or any(map(_HAS, msgs, repeat("header"))):
+            return None  # (not an object: an error named below)
+        stamps: list[Any] = list(map(_STAMP, chosen))
+        if None in stamps or (stamps and (min(stamps) < _FIRST_STAMP or max(stamps) > _LAST_STAMP)):
+            return False  # (an error: named below)
+        others = set(tops).difference(topics)
+        latest = self.end
+        if stamps and (latest is None or max(stamps) > latest):
+            latest = max(stamps)
+        if others and self.ends_needed:  # what the other topics show of time
+            try:
+                for i in compress(range(len(tops)), map(others.__contains__, tops)):
+                    stamp = _other_stamp(records[i])
+                    if stamp is not None and (latest is None or stamp > latest):
+                        latest = stamp
+            except (msgspec.DecodeError, RecursionError, UnicodeDecodeError):  # named below
+                return False
+        chunk.topics = list(map(tops.__getitem__, mine))
+        chunk.stamps, chunk.msgs = stamps, msgs
+        chunk.places = list(map(lineno.__add__, mine))
+        self.others |= others
+        self.end = latest
+        return True
+
+    def _take_records(
+        self, chunk: EventChunk, lineno: int, records: list[_Record], topics: Collection[str]
+    ) -> bool:
+        """:meth:`_take_decoded` record by record."""
         tops: list[str] = []
         stamps: list[int] = []
         msgs: list[dict[str, Any]] = []
@@ -371,9 +439,9 @@ class Trace:
         latest = self.end
         try:  # (a message's number beyond a float: refused only as it is decoded)
             for i, record in enumerate(records):
-                topic, raw, stamp = record.topic, record.msg, record.stamp
+                topic, stamp = record.topic, record.stamp
                 if topic in topics:
-                    msg = _ANY.decode(raw)
+                    msg = _ANY.decode(record.msg)
                     if type(msg) is not dict:
                         return False
                     if "header" in msg:  # its stamp, when it was stamped
@@ -388,11 +456,8 @@ class Trace:
                     at = stamp
                 else:  # not read, but it shows that time passed
                     others.add(topic)
-                    held = bytes(raw)
-                    if b"header" in held or b"\\" in held:  # (a key spelled with escapes)
-                        stamped = header_stamp(_header_of(held))
-                        stamp = stamp if stamped is None else stamped
-                    if stamp is None or not _FIRST_STAMP <= stamp <= _LAST_STAMP:
+                    stamp = _other_stamp(record)
+                    if stamp is None:
                         continue
                     at = stamp
                 if latest is None or at > latest:
