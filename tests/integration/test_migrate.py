@@ -92,7 +92,14 @@ def test_migrating_mid_stream_loses_and_repeats_nothing(tmp_path: Path, domain: 
         assert edge.stop() == 0, edge.stderr
         assert cloud.stop() == 0, cloud.stderr
     live, offline = live_verdicts(edge, cloud), offline_verdicts(monitors, trace)
-    assert live == offline, (unevaluated, there.stderr, back.stderr, edge.stderr, cloud.stderr)
+    if live != offline:  # all of it, in the report's captured output (not cut short there)
+        for h in (edge, cloud):
+            steps = [
+                (v["step"], v["verdict"]) for v in h.verdicts() if v["monitor"] == "speed-limit"
+            ]
+            print(f"== {h.name}: speed-limit verdicts {steps}\n{h.stderr}")
+        print(f"== migrate there:\n{there.stderr}\n== migrate back:\n{back.stderr}")
+    assert live == offline, unevaluated
     assert any(v["monitor"] == "speed-limit" for v in cloud.verdicts()), "cloud ran it"
 
 

@@ -218,6 +218,16 @@ class HandoffSteps:
             ):
                 return None
             snap = rt.snapshot(cut, epoch)  # rt keeps the events after it
+            log.info(
+                "%s: released at cut %d (epoch %d): step %d, %d letters carried, %d events "
+                "and letters after the cut kept",
+                name,
+                cut,
+                epoch,
+                snap.step,
+                len(snap.letters),
+                rt.buffered,
+            )
             rt.letters, rt.stamps = rt.letters[:0], rt.stamps[:0]
             slot.released = snap
             self._set_handoff(slot, RELEASED)
@@ -269,6 +279,16 @@ class HandoffSteps:
                         raise HandoffError("the snapshot belongs to another handoff")
                     restored.append(
                         (slot, MonitorRuntime.restored(slot.compiled, snap, held.events))
+                    )
+                    log.info(
+                        "%s: adopted at cut %d (epoch %d): step %d, %d letters carried, "
+                        "%d events and letters after the cut held here",
+                        name,
+                        snap.cut,
+                        epoch,
+                        snap.step,
+                        len(snap.letters),
+                        held.buffered,
                     )
                 except HandoffError as exc:
                     raise HandoffError(f"{name}: {exc}") from None
