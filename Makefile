@@ -34,7 +34,7 @@ test-e2e: install
 # All tiers: lint, unit (fast, no ROS), integration (real ROS 2, network namespaces),
 # e2e (a real cluster: $$KUBECONFIG's, else the project's own, brought up and down).
 test: lint
-	$(BIN)/pytest -q tests
+	$(BIN)/pytest -q tests --tiers all
 
 # Fuzzing, longer than `make test` does: each coverage-guided target of tests/fuzz (atheris:
 # the CDR readers, the snapshot bundle) for FUZZ_SECONDS from its seed corpus (new inputs are

@@ -300,6 +300,53 @@ def test_the_api_server_checks_the_shape(cluster: Cluster, namespace: str) -> No
     assert code != 0 and 'spec.onVerdict: Unsupported value: "stop"' in err, err
 
 
+# What a process in a pod may do, seen from inside it (the kernel's word, not the spec's).
+PRIVILEGES = """
+import json, os
+lines = open("/proc/self/status").read().splitlines()
+status = dict(l.split(":\\t", 1) for l in lines if ":\\t" in l)
+try:
+    open("/written-by-the-probe", "w").close(); root = "writable"
+except OSError:
+    root = "read-only"
+print(json.dumps({
+    "uid": os.getuid(), "gid": os.getgid(), "root": root,
+    "token": os.path.exists("/var/run/secrets/kubernetes.io/serviceaccount/token"),
+    "capEff": status["CapEff"].strip(), "noNewPrivs": status["NoNewPrivs"].strip(),
+    "seccomp": status["Seccomp"].strip(),
+}))
+"""
+
+
+def privileges(cluster: Cluster, ns: str, selector: str) -> list[dict[str, Any]]:
+    """What the processes of each pod ``selector`` picks in ``ns`` may do."""
+    pods = json.loads(cluster.run("get", "pods", "-n", ns, "-l", selector, "-o", "json"))["items"]
+    assert pods, selector
+    return [
+        json.loads(
+            cluster.run("exec", "-n", ns, p["metadata"]["name"], "--", "python3", "-c", PRIVILEGES)
+        )
+        for p in pods
+    ]
+
+
+HARDENED = {  # the chart's default securityContext, as the kernel applies it
+    "uid": 10001,
+    "gid": 10001,
+    "root": "read-only",
+    "capEff": "0000000000000000",  # no capability
+    "noNewPrivs": "1",  # allowPrivilegeEscalation: false
+    "seccomp": "2",  # a filter: the runtime's default profile
+}
+
+
+def test_the_handlers_run_unprivileged_with_no_api_token(cluster: Cluster, namespace: str) -> None:
+    seen = privileges(cluster, namespace, "app.kubernetes.io/component=handler")
+    assert len(seen) == 2  # one per node
+    for got in seen:
+        assert got == HARDENED | {"token": False}, got
+
+
 def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None:
     """The chart as a user installs it: the operator's pods place a Monitor too (its own
     namespace and handler port, beside the release the other tests use). Two operator
@@ -341,6 +388,8 @@ def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None
         assert got["phase"] == "Running" and got["tier"] == "edge", json.dumps(got) + cluster.run(
             "logs", "-n", ns, "-l", operator, "--tail=-1"
         )
+        for got in privileges(cluster, ns, operator):  # (its API token it needs: Kopf's)
+            assert got == HARDENED | {"token": True}, got
         leader, worked, peers = acting()
         assert len(peers) == 2 and len(set(peers.values())) == 2, peers
         assert worked == [leader], (worked, peers)  # the other one waits: it did nothing

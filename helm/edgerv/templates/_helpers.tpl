@@ -10,3 +10,8 @@ helm.sh/chart: {{ .Chart.Name }}-{{ .Chart.Version }}
 {{- define "edgerv.tokenSecret" -}}
 {{- if .Values.token.create }}{{ .Release.Name }}-token{{ else }}{{ required "token.existingSecret is required when token.create is false" .Values.token.existingSecret }}{{ end }}
 {{- end }}
+
+{{/* The handlers' ServiceAccount. */}}
+{{- define "edgerv.handlerServiceAccount" -}}
+{{- if .Values.handler.serviceAccount.create }}{{ .Release.Name }}-handler{{ else }}{{ .Values.handler.serviceAccount.name | default "default" }}{{ end }}
+{{- end }}
