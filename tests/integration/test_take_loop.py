@@ -35,6 +35,14 @@ spec:
 ---
 apiVersion: edgerv.io/v1alpha1
 kind: Monitor
+metadata: {name: small}
+spec:
+  assertion: "always (s < 1e9)"
+  signals:
+    s: {topic: /small, type: std_msgs/msg/Float64, qos: {reliability: reliable, depth: 5}}
+---
+apiVersion: edgerv.io/v1alpha1
+kind: Monitor
 metadata: {name: quiet}
 spec:
   assertion: "always (q < 1e9)"
@@ -58,19 +66,20 @@ def ingest(domain: int) -> Iterator[RosIngest]:
         rclpy.shutdown()
 
 
-def _publish(ros: RosIngest, n: int) -> None:
-    """``n`` messages on /burst, all of them in the subscription's queue on return."""
+def _publish(ros: RosIngest, n: int, topic: str = "/burst", start: int = 0) -> None:
+    """``n`` messages on ``topic``, all of them in the subscription's queue (as far as
+    its depth allows) on return."""
     node = rclpy.create_node("take_loop_publisher")
     try:
         cls = message_class("std_msgs/msg/Float64")
         pub = node.create_publisher(
-            cls, "/burst", QoSProfile(depth=6000, reliability=ReliabilityPolicy.RELIABLE)
+            cls, topic, QoSProfile(depth=6000, reliability=ReliabilityPolicy.RELIABLE)
         )
         deadline = time.monotonic() + 10
         while not pub.get_subscription_count() and time.monotonic() < deadline:
             time.sleep(0.05)
         assert pub.get_subscription_count() == 1
-        for i in range(n):
+        for i in range(start, start + n):
             pub.publish(cls(data=float(i)))
         # reliable, on loopback: delivered once every publish is acknowledged
         assert pub.wait_for_all_acked(Duration(seconds=10))
@@ -120,3 +129,54 @@ def test_the_clock_waits_for_what_the_take_loop_has_not_taken(ingest: RosIngest)
     # a stale bound never moves the instant back
     ingest._drained(held - 1, None)
     assert engine.drained_at > held
+
+
+def test_messages_a_full_queue_lost_are_counted(ingest: RosIngest) -> None:
+    """A subscription of depth 5 (KEEP_LAST): of 50 messages one publisher sends before
+    the handler takes any, the queue keeps the last 5; the other 45 are lost, and said so.
+    (The first round only learns where the publisher's numbers stand: what came before
+    the handler subscribed was never its to take.)"""
+    engine = ingest.engine
+    small = [ingest.subs["/small"]]
+    node = rclpy.create_node("take_loop_small_publisher")
+    try:
+        cls = message_class("std_msgs/msg/Float64")
+        pub = node.create_publisher(
+            cls, "/small", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        )
+        deadline = time.monotonic() + 10
+        while not pub.get_subscription_count() and time.monotonic() < deadline:
+            time.sleep(0.05)
+
+        def send(first: int, n: int) -> list[float]:
+            for i in range(first, first + n):
+                pub.publish(cls(data=float(i)))
+            assert pub.wait_for_all_acked(Duration(seconds=10))
+            batch, _ = ingest._take_all(small)
+            return [v[2][0] for v in batch]
+
+        assert send(0, 5) == [0.0, 1.0, 2.0, 3.0, 4.0]
+        assert engine.lost.get("/small", 0) == 0
+        assert send(5, 3) == [5.0, 6.0, 7.0]
+        assert engine.lost.get("/small", 0) == 0  # in sequence: nothing lost
+        assert send(8, 50) == [53.0, 54.0, 55.0, 56.0, 57.0]
+        assert engine.lost["/small"] == 45
+    finally:
+        node.destroy_node()
+    # a new publisher numbers from 1 again: no loss read into that
+    node = rclpy.create_node("take_loop_small_publisher_2")
+    try:
+        pub = node.create_publisher(
+            cls, "/small", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        )
+        deadline = time.monotonic() + 10
+        while not pub.get_subscription_count() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        for i in range(3):
+            pub.publish(cls(data=float(100 + i)))
+        assert pub.wait_for_all_acked(Duration(seconds=10))
+        batch, _ = ingest._take_all(small)
+        assert [v[2][0] for v in batch] == [100.0, 101.0, 102.0]
+        assert engine.lost["/small"] == 45
+    finally:
+        node.destroy_node()

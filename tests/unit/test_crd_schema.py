@@ -110,9 +110,10 @@ def test_an_object_has_the_keys_the_schema_lists_and_requires_what_it_requires(
     for key in schema["properties"]:
         removed = accepts(with_value((*path, key), ...))
         required = key in schema.get("required", [])
+        crd = "requires" if required else "does not require"
+        ours = "reads the monitor" if removed else "refuses it"
         assert removed != required, (
-            f"spec.{'.'.join((*path, key))}: the CRD {'requires' if required else 'does not require'} "
-            f"it, documents.py {'reads the monitor' if removed else 'refuses it'} without it"
+            f"spec.{'.'.join((*path, key))}: the CRD {crd} it, documents.py {ours} without it"
         )
 
 

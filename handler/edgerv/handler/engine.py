@@ -90,6 +90,7 @@ class Engine(HandoffSteps):
         self.router = Router()
         self.routes_version = 0  # bumped whenever topics or their fields change
         self.messages: dict[str, int] = {}  # topic -> messages ingested
+        self.lost: dict[str, int] = {}  # topic -> messages the middleware lost (ROS layer's)
         # per topic: the newest stamp and when a message last came (a sender's release)
         self.newest: dict[str, int] = {}
         self.heard: dict[str, float] = {}

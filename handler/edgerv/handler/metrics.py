@@ -64,12 +64,21 @@ class EngineCollector(Collector):
                 active.add_metric(name, 1 if slot.active else 0)
                 wanted.add_metric(name, 1 if slot.migration_wanted else 0)
             messages = dict(e.messages)
+            lost = dict(e.lost)
             lag = e.ingest_lag
         msgs = CounterMetricFamily(
             "edgerv_messages", "Messages received per topic", labels=["topic"]
         )
         for topic, n in messages.items():
             msgs.add_metric([topic], n)
+        gone = CounterMetricFamily(
+            "edgerv_messages_lost",
+            "Messages lost before the handler took them (gaps in a single publisher's "
+            "sequence numbers: a subscription queue that overflowed, best-effort delivery)",
+            labels=["topic"],
+        )
+        for topic, n in lost.items():
+            gone.add_metric([topic], n)
         qos = GaugeMetricFamily(
             "edgerv_qos_incompatible_publishers",
             "Publishers whose QoS cannot match the handler's subscription",
@@ -77,7 +86,7 @@ class EngineCollector(Collector):
         )
         for topic, n in self.qos_problems().items():
             qos.add_metric([topic], n)
-        yield from (events, dropped, late, verdicts, buf, cap, active, wanted, msgs, qos)
+        yield from (events, dropped, late, verdicts, buf, cap, active, wanted, msgs, gone, qos)
         yield GaugeMetricFamily(
             "edgerv_ingest_lag_seconds",
             "Publication to ingestion delay of the last messages taken",

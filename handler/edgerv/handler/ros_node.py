@@ -26,7 +26,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from operator import itemgetter
+from operator import itemgetter, lt
 from typing import Any
 
 import rclpy
@@ -52,6 +52,7 @@ TAKE_PER_WAKE = 2000  # messages taken from one subscription before looking at t
 QOS_CHECK_SECONDS = 1.0
 COALESCE_SECONDS = 0.0005  # at most this much latency for much less work per message
 _FIRST = itemgetter(0)
+LOST_LOG_SECONDS = 10.0  # a topic's lost messages are logged at most this often
 # (stamp ns, topic, field values, the message's bytes, the routes version they were read for)
 Taken = tuple[int, str, list[Any], bytes, int]
 
@@ -90,6 +91,9 @@ class _Sub:
     reader: Reader
     qos: QoSProfile
     auto_reliability: bool
+    # the publication sequence number of the last message taken, while the subscription
+    # has one publisher (a gap after it: messages the middleware lost); None otherwise
+    last_seq: int | None = None
 
 
 @dataclass
@@ -127,6 +131,7 @@ class RosIngest:
         self.subs: dict[str, _Sub] = {}
         self.qos_problems: dict[str, int] = {}
         self.bad_messages: dict[str, int] = {}
+        self._lost_logged: dict[str, float] = {}  # topic -> when its losses were last logged
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._qos_thread: threading.Thread | None = None
@@ -378,9 +383,11 @@ class RosIngest:
             oldest_source = first if oldest_source is None else min(oldest_source, first)
             lag = 0  # the most a message here was published after its header stamp
             left = TAKE_PER_WAKE
+            seqs: list[int] = []
             while got is not None:
                 raw, info = got
                 source = info["source_timestamp"]
+                seqs.append(info["publication_sequence_number"])
                 try:
                     values, stamp = reader(raw)
                 except Exception:  # a malformed message is counted and skipped
@@ -397,11 +404,44 @@ class RosIngest:
                 got = take(cls, True)
             if lag > lags.get(topic, 0):
                 lags[topic] = min(lag, lag_cap)
+            self._count_lost(sub, seqs)
         if oldest_source is not None:
             self.engine.ingest_lag = max(0.0, (time.time_ns() - oldest_source) / 1e9)
         if delivered > 1:
             batch.sort(key=_FIRST)  # one order across topics: by timestamp
         return batch, through
+
+    def _count_lost(self, sub: _Sub, seqs: list[int]) -> None:
+        """Messages the middleware lost before this handler took them (a subscription's
+        queue that overflowed, best-effort delivery): the gaps in the publication sequence
+        numbers of what a round took, counted while the subscription has one publisher
+        (rclpy does not say which publisher sent a message: with several, their numbers
+        interleave). A number that goes back (a new or restarted publisher) starts over."""
+        try:
+            single = sub.subscription.get_publisher_count() == 1
+        except InvalidHandle:
+            single = False
+        last = sub.last_seq
+        if not single or not all(map(lt, seqs, seqs[1:])):
+            sub.last_seq = None  # several publishers, or one that started again
+            return
+        if last is not None and seqs[0] > last:
+            lost = seqs[-1] - last - len(seqs)  # increasing: the gaps, summed
+            if lost:
+                topic = sub.route.topic
+                n = self.engine.lost[topic] = self.engine.lost.get(topic, 0) + lost
+                now = time.monotonic()
+                if now - self._lost_logged.get(topic, -LOST_LOG_SECONDS) >= LOST_LOG_SECONDS:
+                    self._lost_logged[topic] = now
+                    log.warning(
+                        "%s: %d message(s) lost before this handler took them, %d in all "
+                        "(edgerv_messages_lost_total): its monitors' verdicts may differ "
+                        "from a recording's; a larger qos.depth, or a handler less loaded",
+                        topic,
+                        lost,
+                        n,
+                    )
+        sub.last_seq = seqs[-1] if last is None or seqs[0] > last else None
 
     def _ingest(self, items: list[Taken]) -> None:
         """Hand taken messages to the engine, read for the fields its routes have now.
