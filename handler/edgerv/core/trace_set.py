@@ -27,9 +27,20 @@ _STAMP = attrgetter("stamp")
 
 def expand(paths: Sequence[Path]) -> list[Path]:
     """The traces named: each path as it is, except a directory that is not a bag itself
-    (no metadata.yaml, no storage file in it): its bags (subdirectories that are) and its
-    trace files (.mcap, .db3, .jsonl and their compressed forms), by name. A directory
-    holding neither is an error naming it."""
+    (no metadata.yaml, no .mcap or .db3 file in it: those make one bag, rosbag2's split
+    files): its bags (the subdirectories that are) and its .jsonl traces and compressed
+    storage files (.mcap.zstd, .db3.zstd), by name. A directory holding none is an error
+    naming it, as is one that cannot be read."""
+    try:
+        return _expand(paths)
+    except OSError as exc:
+        where = str(exc.filename) if exc.filename else str(paths[0])
+        raise InputError(
+            [Diagnostic(Location(where), f"cannot read it: {exc.strerror or exc}")]
+        ) from None
+
+
+def _expand(paths: Sequence[Path]) -> list[Path]:
     out: list[Path] = []
     for path in paths:
         if not path.is_dir() or _is_bag_directory(path):

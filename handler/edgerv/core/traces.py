@@ -806,7 +806,8 @@ class _BagReading:
         """Messages read one by one, in chunks; a message that cannot be read is an
         error at its place, after the chunk of those before it."""
         path, types, readers = self.path, self.types, self.readers
-        deserialize = typestore().deserialize_cdr
+        # decoded whole only without readers (rosbags' store: made at its first use)
+        deserialize = typestore().deserialize_cdr if readers is None else None
         chunk = EventChunk(path, rows=None if readers is None else [])
         for topic, log_time, raw in messages:
             index += 1
@@ -815,6 +816,7 @@ class _BagReading:
                     values, stamp = readers[topic](raw)
                     msg: Any = raw
                 else:
+                    assert deserialize is not None
                     msg = deserialize(raw, types[topic])
                     stamp = header_stamp(msg)
             except Exception as exc:

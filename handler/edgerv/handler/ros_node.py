@@ -94,6 +94,10 @@ class _Sub:
     # the publication sequence number of the last message taken, while the subscription
     # has one publisher (a gap after it: messages the middleware lost); None otherwise
     last_seq: int | None = None
+    # the topic's publishers as the QoS thread last counted them (the ROS graph, once a
+    # second): asked in the take loop, the count takes a lock the middleware's own threads
+    # hold, which on a starved CPU can stall the loop
+    publishers: int = 0
 
 
 @dataclass
@@ -325,7 +329,9 @@ class RosIngest:
         """Count publishers whose QoS cannot match ours; an ``auto`` subscription adapts."""
         for topic, sub in list(self.subs.items()):
             bad = 0
-            for pub in self.node.get_publishers_info_by_topic(topic):
+            pubs = self.node.get_publishers_info_by_topic(topic)
+            sub.publishers = len(pubs)
+            for pub in pubs:
                 offered = pub.qos_profile
                 if (
                     sub.qos.reliability == ReliabilityPolicy.RELIABLE
@@ -414,15 +420,12 @@ class RosIngest:
     def _count_lost(self, sub: _Sub, seqs: list[int]) -> None:
         """Messages the middleware lost before this handler took them (a subscription's
         queue that overflowed, best-effort delivery): the gaps in the publication sequence
-        numbers of what a round took, counted while the subscription has one publisher
-        (rclpy does not say which publisher sent a message: with several, their numbers
-        interleave). A number that goes back (a new or restarted publisher) starts over."""
-        try:
-            single = sub.subscription.get_publisher_count() == 1
-        except InvalidHandle:
-            single = False
+        numbers of what a round took, counted while the topic has one publisher (the QoS
+        thread's count, a second old at most; rclpy does not say which publisher sent a
+        message: with several, their numbers interleave). A number that goes back (a new
+        or restarted publisher) starts over."""
         last = sub.last_seq
-        if not single or not all(map(lt, seqs, seqs[1:])):
+        if sub.publishers != 1 or not all(map(lt, seqs, seqs[1:])):
             sub.last_seq = None  # several publishers, or one that started again
             return
         if last is not None and seqs[0] > last:
@@ -543,7 +546,7 @@ class RosIngest:
                 # others keep coming (it would reach the monitors later than the reorder
                 # window allows), and a round over all of them says how far this
                 # handler has taken everything (the monitors' clocks wait for that).
-                subs = list(self.subs.values())
+                subs, taking = list(self.subs.values()), self._version
                 batch, through = self._take_all(subs)
                 while batch:  # keep taking while messages keep coming, then wait again
                     if reorder is not None and (several or reorder.pending):
@@ -554,6 +557,8 @@ class RosIngest:
                     self._drained(through, reorder)
                     if timed is not None:  # an overloaded handler measures on, too
                         self._take_deadline(timed)
+                    if self._version != taking:  # _ingest subscribed anew (a monitor came)
+                        subs, taking = list(self.subs.values()), self._version
                     batch, through = self._take_all(subs)
                 self._drained(through, reorder)
         finally:
