@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 from kopf.testing import KopfRunner
 from kube import Cluster
 
@@ -28,7 +29,7 @@ from edgerv.handler.migrate import migrate
 
 ROOT = Path(__file__).resolve().parents[2]
 CHART = ROOT / "helm" / "edgerv"
-CRD = ROOT / "crds" / "monitors.edgerv.io.yaml"
+CRD = ROOT / "crds" / "monitors.edgerv.io.yaml"  # the chart's Monitor CRD (files/crds/ links here)
 TOKEN = f"e2e-{uuid.uuid4().hex}"
 RELEASE = "erv"
 
@@ -375,6 +376,7 @@ def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None
         install(
             cluster, "erv2", ns, "handler.port=8471", f"operator.watchNamespaces={{{ns}}}",
             "operator.replicas=2", f"token.value={TOKEN}",
+            "crds.install=false",  # the first release owns the cluster's CRDs
         )  # fmt: skip
         apply(cluster, ns, talker_pod(cluster))
         apply(cluster, ns, monitor("speed-limit", "always (speed < limit)"))
@@ -755,3 +757,58 @@ def test_a_crashed_handler_loses_the_state_and_says_so(
     )
     assert again["verdicts"]["violated"] >= got["verdicts"]["violated"], (got, again)
     cluster.run("delete", "monitor", name, "-n", namespace, "--timeout=60s")
+
+
+def crd_spec_properties(cluster: Cluster) -> dict[str, Any]:
+    crd = json.loads(cluster.run("get", "crd", "monitors.edgerv.io", "-o", "json"))
+    (version,) = crd["spec"]["versions"]
+    return dict(version["schema"]["openAPIV3Schema"]["properties"]["spec"]["properties"])
+
+
+def test_helm_upgrade_brings_a_changed_crd_and_uninstall_keeps_it(
+    cluster: Cluster, namespace: str, tmp_path: Path
+) -> None:
+    """The CRDs are the chart's templates: the cluster's Monitor CRD is the repository's,
+    an upgrade to a chart whose CRD changed changes the cluster's (a chart's crds/
+    directory would never reach it), and `helm uninstall` keeps it (crds.keep: deleting a
+    CRD deletes every Monitor). Runs last in this file: it uninstalls the release."""
+    source = yaml.safe_load(CRD.read_text())
+    wanted = source["spec"]["versions"][0]["schema"]["openAPIV3Schema"]["properties"]["spec"]
+    assert crd_spec_properties(cluster).keys() == wanted["properties"].keys()
+    changed = tmp_path / "edgerv"
+    shutil.copytree(CHART, changed, symlinks=False)  # the CRD link: a copy of the file
+    crd_file = changed / "files" / "crds" / "monitors.edgerv.io.yaml"
+    edited = yaml.safe_load(crd_file.read_text())
+    spec = edited["spec"]["versions"][0]["schema"]["openAPIV3Schema"]["properties"]["spec"]
+    spec["properties"]["e2eNote"] = {"type": "string", "description": "added by an upgrade"}
+    crd_file.write_text(yaml.safe_dump(edited))
+
+    def upgrade(chart: Path) -> None:
+        done = subprocess.run(
+            [helm(), "upgrade", RELEASE, str(chart), "--namespace", namespace,
+             "--kubeconfig", cluster.kubeconfig, "--reuse-values", "--wait", "--timeout", "240s"],
+            capture_output=True, text=True, timeout=300,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr
+
+    upgrade(changed)
+    assert crd_spec_properties(cluster)["e2eNote"]["description"] == "added by an upgrade"
+    upgrade(CHART)
+    assert "e2eNote" not in crd_spec_properties(cluster)
+    done = subprocess.run(
+        [helm(), "uninstall", RELEASE, "--namespace", namespace, "--kubeconfig",
+         cluster.kubeconfig, "--wait", "--timeout", "120s"],
+        capture_output=True, text=True, timeout=180,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "kept due to the resource policy" in done.stdout + done.stderr, done.stdout
+    assert crd_spec_properties(cluster).keys() == wanted["properties"].keys()  # still there
+    selector = "app.kubernetes.io/component=handler"
+    until(
+        "the handlers to go",
+        lambda: (
+            not json.loads(
+                cluster.run("get", "pods", "-n", namespace, "-l", selector, "-o", "json")
+            )["items"]
+        ),
+    )
