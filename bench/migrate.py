@@ -14,7 +14,10 @@ the time from the request to the monitors active on the cloud
 (the adoption's answer), against the issue's target of 3 round trips + 100 ms;
 the snapshot bytes on the wire per buffered event, against 1 bit + a constant.
 The monitors differ (each its own cruise speed), so their letters do too.
-The round trip is measured on the link in the same run (TCP connect times).
+The round trip is measured on the link in the same run (TCP connect times). The
+handlers serve HTTPS, as the chart sets them up (a CA, a certificate for the name the
+callers verify): the driver's first call to the cloud, within the move, includes its
+TLS handshake.
 
 Two more rows move 10 monitors whose topics are silent (issue #13): "silent topics",
 each monitor also reading /estop (a publisher that never publishes) and /lift (no
@@ -37,6 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
 from netlab import Lab, available  # noqa: E402
+from pki import NAME, shared_pki  # noqa: E402
 
 DELAY_MS = 20.0
 COUNTS = tuple(int(x) for x in sys.argv[1:]) or (1, 10, 150)
@@ -74,9 +78,11 @@ DRIVER = r"""
 import json, sys, time
 from edgerv.handler.client import HandlerClient
 from edgerv.handler.migrate import migrate
+from edgerv.handler.tls import ClientTls
 src, dst, token, names = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4].split(",")
 buffered, parked = int(sys.argv[5]), sys.argv[6] == "parked"
-edge, cloud = HandlerClient(src, token), HandlerClient(dst, token)
+tls = ClientTls(sys.argv[7], sys.argv[8])  # HTTPS, as the chart sets it up
+edge, cloud = HandlerClient(src, token, tls), HandlerClient(dst, token, tls)
 deadline = time.monotonic() + 120
 def events():
     return edge.get("/v1/monitors/" + names[-1])["buffer"]["events"]
@@ -134,6 +140,7 @@ def handler(lab: Lab, host: str, monitors: Path, tmp: Path, port: int, *extra: s
         [
             sys.executable, "-m", "edgerv", "handler", "--name", host,
             "--monitors", str(monitors), "--listen", f"{lab.addr[host]}:{port}",
+            "--tls-cert", str(shared_pki().crt), "--tls-key", str(shared_pki().key),
             "--flush-after", "3600", *extra,
         ],
         env=lab.env(EDGERV_TOKEN=TOKEN),
@@ -144,10 +151,12 @@ def handler(lab: Lab, host: str, monitors: Path, tmp: Path, port: int, *extra: s
 
 def api(lab: Lab, host: str, port: int, path: str) -> Any:
     code = (
-        "import sys, urllib.request\n"
-        f"r = urllib.request.Request('http://{lab.addr[host]}:{port}{path}', "
-        f"headers={{'Authorization': 'Bearer {TOKEN}'}})\n"
-        "sys.stdout.write(urllib.request.urlopen(r, timeout=30).read().decode())\n"
+        "import json, sys\n"
+        "from edgerv.handler.client import HandlerClient\n"
+        "from edgerv.handler.tls import ClientTls\n"
+        f"tls = ClientTls({str(shared_pki().ca)!r}, {NAME!r})\n"
+        f"client = HandlerClient('{lab.addr[host]}:{port}', {TOKEN!r}, tls)\n"
+        f"sys.stdout.write(json.dumps(client.get({path!r}, timeout=30)))\n"
     )
     done = lab.run(host, [sys.executable, "-c", code], timeout=60)
     return json.loads(done.stdout) if done.returncode == 0 else None
@@ -181,7 +190,8 @@ def one(n: int, kind: str) -> dict[str, Any]:
         done = lab.run(
             "cloud",
             [sys.executable, "-c", DRIVER, f"{lab.addr['edge']}:8080",
-             f"{lab.addr['cloud']}:8080", TOKEN, names, str(BUFFERED), kind],
+             f"{lab.addr['cloud']}:8080", TOKEN, names, str(BUFFERED), kind,
+             str(shared_pki().ca), NAME],
             timeout=300,
         )  # fmt: skip
         if done.returncode != 0:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import threading
 import time
 from collections.abc import Iterable, Iterator, Sequence
 from types import FrameType
@@ -115,3 +116,27 @@ class ManualClock:
 
     def advance(self, seconds: float) -> None:
         self.offset += seconds
+
+
+@contextlib.contextmanager
+def robot_feed(engines: Sequence[Any]) -> Iterator[None]:
+    """Every engine hears the robot's two topics while the block runs: /a (true) and /x
+    (0 to 6) half a millisecond of stamps apart, a pair every 2 ms, from a thread."""
+    stop = threading.Event()
+
+    def publish() -> None:
+        stamp = 0
+        while not stop.is_set():
+            stamp += 1_000_000
+            batch = [(stamp, "/a", [True]), (stamp + 500_000, "/x", [float(stamp % 7)])]
+            for e in engines:
+                e.ingest(batch)
+            time.sleep(0.002)
+
+    feeder = threading.Thread(target=publish, daemon=True)
+    feeder.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        feeder.join()

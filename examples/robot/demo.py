@@ -464,6 +464,7 @@ class Demo:
                 "all" if tier == "edge" else "none",
                 "--listen",
                 f"{self.hosts[tier]}:{port}",
+                "--plain-http",  # the demo's lab link, on this machine (docs/handler.md, TLS)
                 "--verdict-log",
                 str(self.out / f"{phase.name}-{tier}-verdicts.jsonl"),
             ]
@@ -486,9 +487,7 @@ class Demo:
                     f"demo: the {tier} handler did not start: see {logs}/{phase.name}-{tier}.log"
                 )
         if phase.orchestrated:
-            handlers = ",".join(
-                f"{t}={a.base.removeprefix('http://')}" for t, a in self.apis.items()
-            )
+            handlers = ",".join(f"{t}={a.base}" for t, a in self.apis.items())
             self.procs.start(
                 f"{phase.name}-orchestrate",
                 [

@@ -8,6 +8,8 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from edgerv.core.diagnostics import InputError
+from edgerv.handler.tls import ClientTls
 from edgerv.handler.token import Token, TokenFile
 
 DEFAULT_SELECTOR = "app.kubernetes.io/name=edgerv,app.kubernetes.io/component=handler"
@@ -63,6 +65,28 @@ def _token(env: Mapping[str, str]) -> Token:
     return token
 
 
+def _tls(env: Mapping[str, str]) -> ClientTls | None:
+    """EDGERV_TLS_CA_FILE (and EDGERV_TLS_SERVER_NAME): the handlers serve HTTPS; plain
+    HTTP only when EDGERV_PLAIN_HTTP=true says so."""
+    ca_file = env.get("EDGERV_TLS_CA_FILE", "")
+    plain = env.get("EDGERV_PLAIN_HTTP", "").strip().lower() or "false"
+    if plain not in ("true", "false"):
+        raise ConfigError(f"EDGERV_PLAIN_HTTP: '{plain}' is not true or false")
+    if plain == "true":
+        if ca_file:
+            raise ConfigError("EDGERV_PLAIN_HTTP: true, and EDGERV_TLS_CA_FILE is set: choose one")
+        return None
+    if not ca_file:
+        raise ConfigError(
+            "EDGERV_TLS_CA_FILE: not set: the CA that signed the handlers' certificates "
+            "(the chart mounts it; EDGERV_PLAIN_HTTP=true calls them over plain HTTP)"
+        )
+    try:
+        return ClientTls(ca_file, env.get("EDGERV_TLS_SERVER_NAME") or None)
+    except InputError as exc:
+        raise ConfigError(f"EDGERV_TLS_CA_FILE: {exc.diagnostics[0].message}") from None
+
+
 @dataclass(frozen=True)
 class OperatorConfig:
     namespace: str  # where the handler pods run
@@ -72,12 +96,18 @@ class OperatorConfig:
     tiers: tuple[str, ...]  # lowest first: a monitor without placement.tier starts on the first
     placement_seconds: float = 5.0  # between rounds of the placement policy; 0: none
     tier_label: str = "edgerv.io/tier"  # the node label whose value is the node's tier
+    tls: ClientTls | None = None  # how the handlers' certificates are verified (None: HTTP)
+
+    def url(self, address: str) -> str:
+        """A handler's API at ``HOST:PORT``, over HTTPS unless plain HTTP was asked for."""
+        return f"{'https' if self.tls is not None else 'http'}://{address}"
 
     @classmethod
     def from_env(cls, env: Mapping[str, str] | None = None) -> OperatorConfig:
         env = os.environ if env is None else env
 
         token = _token(env)
+        tls = _tls(env)
         namespace = env.get("EDGERV_NAMESPACE") or env.get("POD_NAMESPACE") or ""
         if not namespace:
             raise ConfigError("EDGERV_NAMESPACE: not set: the namespace of the handler pods")
@@ -119,4 +149,5 @@ class OperatorConfig:
             tiers=tiers,
             placement_seconds=placement_seconds,
             tier_label=tier_label,
+            tls=tls,
         )

@@ -87,7 +87,7 @@ class Operator:
     notes: dict[str, MoveNote] = field(default_factory=dict)  # monitor -> its last move
 
     def client(self, pod: HandlerPod) -> HandlerClient:
-        return HandlerClient(pod.address, self.config.token)
+        return HandlerClient(self.config.url(pod.address), self.config.token, self.config.tls)
 
 
 def _operator(memo: kopf.Memo) -> Operator:
@@ -107,7 +107,9 @@ def startup(settings: kopf.OperatorSettings, memo: kopf.Memo, **_: Any) -> None:
     # Kopf's own "handler succeeded" lines stay in the log; Events are the ones this
     # operator posts (kopf.event), and Kopf's warnings and errors.
     settings.posting.level = logging.WARNING
-    policy = Orchestrator([], PolicyConfig(tiers=config.tiers), config.token, starts=False)
+    policy = Orchestrator(
+        [], PolicyConfig(tiers=config.tiers), config.token, starts=False, tls=config.tls
+    )
     memo["edgerv"] = Operator(config, policy)
 
 
@@ -268,14 +270,14 @@ def tend(op: Operator, handlers: Handlers) -> None:
         every = op.config.placement_seconds
         if every > 0 and time.monotonic() - op.placed_at >= every:
             op.placed_at = time.monotonic()
-            by_address = {h.address: h for h in ready}
+            by_url = {op.config.url(h.address): h for h in ready}
             op.orchestrator.set_targets(
-                [Target(h.tier, h.address) for h in ready if h.tier in op.config.tiers]
+                [Target(h.tier, url) for url, h in by_url.items() if h.tier in op.config.tiers]
             )
             for record in op.orchestrator.round():
                 log.info("placement: %s", record)
-                src = by_address.get(str(record.get("from") or "").removeprefix("http://"))
-                dst = by_address.get(str(record.get("to") or "").removeprefix("http://"))
+                src = by_url.get(str(record.get("from") or ""))
+                dst = by_url.get(str(record.get("to") or ""))
                 if record.get("ok") and src and dst:
                     for name in record["monitors"]:
                         op.notes[name] = MoveNote(src, dst, str(record["reason"]), record["ms"])

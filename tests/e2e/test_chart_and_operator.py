@@ -11,9 +11,8 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
-import urllib.error
-import urllib.request
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -24,8 +23,9 @@ import yaml
 from kopf.testing import KopfRunner
 from kube import Cluster
 
-from edgerv.handler.client import ApiError, HandlerClient
+from edgerv.handler.client import ApiError, HandlerClient, Unreachable, Untrusted
 from edgerv.handler.migrate import migrate
+from edgerv.handler.tls import ClientTls
 
 ROOT = Path(__file__).resolve().parents[2]
 CHART = ROOT / "helm" / "edgerv"
@@ -132,11 +132,26 @@ def unfinalize(cluster: Cluster) -> None:
         )  # fmt: skip
 
 
+def release_ca(cluster: Cluster, ns: str, release: str = RELEASE) -> Path:
+    """The CA the chart made for a release (its Secret's ca.crt), in a file."""
+    secret = json.loads(cluster.run("get", "secret", f"{release}-tls", "-n", ns, "-o", "json"))
+    path = Path(tempfile.mkdtemp(prefix="edgerv-e2e-")) / "ca.crt"
+    path.write_bytes(base64.b64decode(secret["data"]["ca.crt"]))
+    return path
+
+
+def handler_tls(cluster: Cluster, ns: str, release: str = RELEASE) -> ClientTls:
+    """How a caller verifies a release's handlers: its CA, the name the chart gave them."""
+    return ClientTls(str(release_ca(cluster, ns, release)), f"edgerv-handler.{ns}.svc")
+
+
 @pytest.fixture(scope="module")
 def operator(cluster: Cluster, namespace: str) -> Iterator[KopfRunner]:
     os.environ.update(
         KUBECONFIG=cluster.kubeconfig,
         EDGERV_TOKEN=TOKEN,
+        EDGERV_TLS_CA_FILE=str(release_ca(cluster, namespace)),  # HTTPS, as the chart's
+        EDGERV_TLS_SERVER_NAME=f"edgerv-handler.{namespace}.svc",
         EDGERV_NAMESPACE=namespace,
         EDGERV_HANDLER_SELECTOR=f"app.kubernetes.io/instance={RELEASE},"
         "app.kubernetes.io/component=handler",
@@ -219,16 +234,36 @@ def handler_pod(cluster: Cluster, namespace: str, tier: str) -> dict[str, Any]:
 
 
 def handler_get(cluster: Cluster, namespace: str, tier: str, path: str) -> int:
-    """The HTTP status of a GET on the handler of a tier (its node's address, port 8470)."""
+    """The HTTP status of a GET on the handler of a tier (its node's address, port 8470,
+    over HTTPS verified with the release's CA)."""
     ip = handler_pod(cluster, namespace, tier)["status"]["hostIP"]
-    req = urllib.request.Request(
-        f"http://{ip}:8470{path}", headers={"Authorization": f"Bearer {TOKEN}"}
-    )
-    try:
-        with urllib.request.urlopen(req, timeout=10) as answer:
-            return int(answer.status)
-    except urllib.error.HTTPError as exc:
-        return int(exc.code)
+    client = HandlerClient(f"{ip}:8470", TOKEN, handler_tls(cluster, namespace))
+    status, _ = client.call(path, method="GET", timeout=10.0)
+    return status
+
+
+def test_the_handlers_serve_https_only_to_callers_that_trust_the_release_ca(
+    cluster: Cluster, namespace: str, tmp_path: Path
+) -> None:
+    """The chart's handlers serve HTTPS with the certificate it made: a caller with the
+    release's CA and the name the chart gave them is served; a caller with another CA
+    is refused before it sends anything, and a plain-HTTP caller gets no answer."""
+    ip = handler_pod(cluster, namespace, "edge")["status"]["hostIP"]
+    assert handler_get(cluster, namespace, "edge", "/v1/monitors") == 200
+    key, other = tmp_path / "other.key", tmp_path / "other.crt"
+    subprocess.run(
+        ["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", str(key),
+         "-out", str(other), "-days", "1", "-subj", "/CN=another CA"],
+        check=True, capture_output=True,
+    )  # fmt: skip
+    stranger = ClientTls(str(other), f"edgerv-handler.{namespace}.svc")
+    with pytest.raises(Untrusted, match="its certificate is not trusted"):
+        HandlerClient(f"{ip}:8470", TOKEN, stranger).monitors(timeout=10.0)
+    wrong_name = ClientTls(str(release_ca(cluster, namespace)), "edgerv-handler.other.svc")
+    with pytest.raises(Untrusted, match="its certificate is not trusted"):
+        HandlerClient(f"{ip}:8470", TOKEN, wrong_name).monitors(timeout=10.0)
+    with pytest.raises(Unreachable):
+        HandlerClient(f"http://{ip}:8470", TOKEN).monitors(timeout=10.0)
 
 
 def test_a_monitor_applied_runs_on_the_edge_and_reports_its_verdicts(
@@ -474,9 +509,11 @@ def restarted_mid_handoff(cluster: Cluster, ns: str, name: str) -> None:
     address = {
         t: f"{handler_pod(cluster, ns, t)['status']['hostIP']}:8471" for t in ("edge", "cloud")
     }
-    edge, cloud = HandlerClient(address["edge"], TOKEN), HandlerClient(address["cloud"], TOKEN)
+    tls = handler_tls(cluster, ns, "erv2")
+    edge = HandlerClient(address["edge"], TOKEN, tls)
+    cloud = HandlerClient(address["cloud"], TOKEN, tls)
     with pytest.raises(DriverKilled):
-        migrate(DiesBeforeCommit(address["cloud"], TOKEN), edge, [name], timeout=30.0)
+        migrate(DiesBeforeCommit(address["cloud"], TOKEN, tls), edge, [name], timeout=30.0)
     held = cloud.monitor(name)
     assert held is not None and held["handoff"] == "released", held
     assert (runs := edge.monitor(name)) is not None and runs["active"], runs
@@ -518,9 +555,11 @@ def rotated_token(cluster: Cluster, ns: str) -> None:
         f"{handler_pod(cluster, ns, t)['status']['hostIP']}:8471" for t in ("edge", "cloud")
     ]
 
+    tls = handler_tls(cluster, ns, "erv2")
+
     def takes(address: str, token: str) -> bool:
         try:
-            HandlerClient(address, token).monitors(timeout=5.0)
+            HandlerClient(address, token, tls).monitors(timeout=5.0)
         except ApiError:
             return False
         return True

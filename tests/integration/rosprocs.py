@@ -18,6 +18,8 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
+from pki import NAME, shared_pki
+
 TOKEN = "integration-secret"
 
 
@@ -36,18 +38,18 @@ def ros_env(domain: int) -> dict[str, str]:
 
 
 REQUEST = r"""
-import sys, urllib.request, urllib.error
-method, url, body, token = sys.argv[1:5]
+import ssl, sys, http.client
+method, host, port, path, body, token, ca, name = sys.argv[1:9]
 headers = {"Content-Type": "application/yaml"}
 if token:
     headers["Authorization"] = "Bearer " + token
-req = urllib.request.Request(url, method=method, data=body.encode() or None, headers=headers)
-try:
-    with urllib.request.urlopen(req, timeout=30) as resp:
-        status, raw = resp.status, resp.read()
-except urllib.error.HTTPError as err:
-    status, raw = err.code, err.read()
-sys.stdout.write(str(status) + "\n" + raw.decode())
+context = ssl.create_default_context(cafile=ca)
+conn = http.client.HTTPSConnection(host, int(port), timeout=30, context=context)
+conn.connect = lambda: setattr(conn, "sock", context.wrap_socket(
+    __import__("socket").create_connection((host, int(port)), 30), server_hostname=name))
+conn.request(method, path, body=body.encode() or None, headers=headers)
+resp = conn.getresponse()
+sys.stdout.write(str(resp.status) + "\n" + resp.read().decode())
 """
 
 
@@ -55,8 +57,9 @@ class HandlerProcess:
     """An ``edgerv handler`` process with its API on a free loopback port.
 
     With ``lab`` (a :class:`netlab.Lab`), it runs on the lab's host ``name``
-    (``edge`` or ``cloud``) and listens on that host's address; its API is then
-    called from inside that host.
+    (``edge`` or ``cloud``) and serves HTTPS on that host's address, with a certificate
+    for :data:`pki.NAME` (:func:`pki.shared_pki`, as the chart's: callers verify that
+    name, not the address); its API is then called from inside that host.
     """
 
     def __init__(
@@ -81,6 +84,9 @@ class HandlerProcess:
         self.token = token
         self._stderr = self.stderr_path.open("w")
         wrap = (lambda argv: argv) if lab is None else (lambda argv: lab.command(name, argv))
+        if lab is not None:
+            certs = shared_pki()
+            extra = ("--tls-cert", str(certs.crt), "--tls-key", str(certs.key), *extra)
         self.proc = subprocess.Popen(
             wrap(
                 [
@@ -124,10 +130,12 @@ class HandlerProcess:
     ) -> tuple[int, Any]:
         token = self.token if token == "default" else token
         if self.lab is not None:
-            url = f"http://{self.host}:{self.port}{path}"
+            certs = shared_pki()
             done = self.lab.run(
-                self.name, [sys.executable, "-c", REQUEST, method, url, body or "", token or ""]
-            )
+                self.name,
+                [sys.executable, "-c", REQUEST, method, self.host, str(self.port), path,
+                 body or "", token or "", str(certs.ca), NAME],
+            )  # fmt: skip
             status_line, _, raw = done.stdout.partition("\n")
             try:
                 return int(status_line), json.loads(raw)

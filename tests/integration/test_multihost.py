@@ -37,6 +37,7 @@ from rosprocs import (
 from test_handler import MONITORS, random_trace, write
 
 from netlab import Lab, available
+from pki import NAME, shared_pki
 
 DELAY_MS = 20.0
 # A window far larger than the default 20 ms: on this 2-core machine, under the load of
@@ -64,10 +65,17 @@ def edgerv(
 ) -> subprocess.CompletedProcess[str]:
     return lab.run(
         host,
-        [sys.executable, "-m", "edgerv", *args],
+        [sys.executable, "-m", "edgerv", *args, *tls_args(args[0])],
         env=lab.env(EDGERV_TOKEN=TOKEN),
         timeout=timeout,
     )
+
+
+def tls_args(command: str) -> list[str]:
+    """What a caller of the lab's handlers (HTTPS, docs/handler.md "TLS") is given."""
+    if command not in ("migrate", "orchestrate"):
+        return []
+    return ["--ca-file", str(shared_pki().ca), "--tls-server-name", NAME]
 
 
 def addr(h: HandlerProcess) -> str:
@@ -160,11 +168,13 @@ def crash_mid_handoff(tmp_path: Path, lab: Lab, domain: int, crash: str) -> None
         "import sys\n"
         "from edgerv.handler.client import ApiError, HandlerClient\n"
         "from edgerv.handler.migrate import migrate\n"
+        "from edgerv.handler.tls import ClientTls\n"
+        f"tls = ClientTls({str(shared_pki().ca)!r}, {NAME!r})\n"
         "def pause():\n"
         "    print('released', flush=True)\n"
         "    sys.stdin.readline()\n"
-        f"src = HandlerClient({addr(edge)!r}, {TOKEN!r})\n"
-        f"dst = HandlerClient({addr(cloud)!r}, {TOKEN!r})\n"
+        f"src = HandlerClient({addr(edge)!r}, {TOKEN!r}, tls)\n"
+        f"dst = HandlerClient({addr(cloud)!r}, {TOKEN!r}, tls)\n"
         "try:\n"
         "    moved = migrate(src, dst, ['speed-limit', 'no-stop-while-fast'], 4.0, 1.0, pause)\n"
         "    print('moved', moved.seconds, flush=True)\n"
@@ -306,7 +316,8 @@ def test_calls_without_the_token_change_nothing(tmp_path: Path, lab: Lab, domain
             done = lab.run(
                 "cloud",
                 [sys.executable, "-m", "edgerv", "migrate", "--from", addr(edge),
-                 "--to", addr(cloud), "--monitor", "speed-limit", "--timeout", "5"],
+                 "--to", addr(cloud), "--monitor", "speed-limit", "--timeout", "5",
+                 *tls_args("migrate")],
                 env=lab.env(EDGERV_TOKEN=token),
                 timeout=60,
             )  # fmt: skip

@@ -25,7 +25,7 @@ from edgerv.handler.client import Conflict, HandlerClient
 from edgerv.handler.engine import Engine
 from edgerv.handler.handoff_steps import HANDOFF_EXPIRES
 from edgerv.handler.migrate import MigrationFailed, Unsettled, migrate
-from helpers import ManualClock, compiled, monitor_doc
+from helpers import ManualClock, compiled, monitor_doc, robot_feed
 
 TOKEN = "test-token"
 
@@ -100,22 +100,8 @@ def pair() -> Iterator[Pair]:
         api.start("127.0.0.1", 0)
         apis.append(api)
     gate = Gate(apis[1].port)
-    stop = threading.Event()
-
-    def publish() -> None:  # both hosts hear the robot's two topics
-        stamp = 0
-        while not stop.is_set():
-            stamp += 1_000_000
-            batch = [(stamp, "/a", [True]), (stamp + 500_000, "/x", [float(stamp % 7)])]
-            for e in (edge, cloud):
-                e.ingest(batch)
-            time.sleep(0.002)
-
-    feeder = threading.Thread(target=publish, daemon=True)
-    feeder.start()
-    yield Pair(edge, cloud, apis, gate)
-    stop.set()
-    feeder.join()
+    with robot_feed([edge, cloud]):  # both hosts hear the robot's two topics
+        yield Pair(edge, cloud, apis, gate)
     gate.close()
     for api in apis:
         api.stop()

@@ -20,7 +20,7 @@ from edgerv_operator.documents import (
 )
 from edgerv_operator.placement import change, choose, destination
 
-ENV = {"EDGERV_TOKEN": "t", "EDGERV_NAMESPACE": "edgerv"}
+ENV = {"EDGERV_TOKEN": "t", "EDGERV_NAMESPACE": "edgerv", "EDGERV_PLAIN_HTTP": "true"}
 SPEC: dict[str, Any] = {
     "assertion": "always (running -> speed < limit)",
     "signals": {
@@ -36,10 +36,21 @@ def test_settings_and_their_errors_name_the_variable() -> None:
     cfg = OperatorConfig.from_env({**ENV, "EDGERV_TIERS": "edge, fog,cloud"})
     assert (cfg.port, cfg.tiers, cfg.namespace) == (8470, ("edge", "fog", "cloud"), "edgerv")
     assert cfg.placement_seconds == 5.0
-    assert OperatorConfig.from_env({"EDGERV_TOKEN": "t", "POD_NAMESPACE": "x"}).namespace == "x"
+    assert cfg.tls is None and cfg.url("10.0.0.2:8470") == "http://10.0.0.2:8470"
+    assert (
+        OperatorConfig.from_env({**ENV, "POD_NAMESPACE": "x", "EDGERV_NAMESPACE": ""}).namespace
+        == "x"
+    )
     for env, error in [
+        ({**ENV, "EDGERV_PLAIN_HTTP": ""}, "EDGERV_TLS_CA_FILE: not set"),
+        ({**ENV, "EDGERV_PLAIN_HTTP": "yes"}, "EDGERV_PLAIN_HTTP: 'yes' is not true or false"),
+        ({**ENV, "EDGERV_TLS_CA_FILE": "/ca.crt"}, "EDGERV_PLAIN_HTTP: true, and EDGERV_TLS_CA"),
+        (
+            {**ENV, "EDGERV_PLAIN_HTTP": "false", "EDGERV_TLS_CA_FILE": "/missing/ca.crt"},
+            "EDGERV_TLS_CA_FILE: cannot use the CA certificate: No such file",
+        ),
         ({"EDGERV_NAMESPACE": "x"}, "EDGERV_TOKEN: not set"),
-        ({"EDGERV_TOKEN": "t"}, "EDGERV_NAMESPACE: not set"),
+        ({**ENV, "EDGERV_NAMESPACE": ""}, "EDGERV_NAMESPACE: not set"),
         ({**ENV, "EDGERV_HANDLER_PORT": "80a"}, "EDGERV_HANDLER_PORT: '80a' is not a port"),
         ({**ENV, "EDGERV_HANDLER_PORT": "70000"}, "EDGERV_HANDLER_PORT: '70000'"),
         ({**ENV, "EDGERV_TIERS": "edge,,cloud"}, "EDGERV_TIERS: 'edge,,cloud' is not a list"),

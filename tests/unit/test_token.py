@@ -98,7 +98,12 @@ def test_the_handler_and_its_client_follow_a_rotated_token(tmp_path: Path) -> No
 
 def test_the_operator_reads_its_token_from_a_file_it_follows(tmp_path: Path) -> None:
     path = mounted(tmp_path, "from-the-secret", 1)
-    env = {"EDGERV_NAMESPACE": "edgerv", "EDGERV_TOKEN_FILE": str(path), "EDGERV_TOKEN": "x"}
+    env = {
+        "EDGERV_NAMESPACE": "edgerv",
+        "EDGERV_TOKEN_FILE": str(path),
+        "EDGERV_TOKEN": "x",
+        "EDGERV_PLAIN_HTTP": "true",
+    }
     config = OperatorConfig.from_env(env)
     assert isinstance(config.token, TokenFile) and config.token.value() == "from-the-secret"
     for value, error in [

@@ -30,6 +30,7 @@ import contextlib
 import hmac
 import json
 import logging
+import ssl
 import threading
 import time
 from collections.abc import Awaitable, Callable
@@ -90,7 +91,7 @@ class _Connection(asyncio.Protocol):
     byte, or an answer waits that long for the client to read it. (The body's deadline is
     kept by ``ControlApi._limit``; aiohttp keeps the idle one.)"""
 
-    def __init__(self, pool: _Connections, inner: asyncio.Protocol) -> None:
+    def __init__(self, pool: _Connections, inner: asyncio.Protocol, counted: bool = False) -> None:
         self.pool = pool
         self.inner = inner
         self.transport: asyncio.Transport | None = None
@@ -98,6 +99,8 @@ class _Connection(asyncio.Protocol):
         self.deadline = 0.0  # for the request under way (the loop's clock)
         self.reading: asyncio.TimerHandle | None = None  # its head is on its way
         self.writing: asyncio.TimerHandle | None = None  # an answer waits to be read
+        self.counted = counted  # toward the cap: from the accept, or over TLS from the handshake
+        self.refused = False  # over TLS: the cap was reached during its handshake
 
     def _soon(self) -> float:
         return asyncio.get_running_loop().time() + self.pool.limits.read_seconds
@@ -127,9 +130,18 @@ class _Connection(asyncio.Protocol):
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
         self.transport = transport
+        if not self.counted:  # over TLS: the handshake is done
+            if self.pool.open >= self.pool.limits.connections:
+                self.refused = True
+                _Refused(self.pool.refusal).connection_made(transport)
+                return
+            self.pool.open += 1
+            self.counted = True
         self.inner.connection_made(transport)
 
     def data_received(self, data: bytes) -> None:
+        if self.refused:
+            return
         if not self.busy and self.reading is None:
             self.busy = True
             self.deadline = self._soon()
@@ -137,14 +149,18 @@ class _Connection(asyncio.Protocol):
         self.inner.data_received(data)
 
     def eof_received(self) -> bool | None:
-        return self.inner.eof_received()
+        return None if self.refused else self.inner.eof_received()
 
     def pause_writing(self) -> None:  # the client does not read what it asked for
+        if self.refused:
+            return
         if self.writing is None:
             self.writing = self._cut_at(self._soon(), "an answer was not read")
         self.inner.pause_writing()
 
     def resume_writing(self) -> None:
+        if self.refused:
+            return
         if self.writing is not None:
             self.writing.cancel()
             self.writing = None
@@ -155,8 +171,9 @@ class _Connection(asyncio.Protocol):
             if timer is not None:
                 timer.cancel()
         self.transport = None
-        self.pool.open -= 1
-        self.inner.connection_lost(exc)
+        self.pool.release(self)
+        if not self.refused:
+            self.inner.connection_lost(exc)
 
 
 class _Refused(asyncio.Protocol):
@@ -189,9 +206,14 @@ class _Refused(asyncio.Protocol):
 class _Connections:
     """The protocol factory the API listens with: aiohttp's, counted and capped."""
 
-    def __init__(self, make: Callable[[], asyncio.Protocol], limits: Limits) -> None:
+    def __init__(self, make: Callable[[], asyncio.Protocol], limits: Limits, tls: bool) -> None:
         self.make = make
         self.limits = limits
+        # Over TLS a connection counts from the end of its handshake: asyncio never tells
+        # the protocol of a handshake that failed (a plain-HTTP caller, a certificate the
+        # caller refused, a handshake that timed out), so one counted at the accept would
+        # never be given back. Handshakes under way are bounded by their timeout.
+        self.tls = tls
         self.open = 0
         text = (
             f"this handler serves at most {limits.connections} connections at once "
@@ -206,8 +228,15 @@ class _Connections:
     def __call__(self) -> asyncio.Protocol:
         if self.open >= self.limits.connections:  # counted here: accepts come in bursts
             return _Refused(self.refusal)
+        if self.tls:  # counted once its handshake is done (see _Connection.connection_made)
+            return _Connection(self, self.make())
         self.open += 1
-        return _Connection(self, self.make())
+        return _Connection(self, self.make(), counted=True)
+
+    def release(self, connection: _Connection) -> None:
+        if connection.counted:
+            connection.counted = False
+            self.open -= 1
 
 
 def _active(request: web.Request) -> bool:
@@ -302,6 +331,7 @@ class ControlApi:
         self.on_routes = on_routes or on_change  # only the topics to read changed
         self._loop: asyncio.AbstractEventLoop | None = None
         self._runner: web.AppRunner | None = None
+        self.connections: _Connections | None = None  # counted toward the cap (its loop's)
         self._server: asyncio.Server | None = None
         self._thread: threading.Thread | None = None
         self.port: int | None = None
@@ -587,8 +617,9 @@ class ControlApi:
         )
         return app
 
-    def start(self, host: str, port: int) -> None:
-        """Serve in a thread; returns once listening (``self.port`` is the bound port)."""
+    def start(self, host: str, port: int, tls: ssl.SSLContext | None = None) -> None:
+        """Serve in a thread, HTTPS with ``tls`` (:func:`edgerv.handler.tls.server_context`);
+        returns once listening (``self.port`` is the bound port)."""
         started = threading.Event()
         failure: list[BaseException] = []
 
@@ -606,9 +637,17 @@ class ControlApi:
                 )
                 loop.run_until_complete(self._runner.setup())
                 assert self._runner.server is not None
-                connections = _Connections(self._runner.server, self.limits)
+                connections = _Connections(self._runner.server, self.limits, tls is not None)
+                self.connections = connections
                 self._server = loop.run_until_complete(
-                    loop.create_server(connections, host, port)  # in place of a TCPSite
+                    loop.create_server(  # in place of a TCPSite
+                        connections,
+                        host,
+                        port,
+                        ssl=tls,
+                        # a caller that connects and never completes the handshake
+                        ssl_handshake_timeout=self.limits.read_seconds if tls else None,
+                    )
                 )
                 self.port = self._server.sockets[0].getsockname()[1]  # when 0 was asked for
             except BaseException as exc:

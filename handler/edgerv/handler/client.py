@@ -7,6 +7,8 @@ again) from a permanent one (the definition is invalid: fix it):
 
 * :class:`Unreachable`: no answer (reset, timed out); :class:`Refused`: nothing listens
   there, so the handler is down and runs nothing.
+* :class:`Untrusted`: the handler's certificate is not one the caller trusts (another
+  CA, another name, expired): nothing was sent; a setting to fix, not a moment to wait.
 * :class:`HttpError`: an answer with an HTTP error, ``status`` and the handler's
   reason: :class:`Invalid` (400, 413, 422: the request, e.g. a Monitor document, is
   wrong), :class:`Unauthorized` (401: the bearer token is refused, e.g. rotated),
@@ -19,11 +21,13 @@ from __future__ import annotations
 
 import http.client
 import json
+import ssl
 import urllib.parse
 from collections.abc import Sequence
 from typing import Any, cast
 
 from edgerv.handler.payloads import ErrorBody, HandoffRequest, MonitorListing, MonitorReport
+from edgerv.handler.tls import ClientTls, is_loopback
 from edgerv.handler.token import Token, current
 
 
@@ -37,6 +41,10 @@ class Unreachable(ApiError):
 
 class Refused(Unreachable):
     """Nothing listens at the handler's address: it is down, and runs no monitor."""
+
+
+class Untrusted(ApiError):
+    """The handler's certificate failed verification: the request was not sent."""
 
 
 class HttpError(ApiError):
@@ -101,13 +109,25 @@ def http_error(where: str, status: int, answer: bytes) -> HttpError:
 class HandlerClient:
     """One handler's control API, over one kept-alive connection (a round trip per call).
 
+    ``address``: ``HOST:PORT`` or a URL. Without a scheme it is reached over HTTPS,
+    except on a loopback address without ``tls`` (plain HTTP, which never leaves the
+    machine); ``http://`` asks for plain HTTP by name. ``tls``: how to verify the
+    handler's certificate (None: against the system's CAs, by the address's host).
+
     Not thread-safe: one client per thread (they are cheap)."""
 
-    def __init__(self, address: str, token: Token) -> None:
-        self.base = address if "://" in address else f"http://{address}"
+    def __init__(self, address: str, token: Token, tls: ClientTls | None = None) -> None:
+        if "://" in address:
+            self.base = address
+        else:
+            host = urllib.parse.urlsplit(f"//{address}").hostname or ""
+            scheme = "http" if tls is None and is_loopback(host) else "https"
+            self.base = f"{scheme}://{address}"
         self.token = token
+        self.tls = tls
         parts = urllib.parse.urlsplit(self.base)
         self._https = parts.scheme == "https"
+        self._host, self._port = parts.hostname or "", parts.port
         self._netloc = parts.netloc
         self._conn: http.client.HTTPConnection | None = None
 
@@ -116,8 +136,10 @@ class HandlerClient:
 
     def _connection(self, timeout: float) -> http.client.HTTPConnection:
         if self._conn is None:
-            cls = http.client.HTTPSConnection if self._https else http.client.HTTPConnection
-            self._conn = cls(self._netloc, timeout=timeout)
+            if self._https:
+                self._conn = (self.tls or ClientTls()).connection(self._host, self._port, timeout)
+            else:
+                self._conn = http.client.HTTPConnection(self._netloc, timeout=timeout)
         self._conn.timeout = timeout
         if self._conn.sock is not None:
             self._conn.sock.settimeout(timeout)
@@ -160,6 +182,13 @@ class HandlerClient:
                 resp = conn.getresponse()
                 status, answer = resp.status, resp.read()
                 break
+            except ssl.SSLCertVerificationError as exc:
+                self.close()
+                raise Untrusted(
+                    f"{self.base}: its certificate is not trusted ({exc.verify_message}): "
+                    "give the CA that signed it (and the name it carries), or check that "
+                    "this address is the handler's"
+                ) from None
             except (http.client.HTTPException, OSError) as exc:
                 self.close()
                 if attempt == 1 and reused and not isinstance(exc, TimeoutError):

@@ -19,6 +19,7 @@ import logging
 import math
 import os
 import signal
+import ssl
 import sys
 import threading
 import time
@@ -31,6 +32,7 @@ from edgerv.core.spot_worker import add_budget_argument, worker
 from edgerv.handler.engine import Engine, VerdictSink
 from edgerv.handler.limits import Limits
 from edgerv.handler.sinks import VerdictLog
+from edgerv.handler.tls import is_loopback, server_context
 from edgerv.handler.token import Token, TokenFile
 
 log = logging.getLogger("edgerv.handler")
@@ -97,6 +99,34 @@ def read_token(args: argparse.Namespace) -> Token:
     return os.environ.get("EDGERV_TOKEN") or None
 
 
+def serving_tls(args: argparse.Namespace) -> ssl.SSLContext | None:
+    """The API's TLS context from --tls-cert and --tls-key (None: plain HTTP, which only a
+    loopback address or --plain-http allows)."""
+    if bool(args.tls_cert) != bool(args.tls_key):
+        given, missing = ("--tls-cert", "--tls-key")
+        if args.tls_key:
+            given, missing = missing, given
+        raise InputError([Diagnostic(Location(given), f"given without {missing}: give both")])
+    if args.tls_cert:
+        if args.plain_http:
+            raise InputError(
+                [Diagnostic(Location("--plain-http"), "given with --tls-cert: choose one")]
+            )
+        return server_context(args.tls_cert, args.tls_key)
+    if args.listen and not args.plain_http and not is_loopback(args.listen[0]):
+        raise InputError(
+            [
+                Diagnostic(
+                    Location("--listen"),
+                    f"{args.listen[0]} is not a loopback address and no certificate is "
+                    "given: serve HTTPS with --tls-cert and --tls-key (or pass --plain-http "
+                    "on a trusted lab network)",
+                )
+            ]
+        )
+    return None
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--name", required=True, help="this handler's name (e.g. the machine's)")
     p.add_argument(
@@ -127,6 +157,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--insecure",
         action="store_true",
         help="serve the control API without a token (never on a shared network)",
+    )
+    p.add_argument(
+        "--tls-cert",
+        metavar="FILE",
+        help="serve the API over HTTPS with this certificate (PEM, its chain after it)",
+    )
+    p.add_argument("--tls-key", metavar="FILE", help="the certificate's private key (PEM)")
+    p.add_argument(
+        "--plain-http",
+        action="store_true",
+        help="serve plain HTTP on an address other than loopback (the token and the "
+        "handoff's bundles cross the network in clear: a trusted lab network only)",
     )
     p.add_argument(
         "--flush-after",
@@ -256,6 +298,11 @@ def run(args: argparse.Namespace) -> int:
     except InputError as exc:
         print(exc, file=sys.stderr)
         return EXIT_INPUT
+    try:
+        tls = serving_tls(args)
+    except InputError as exc:
+        print(exc, file=sys.stderr)
+        return EXIT_INPUT
     if args.listen and token is None and not args.insecure:
         print(
             "edgerv handler: error: refusing to serve the control API without a token: set "
@@ -350,7 +397,8 @@ def run(args: argparse.Namespace) -> int:
             ),
         )
         try:
-            api.start(*args.listen)
+            host, port = args.listen
+            api.start(host, port, tls=tls)
         except OSError as exc:
             print(
                 f"edgerv handler: error: cannot listen on {args.listen[0]}:{args.listen[1]}: "

@@ -23,10 +23,12 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
+from edgerv.core.diagnostics import InputError
 from edgerv.core.handoff import HandoffError, frame_sizes, unbundle
 from edgerv.handler.client import ApiError, HandlerClient, HttpError, Refused, Unreachable
 from edgerv.handler.handoff_steps import HANDOFF_EXPIRES
 from edgerv.handler.payloads import CutAnswer
+from edgerv.handler.tls import add_client_arguments, client_tls
 
 EXIT_CODES = """\
 exit codes:
@@ -561,7 +563,7 @@ def settle(source: HandlerClient, names: Sequence[str], deadline: float) -> dict
             groups.setdefault(key, []).append(str(m["name"]))
     moved: dict[str, list[str]] = {}
     for (epoch, peer, state), group in groups.items():
-        receiver = HandlerClient(peer, source.token) if peer else None
+        receiver = HandlerClient(peer, source.token, source.tls) if peer else None
         if state == "sending":  # nothing left the source: it resumes; the receiver drops
             if receiver is not None:
                 with contextlib.suppress(ApiError):
@@ -594,6 +596,7 @@ def settle(source: HandlerClient, names: Sequence[str], deadline: float) -> dict
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.epilog = EXIT_CODES
     p.formatter_class = argparse.RawDescriptionHelpFormatter
+    add_client_arguments(p)
     p.add_argument(
         "--from",
         dest="source",
@@ -629,12 +632,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     token = os.environ.get("EDGERV_TOKEN")
+    try:
+        tls = client_tls(args)
+    except InputError as exc:
+        print(exc, file=sys.stderr)
+        return 2
     names = [n.strip() for item in args.monitor for n in item.split(",") if n.strip()]
     what = ", ".join(names)
     try:
         moved = migrate(
-            HandlerClient(args.source, token),
-            HandlerClient(args.destination, token),
+            HandlerClient(args.source, token, tls),
+            HandlerClient(args.destination, token, tls),
             names,
             args.timeout,
             args.grace,

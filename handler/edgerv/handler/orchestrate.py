@@ -42,6 +42,7 @@ from edgerv.core.placement import (
 )
 from edgerv.handler.client import ApiError, HandlerClient
 from edgerv.handler.migrate import NotMoved, Unsettled, migrate, settle
+from edgerv.handler.tls import ClientTls, add_client_arguments, client_tls
 from edgerv.handler.token import Token
 
 log = logging.getLogger("edgerv.orchestrate")
@@ -170,9 +171,11 @@ class Orchestrator:
         timeout: float = 30.0,
         grace: float = 1.0,
         starts: bool = True,
+        tls: ClientTls | None = None,
     ) -> None:
         self.config = config
         self.token = token
+        self.tls = tls
         self.targets: list[Target] = []
         self.clients: dict[Target, HandlerClient] = {}
         self.previous: dict[Target, Counters] = {}
@@ -188,9 +191,7 @@ class Orchestrator:
     def set_targets(self, targets: Sequence[Target]) -> None:
         """The handlers to poll from now on (the operator's change as pods come and go)."""
         self.targets = list(targets)
-        self.clients = {
-            t: self.clients.get(t) or HandlerClient(t.address, self.token) for t in targets
-        }
+        self.clients = {t: self.clients.get(t) or self._new_client(t) for t in targets}
         self.previous = {t: c for t, c in self.previous.items() if t in targets}
 
     def poll(self) -> dict[Target, Mapping[str, Any]]:
@@ -276,7 +277,10 @@ class Orchestrator:
         return done
 
     def _client(self, target: Target) -> HandlerClient:
-        return self.clients.get(target) or HandlerClient(target.address, self.token)
+        return self.clients.get(target) or self._new_client(target)
+
+    def _new_client(self, target: Target) -> HandlerClient:
+        return HandlerClient(target.address, self.token, self.tls)
 
     def _settle(self, loads: Mapping[Target, Mapping[str, Any]]) -> list[dict[str, Any]]:
         """First the moves of ours that ended unsettled: their sources settle what they
@@ -325,6 +329,7 @@ class Orchestrator:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_client_arguments(p)
     p.add_argument(
         "--handlers",
         required=True,
@@ -431,10 +436,13 @@ def run(args: argparse.Namespace) -> int:
     try:
         targets = parse_handlers(args.handlers)
         config = config_from(args, targets)
+        tls = client_tls(args)
     except InputError as exc:
         print(exc, file=sys.stderr)
         return 2
-    orchestrator = Orchestrator(targets, config, os.environ.get("EDGERV_TOKEN"), args.timeout)
+    orchestrator = Orchestrator(
+        targets, config, os.environ.get("EDGERV_TOKEN"), args.timeout, tls=tls
+    )
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

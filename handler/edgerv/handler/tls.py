@@ -1,0 +1,136 @@
+"""TLS for the control API: a handler serves HTTPS with its certificate; its callers (the
+operator, ``edgerv migrate``, ``edgerv orchestrate``) verify that certificate against a CA.
+
+A handler's address is a node's IP, not a name its certificate can carry ahead of time,
+so the callers may verify the certificate against one fixed **server name** instead of
+the address they connect to (``ClientTls.server_name``; the chart's certificate names
+``edgerv-handler.<namespace>.svc``). Files are read once, at start: a rotated Secret
+rolls the pods (the chart's checksum annotation).
+
+The bearer token authenticates the caller; TLS authenticates the handler and keeps the
+token and the handoff's bundles private on the link. Plain HTTP is served only on a
+loopback address, or when asked for by name (``--plain-http``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import http.client
+import ipaddress
+import socket
+import ssl
+from dataclasses import dataclass, field
+
+from edgerv.core.diagnostics import Diagnostic, InputError, Location
+
+
+def _unreadable(path: str, what: str, exc: BaseException) -> InputError:
+    reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+    return InputError([Diagnostic(Location(path), f"cannot use the {what}: {reason}")])
+
+
+def server_context(cert_file: str, key_file: str) -> ssl.SSLContext:
+    """The context a handler serves HTTPS with: its certificate chain and key (PEM), TLS
+    1.2 or later. Raises :class:`InputError` naming the file that cannot be used."""
+    context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+    context.minimum_version = ssl.TLSVersion.TLSv1_2
+    for path, what in ((cert_file, "certificate"), (key_file, "private key")):
+        try:
+            with open(path, "rb"):
+                pass
+        except OSError as exc:
+            raise _unreadable(path, what, exc) from None
+    try:
+        context.load_cert_chain(cert_file, key_file)
+    except ssl.SSLError as exc:
+        raise InputError(
+            [
+                Diagnostic(
+                    Location(cert_file),
+                    f"cannot use the certificate with the key {key_file}: {exc.reason or exc} "
+                    "(both PEM; the key must be the certificate's, unencrypted)",
+                )
+            ]
+        ) from None
+    return context
+
+
+@dataclass(frozen=True)
+class ClientTls:
+    """How a caller verifies handlers' certificates: the CA that signed them (PEM; None:
+    the system's CAs) and the name they carry (None: the host of the address)."""
+
+    ca_file: str | None = None
+    server_name: str | None = None
+    context: ssl.SSLContext = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        try:
+            context = ssl.create_default_context(cafile=self.ca_file)
+        except (OSError, ssl.SSLError) as exc:
+            raise _unreadable(self.ca_file or "", "CA certificate", exc) from None
+        context.minimum_version = ssl.TLSVersion.TLSv1_2
+        object.__setattr__(self, "context", context)
+
+    def connection(self, host: str, port: int | None, timeout: float) -> http.client.HTTPConnection:
+        """A connection to ``host``, verified against :attr:`server_name` (or ``host``)."""
+        return _VerifiedConnection(
+            host, port, timeout=timeout, context=self.context, server_name=self.server_name
+        )
+
+
+class _VerifiedConnection(http.client.HTTPSConnection):
+    """HTTPS to an address whose certificate names another host (``server_name``)."""
+
+    def __init__(
+        self,
+        host: str,
+        port: int | None,
+        timeout: float,
+        context: ssl.SSLContext,
+        server_name: str | None,
+    ) -> None:
+        super().__init__(host, port, timeout=timeout, context=context)
+        self._context = context
+        self._server_name = server_name
+
+    def connect(self) -> None:
+        self.sock = socket.create_connection((self.host, self.port), self.timeout)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.sock = self._context.wrap_socket(
+            self.sock, server_hostname=self._server_name or self.host
+        )
+
+
+def is_loopback(host: str) -> bool:
+    """An address whose traffic never leaves the machine (127.0.0.0/8, ::1, localhost)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def add_client_arguments(p: argparse.ArgumentParser) -> None:
+    """A caller's TLS options (``edgerv migrate``, ``edgerv orchestrate``)."""
+    p.add_argument(
+        "--ca-file",
+        metavar="FILE",
+        help="verify the handlers' certificates against this CA (PEM; default: the "
+        "system's CAs). A HOST:PORT is reached over HTTPS unless it is loopback; "
+        "http://HOST:PORT asks for plain HTTP",
+    )
+    p.add_argument(
+        "--tls-server-name",
+        metavar="NAME",
+        help="the name the handlers' certificates carry, when it is not the address "
+        "(the chart's: edgerv-handler.NAMESPACE.svc)",
+    )
+
+
+def client_tls(args: argparse.Namespace) -> ClientTls | None:
+    """:class:`ClientTls` from :func:`add_client_arguments`'s options (None if neither)."""
+    if args.ca_file is None and args.tls_server_name is None:
+        return None
+    return ClientTls(args.ca_file, args.tls_server_name)
