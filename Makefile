@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install test test-unit test-integration test-e2e lint demo tour bench clean cluster-up cluster-down fuzz
+.PHONY: install test test-unit test-integration test-e2e lint demo tour bench clean cluster-up cluster-down fuzz lock
 
 install: $(STAMP)
 
@@ -78,6 +78,15 @@ tour: install
 bench: install
 	$(BIN)/python -m pip install --quiet -e '.[bench]'
 	$(BIN)/python bench/run_all.py
+
+# The images' dependencies, pinned with their hashes (images/*/requirements.lock), from
+# pyproject.toml: run after changing a dependency, and commit the result.
+LOCK := $(BIN)/python -m piptools compile --quiet --generate-hashes --strip-extras \
+	--allow-unsafe --no-emit-index-url --no-header
+lock: install
+	$(BIN)/python -m pip install --quiet 'pip-tools>=7.4'
+	$(LOCK) --extra ros -o images/handler/requirements.lock pyproject.toml
+	$(LOCK) --extra operator -o images/operator/requirements.lock pyproject.toml
 
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache .mypy_cache .ruff_cache

@@ -9,7 +9,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-NAME = "edgerv-handler.test.svc"  # as the chart's: edgerv-handler.<namespace>.svc
+NAME = "edgerv-handler.test.svc"  # as the chart's: <release>-handler.<namespace>.svc
 
 
 @dataclass(frozen=True)

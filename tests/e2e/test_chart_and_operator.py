@@ -86,18 +86,15 @@ def install(cluster: Cluster, release: str, ns: str, *values: str) -> None:
         args += ["--set-string", f"handler.extraEnv.{key}={value}"]
     done = subprocess.run(args, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr + cluster.run("get", "pods", "-n", ns, "-o", "wide")
+    assert f"helm test {release} --namespace {ns} --logs" in done.stdout, done.stdout  # NOTES
     # helm's --wait takes a DaemonSet with all but maxUnavailable (1) of its pods Ready:
-    # the tests place monitors by tier, so every handler must be up
-    code, out, err = cluster.attempt(
-        "rollout",
-        "status",
-        f"daemonset/{release}-handler",
-        "-n",
-        ns,
-        "--timeout=240s",
-        timeout=260,
-    )
-    assert code == 0, out + err + cluster.run("get", "pods", "-n", ns, "-o", "wide")
+    # the tests place monitors by tier, so every handler must be up (a DaemonSet a tier)
+    for tier in ("edge", "cloud"):
+        code, out, err = cluster.attempt(
+            "rollout", "status", f"daemonset/{release}-handler-{tier}", "-n", ns,
+            "--timeout=240s", timeout=260,
+        )  # fmt: skip
+        assert code == 0, out + err + cluster.run("get", "pods", "-n", ns, "-o", "wide")
 
 
 @pytest.fixture(scope="module")
@@ -116,8 +113,15 @@ def namespace(cluster: Cluster) -> Iterator[str]:
         yield ns
     finally:
         unfinalize(cluster)
+        subprocess.run(  # its cluster-wide objects too (roles), also after a failed test
+            [helm(), "uninstall", RELEASE, "--namespace", ns, "--kubeconfig", cluster.kubeconfig],
+            capture_output=True,
+            timeout=300,
+        )
         cluster.run("delete", "namespace", ns, "--wait=false", check=False)
-        cluster.run("delete", "crd", "monitors.edgerv.io", "--wait=false", check=False)
+        # the CRDs the release made and kept (crds.keep): the next run installs them anew
+        for crd in ("monitors.edgerv.io", "kopfpeerings.kopf.dev", "clusterkopfpeerings.kopf.dev"):
+            cluster.run("delete", "crd", crd, "--wait=false", check=False)
 
 
 def unfinalize(cluster: Cluster) -> None:
@@ -142,7 +146,7 @@ def release_ca(cluster: Cluster, ns: str, release: str = RELEASE) -> Path:
 
 def handler_tls(cluster: Cluster, ns: str, release: str = RELEASE) -> ClientTls:
     """How a caller verifies a release's handlers: its CA, the name the chart gave them."""
-    return ClientTls(str(release_ca(cluster, ns, release)), f"edgerv-handler.{ns}.svc")
+    return ClientTls(str(release_ca(cluster, ns, release)), f"{release}-handler.{ns}.svc")
 
 
 @pytest.fixture(scope="module")
@@ -151,7 +155,7 @@ def operator(cluster: Cluster, namespace: str) -> Iterator[KopfRunner]:
         KUBECONFIG=cluster.kubeconfig,
         EDGERV_TOKEN=TOKEN,
         EDGERV_TLS_CA_FILE=str(release_ca(cluster, namespace)),  # HTTPS, as the chart's
-        EDGERV_TLS_SERVER_NAME=f"edgerv-handler.{namespace}.svc",
+        EDGERV_TLS_SERVER_NAME=f"{RELEASE}-handler.{namespace}.svc",
         EDGERV_NAMESPACE=namespace,
         EDGERV_HANDLER_SELECTOR=f"app.kubernetes.io/instance={RELEASE},"
         "app.kubernetes.io/component=handler",
@@ -220,15 +224,24 @@ def set_tier(cluster: Cluster, namespace: str, name: str, tier: str) -> None:
 
 def handler_pod(cluster: Cluster, namespace: str, tier: str) -> dict[str, Any]:
     """The one live handler pod on the node of a tier (not one being deleted)."""
-    pods = json.loads(cluster.run("get", "pods", "-n", namespace, "-o", "json"))["items"]
+    pods = json.loads(
+        cluster.run(
+            "get",
+            "pods",
+            "-n",
+            namespace,
+            "-l",
+            "app.kubernetes.io/component=handler",
+            "-o",
+            "json",
+        )
+    )["items"]
     nodes = json.loads(cluster.run("get", "nodes", "-o", "json"))["items"]
     tiers = {n["metadata"]["name"]: n["metadata"]["labels"].get("edgerv.io/tier") for n in nodes}
     (pod,) = [
         p
         for p in pods
-        if "handler" in p["metadata"]["name"]
-        and tiers.get(p["spec"]["nodeName"]) == tier
-        and not p["metadata"].get("deletionTimestamp")
+        if tiers.get(p["spec"]["nodeName"]) == tier and not p["metadata"].get("deletionTimestamp")
     ]
     return dict(pod)
 
@@ -256,10 +269,10 @@ def test_the_handlers_serve_https_only_to_callers_that_trust_the_release_ca(
          "-out", str(other), "-days", "1", "-subj", "/CN=another CA"],
         check=True, capture_output=True,
     )  # fmt: skip
-    stranger = ClientTls(str(other), f"edgerv-handler.{namespace}.svc")
+    stranger = ClientTls(str(other), f"{RELEASE}-handler.{namespace}.svc")
     with pytest.raises(Untrusted, match="its certificate is not trusted"):
         HandlerClient(f"{ip}:8470", TOKEN, stranger).monitors(timeout=10.0)
-    wrong_name = ClientTls(str(release_ca(cluster, namespace)), "edgerv-handler.other.svc")
+    wrong_name = ClientTls(str(release_ca(cluster, namespace)), "erv-handler.other.svc")
     with pytest.raises(Untrusted, match="its certificate is not trusted"):
         HandlerClient(f"{ip}:8470", TOKEN, wrong_name).monitors(timeout=10.0)
     with pytest.raises(Unreachable):
@@ -413,6 +426,14 @@ def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None
             "operator.replicas=2", f"token.value={TOKEN}",
             "crds.install=false",  # the first release owns the cluster's CRDs
         )  # fmt: skip
+        tested = subprocess.run(  # `helm test`: every handler answers as the operator calls
+            [helm(), "test", "erv2", "--namespace", ns, "--logs", "--timeout", "120s",
+             "--kubeconfig", cluster.kubeconfig],
+            capture_output=True, text=True, timeout=180,
+        )  # fmt: skip
+        assert tested.returncode == 0, tested.stdout + tested.stderr
+        assert "2 of 2 handlers answered" in tested.stdout, tested.stdout
+        assert tested.stdout.count("(https://") == 2, tested.stdout
         apply(cluster, ns, talker_pod(cluster))
         apply(cluster, ns, monitor("speed-limit", "always (speed < limit)"))
         got = until(
@@ -455,6 +476,7 @@ def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None
         assert sorted(records) == ["adopted", "committed", "held"], records
         restarted_mid_handoff(cluster, ns, name)
         rotated_token(cluster, ns)
+        uninstalled_with_monitors(cluster, ns)
     finally:
         cluster.run("delete", "monitor", "--all", "-n", ns, "--timeout=60s", check=False)
         unfinalize(cluster)
@@ -464,6 +486,40 @@ def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None
             timeout=120,
         )
         cluster.run("delete", "namespace", ns, "--wait=false", check=False)
+
+
+def uninstalled_with_monitors(cluster: Cluster, ns: str) -> None:
+    """`helm uninstall` with Monitors placed: its pre-delete hook stops the operator and
+    takes the operator's finalizer off them, so they stay (the CRD is kept) and none is
+    stuck on it: each can be deleted at once afterwards, and the namespace with it."""
+    apply(cluster, ns, monitor("left-behind", "always (speed < limit)"))
+    until(
+        "the operator to place the Monitor left behind",
+        lambda: status(cluster, ns, "left-behind").get("phase") == "Running",
+        timeout=180,
+    )
+    done = subprocess.run(
+        [helm(), "uninstall", "erv2", "--namespace", ns, "--kubeconfig", cluster.kubeconfig,
+         "--wait", "--timeout", "300s"],
+        capture_output=True, text=True, timeout=360,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    left = json.loads(cluster.run("get", "monitors", "-n", ns, "-o", "json"))["items"]
+    names = sorted(m["metadata"]["name"] for m in left)
+    assert "left-behind" in names and "speed-limit" in names, names
+    held = [m["metadata"]["name"] for m in left if m["metadata"].get("finalizers")]
+    assert held == [], held
+    # (the talker and `helm test`'s pod are not the release's)
+    selector = "app.kubernetes.io/instance=erv2,app.kubernetes.io/component in (handler,operator)"
+    until(
+        "the release's pods to go",
+        lambda: (
+            not json.loads(cluster.run("get", "pods", "-n", ns, "-l", selector, "-o", "json"))[
+                "items"
+            ]
+        ),
+    )
+    cluster.run("delete", "monitors", "--all", "-n", ns, "--timeout=30s")  # not stuck
 
 
 def handoffs(cluster: Cluster, ns: str, name: str) -> dict[str, list[str]]:

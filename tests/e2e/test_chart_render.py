@@ -27,20 +27,30 @@ VALUE_SETS: dict[str, list[str]] = {
     "your own token": ["token.create=false", "token.existingSecret=robot-token"],
     "no operator, no CRDs": ["operator.enabled=false", "crds.install=false"],
     "watched namespaces, CRDs removed on uninstall": [
-        "operator.watchNamespaces={robots,lab}",
+        "operator.watchNamespaces={NS}",  # NS: the scratch namespace (objects go there too)
         "crds.keep=false",
         "operator.replicas=2",
+    ],
+    "per tier, by digest, scraped": [
+        "operator.tiers={edge,fog,cloud}",
+        "handler.tiers.edge.tolerations[0].key=robot.example/dedicated",
+        "handler.tiers.edge.tolerations[0].operator=Exists",
+        "handler.tiers.edge.resources.limits.cpu=1",
+        "handler.tiers.cloud.extraArgs={--max-monitors,20000}",
+        "handler.image.digest=sha256:" + "ab" * 32,
+        "metrics.serviceMonitor.enabled=true",
     ],
 }
 
 
-# The kinds the chart's CRDs define (files/crds/): its custom resources.
+# The kinds the chart's CRDs define (files/crds/), and the Prometheus Operator's
+# ServiceMonitor: the custom resources it may render.
 CUSTOM_KINDS = {
     d["spec"]["names"]["kind"]
     for path in sorted((CHART / "files" / "crds").glob("*.yaml"))
     for d in yaml.safe_load_all(path.read_text())
     if d
-}
+} | {"ServiceMonitor"}
 
 
 def render(release: str, ns: str, values: list[str]) -> list[dict[str, Any]]:
@@ -86,13 +96,14 @@ def test_bad_values_are_refused_by_the_values_schema() -> None:
 
 
 def containers(docs: list[dict[str, Any]], component: str) -> list[dict[str, Any]]:
-    (workload,) = [
-        d
+    """The containers of the component's workloads (the handlers': one DaemonSet a tier)."""
+    return [
+        c
         for d in docs
         if d["kind"] in ("DaemonSet", "Deployment")
         and d["metadata"]["labels"].get("app.kubernetes.io/component") == component
+        for c in d["spec"]["template"]["spec"]["containers"]
     ]
-    return list(workload["spec"]["template"]["spec"]["containers"])
 
 
 def env_of(container: dict[str, Any]) -> dict[str, str]:
@@ -103,7 +114,7 @@ def env_of(container: dict[str, Any]) -> dict[str, str]:
 def test_each_value_set_renders_objects_the_api_server_accepts(
     cluster: Cluster, scratch: str, name: str
 ) -> None:
-    values = VALUE_SETS[name]
+    values = [v.replace("NS", scratch) for v in VALUE_SETS[name]]
     docs = render("r", scratch, values)
     kinds = sorted({d["kind"] for d in docs})
     assert "DaemonSet" in kinds, kinds
@@ -112,6 +123,10 @@ def test_each_value_set_renders_objects_the_api_server_accepts(
     # A custom resource (Kopf's peering objects) cannot be dry-run where its CRD is not in
     # the cluster yet (the CRD is only dry-run created in the same call): left out.
     checkable = [d for d in docs if d["kind"] not in CUSTOM_KINDS - served]
+    # A pod's ServiceAccount must exist for its admission (`helm test`'s pod): those of the
+    # render are made for real first, in the scratch namespace, which goes after the tests.
+    accounts = [d for d in checkable if d["kind"] == "ServiceAccount"]
+    cluster.run("apply", "-n", scratch, "-f", "-", input="\n---\n".join(map(json.dumps, accounts)))
     code, out, err = cluster.attempt(
         "apply", "--dry-run=server", "-n", scratch, "-f", "-",
         input="\n---\n".join(json.dumps(d) for d in checkable),
@@ -125,7 +140,46 @@ def test_each_value_set_renders_objects_the_api_server_accepts(
         assert sc["runAsNonRoot"] and sc["readOnlyRootFilesystem"], (name, c["name"], sc)
         assert sc["capabilities"] == {"drop": ["ALL"]} and not sc["allowPrivilegeEscalation"]
         assert sc["seccompProfile"] == {"type": "RuntimeDefault"}
-    (handler,) = containers(docs, "handler")
+    tiers = ["edge", "fog", "cloud"] if "operator.tiers={edge,fog,cloud}" in values else [
+        "edge", "cloud"
+    ]  # fmt: skip
+    handlers = {  # tier -> its DaemonSet and the handler container
+        d["metadata"]["labels"]["edgerv.io/handler-tier"]: (
+            d,
+            d["spec"]["template"]["spec"]["containers"][0],
+        )
+        for d in docs
+        if d["kind"] == "DaemonSet"
+    }
+    assert sorted(handlers) == sorted(tiers), handlers.keys()  # a DaemonSet a tier
+    for tier, (ds, c) in handlers.items():
+        (term,) = ds["spec"]["template"]["spec"]["affinity"]["nodeAffinity"][
+            "requiredDuringSchedulingIgnoredDuringExecution"
+        ]["nodeSelectorTerms"]
+        assert term["matchExpressions"] == [
+            {"key": "edgerv.io/tier", "operator": "In", "values": [tier]}
+        ], term
+        assert ds["spec"]["selector"]["matchLabels"]["edgerv.io/handler-tier"] == tier
+        assert c["resources"]["requests"], c["resources"]  # never the first evicted
+    if name == "per tier, by digest, scraped":
+        edge, cloud = handlers["edge"], handlers["cloud"]
+        assert edge[0]["spec"]["template"]["spec"]["tolerations"] == [
+            {"key": "robot.example/dedicated", "operator": "Exists"}
+        ]
+        assert "tolerations" not in cloud[0]["spec"]["template"]["spec"]
+        assert edge[1]["resources"] == {  # the tier's over the common ones
+            "requests": {"cpu": "100m", "memory": "256Mi"},
+            "limits": {"cpu": 1, "memory": "1Gi"},
+        }, edge[1]["resources"]
+        assert cloud[1]["args"][-2:] == ["--max-monitors", "20000"]
+        assert "--max-monitors" not in edge[1]["args"]
+        assert cloud[1]["image"] == "edgerv/handler@sha256:" + "ab" * 32
+        (monitor,) = [d for d in docs if d["kind"] == "ServiceMonitor"]
+        (endpoint,) = monitor["spec"]["endpoints"]
+        assert endpoint["scheme"] == "https" and endpoint["tlsConfig"]["serverName"] == (
+            f"r-handler.{scratch}.svc"
+        ), endpoint
+    handler = handlers["edge"][1]
     tls = "tls.enabled=false" not in values
     assert ("--plain-http" in handler["args"]) is not tls, handler["args"]
     assert ("--tls-cert=/var/run/edgerv-tls/tls.crt" in handler["args"]) is tls
@@ -136,7 +190,7 @@ def test_each_value_set_renders_objects_the_api_server_accepts(
         if tls:
             assert env["EDGERV_TLS_CA_FILE"] == "/var/run/edgerv-tls/ca.crt", env
             server_name = "handlers.example" if "tls.serverName=handlers.example" in values else (
-                f"edgerv-handler.{scratch}.svc"
+                f"r-handler.{scratch}.svc"
             )  # fmt: skip
             assert env["EDGERV_TLS_SERVER_NAME"] == server_name, env
         else:
@@ -170,7 +224,7 @@ def test_the_charts_certificate_names_the_server_and_is_signed_by_its_ca(
          "subjectAltName,extendedKeyUsage"],
         capture_output=True, text=True, check=True,
     ).stdout  # fmt: skip
-    assert f"DNS:edgerv-handler.{scratch}.svc" in ext and "TLS Web Server Authentication" in ext
+    assert f"DNS:r-handler.{scratch}.svc" in ext and "TLS Web Server Authentication" in ext
     data = json.dumps(secret["data"], separators=(",", ":"), sort_keys=True)
     digest = hashlib.sha256(data.encode()).hexdigest()
     for d in docs:

@@ -4,8 +4,8 @@ operator, ``edgerv migrate``, ``edgerv orchestrate``) verify that certificate ag
 A handler's address is a node's IP, not a name its certificate can carry ahead of time,
 so the callers may verify the certificate against one fixed **server name** instead of
 the address they connect to (``ClientTls.server_name``; the chart's certificate names
-``edgerv-handler.<namespace>.svc``). Files are read once, at start: a rotated Secret
-rolls the pods (the chart's checksum annotation).
+``<release>-handler.<namespace>.svc``, its handlers' headless Service). Files are read
+once, at start: a rotated Secret rolls the pods (the chart's checksum annotation).
 
 The bearer token authenticates the caller; TLS authenticates the handler and keeps the
 token and the handoff's bundles private on the link. Plain HTTP is served only on a
@@ -125,7 +125,7 @@ def add_client_arguments(p: argparse.ArgumentParser) -> None:
         "--tls-server-name",
         metavar="NAME",
         help="the name the handlers' certificates carry, when it is not the address "
-        "(the chart's: edgerv-handler.NAMESPACE.svc)",
+        "(the chart's: RELEASE-handler.NAMESPACE.svc)",
     )
 
 

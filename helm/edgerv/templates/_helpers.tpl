@@ -23,7 +23,7 @@ helm.sh/chart: {{ .Chart.Name }}-{{ .Chart.Version }}
 
 {{/* The name the handlers' certificate carries and the operator verifies. */}}
 {{- define "edgerv.tlsServerName" -}}
-{{- .Values.tls.serverName | default (printf "edgerv-handler.%s.svc" .Release.Namespace) }}
+{{- .Values.tls.serverName | default (printf "%s-handler.%s.svc" .Release.Name .Release.Namespace) }}
 {{- end }}
 
 {{/*
@@ -63,4 +63,9 @@ every render (pin one with tls.existingSecret).
 {{/* The handlers' API scheme (their probes'). */}}
 {{- define "edgerv.scheme" -}}
 {{- if .Values.tls.enabled }}HTTPS{{ else }}HTTP{{ end }}
+{{- end }}
+
+{{/* An image reference from {repository, tag, digest}: the digest pins it when given. */}}
+{{- define "edgerv.image" -}}
+{{- if .digest }}{{ .repository }}@{{ .digest }}{{ else }}{{ .repository }}:{{ .tag }}{{ end }}
 {{- end }}
