@@ -334,7 +334,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--handlers",
         required=True,
         metavar="TIER=HOST:PORT,...",
-        help="the handlers and their tiers, e.g. edge=10.0.0.2:8080,cloud=10.0.0.9:8080",
+        help="the handlers and their tiers, e.g. edge=10.0.0.2:8080,cloud=10.0.0.9:8080 "
+        "(HTTPS unless loopback: --ca-file; TIER=http://HOST:PORT asks for plain HTTP)",
     )
     p.add_argument(
         "--tiers",
