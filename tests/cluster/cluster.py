@@ -303,6 +303,21 @@ def control_plane(bins: Path) -> None:
                 "--bind-address", "127.0.0.1", "--leader-elect=false",
             ],
         )  # fmt: skip
+    # This API server's own controller manager works: it made the default namespace's
+    # ServiceAccount (pods need one). One that could not bind its port (a stray of an
+    # earlier cluster holds it) exits, and this says so with its log, instead of a
+    # cluster whose Deployments and DaemonSets never get pods.
+    wait(
+        "the controller manager (the default ServiceAccount)",
+        lambda: (
+            sh(
+                str(bins / "kubectl"), "--kubeconfig", str(admin), "get", "serviceaccount",
+                "default", "--namespace", "default",
+            ).returncode
+            == 0
+        ),
+        logname="kube-controller-manager",
+    )  # fmt: skip
     sched = kubeconfig(STATE / "scheduler.kubeconfig", f"https://127.0.0.1:{API_PORT}", "scheduler")
     if not alive("kube-scheduler"):
         start(
@@ -756,6 +771,9 @@ def down(quiet: bool = False) -> None:
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(pid, signal.SIGKILL)
         f.unlink()
+    # processes of this cluster no pid file names (two `up`s at once: the second's pid
+    # files replace the first's): every process started with a path in the state directory
+    subprocess.run(["pkill", "-9", "-f", f"{STATE}/"], capture_output=True)
     # containers left by the shims (their own sessions): kill what runs from the nodes' dirs
     for node in NODES:
         subprocess.run(
