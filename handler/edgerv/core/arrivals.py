@@ -68,7 +68,9 @@ def _array(values: Sequence[Any]) -> Any:
     return out
 
 
-def arrivals(stamps: Sequence[int], reads: list[tuple[Column, Binding]], signals: int) -> Arrivals:
+def arrivals(
+    stamps: Sequence[int], reads: Sequence[tuple[Column, Binding]], signals: int
+) -> Arrivals:
     """A monitor's arrivals in a batch stamped ``stamps``, from the columns of the topics
     it reads there (each with the binding of its signals to the topic's fields)."""
     keys, positions = _positions([at for (at, _), _ in reads], len(stamps))
@@ -76,7 +78,7 @@ def arrivals(stamps: Sequence[int], reads: list[tuple[Column, Binding]], signals
     return Arrivals(mine, *updates(reads, positions, signals))
 
 
-def column_arrivals(stamps: Any, reads: list[tuple[Column, Binding]], signals: int) -> Arrivals:
+def column_arrivals(stamps: Any, reads: Sequence[tuple[Column, Binding]], signals: int) -> Arrivals:
     """:func:`arrivals` for a batch read column-wise: positions, stamps and values in
     NumPy arrays."""
     import numpy as np  # (a batch read column-wise comes with NumPy loaded)
@@ -99,7 +101,7 @@ def column_arrivals(stamps: Any, reads: list[tuple[Column, Binding]], signals: i
 
 
 def updates(
-    reads: list[tuple[Column, Binding]], positions: list[Any], signals: int
+    reads: Sequence[tuple[Column, Binding]], positions: list[Any], signals: int
 ) -> tuple[list[tuple[Any, Any]], list[tuple[Any, tuple[int, ...]]]]:
     """A monitor's changes and groups (:class:`Arrivals`): each topic's messages at
     ``positions`` among the monitor's, with the values of the fields its signals read."""

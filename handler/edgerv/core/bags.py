@@ -16,11 +16,15 @@ What rosbag2 versions and recorders wrote differently, read alike:
 * message types in the old ``pkg/Type`` form: ``pkg/msg/Type``;
 * message definitions carried by the bag (MCAP schemas, the sqlite3
   ``message_definitions`` table): :attr:`BagTopic.definition`, for types not
-  installed;
+  installed; a service event topic's (``/<service>/_service_event``, of the type
+  ``pkg/srv/Name_Event``) is its service's: rosbag2 (Jazzy) writes the ``.srv`` text
+  after an ``SRV: pkg/srv/Name`` line, then its dependencies, under the encoding of
+  those (``unknown`` when it has none), as the topic's MCAP schema and in
+  ``message_definitions`` under the service's type ``pkg/srv/Name``;
 * a truncated MCAP (a recording cut by a crash or a full disk): read as a stream,
   every message up to the damage, then :class:`BagError` says where it stopped;
-* topics of other serializations than CDR, service events, types nobody can
-  decode: listed, and read only when a monitor asks for them.
+* topics of other serializations than CDR, types nobody can decode: listed, and read
+  only when a monitor asks for them.
 
 ROS 1 bags are refused with the command that converts them (``rosbags-convert``).
 """
@@ -39,8 +43,10 @@ from typing import Any, Literal
 import yaml
 
 from edgerv.core import mcap_stream
+from edgerv.core.msgtypes import SEPARATOR
 
-Definition = tuple[Literal["ros2msg", "ros2idl"], str]  # its encoding, its text
+# its encoding, its text ("unknown": a service's definition of no dependency, see above)
+Definition = tuple[Literal["ros2msg", "ros2idl", "unknown"], str]
 Message = tuple[str, int, bytes]  # topic (as monitors name it), log time (ns), CDR bytes
 # a batch of messages: an MCAP file's as arrays (with its channels' topics), else a list
 Batch = tuple[mcap_stream.Batch, dict[int, str]] | list[Message]
@@ -267,7 +273,10 @@ class Bag:
             con.close()
         for _id, name, msgtype, fmt_value in rows:
             count = None if counts is None else int(counts.get(_id, 0))
-            self._add(str(name), str(msgtype), str(fmt_value), count, definitions.get(str(msgtype)))
+            definition = definitions.get(str(msgtype)) or definitions.get(
+                _service_type(str(msgtype))
+            )
+            self._add(str(name), str(msgtype), str(fmt_value), count, definition)
         if end is not None:
             self.end = max(self.end or end, int(end))
 
@@ -452,9 +461,33 @@ def _sqlite_definitions(con: sqlite3.Connection) -> dict[str, Definition]:
     out: dict[str, Definition] = {}
     query = "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions"
     for msgtype, encoding, text in con.execute(query):
-        if encoding in ("ros2msg", "ros2idl") and text:
-            out[str(msgtype)] = (encoding, str(text))
+        definition = _definition(str(encoding), text)
+        if definition is not None:
+            out[str(msgtype)] = definition
     return out
+
+
+def _service_type(msgtype: str) -> str:
+    """A service event's type ``pkg/srv/Name_Event``: the service's, ``pkg/srv/Name``
+    (under which rosbag2 keeps its definition); any other type as it is."""
+    head, srv, name = msgtype.rpartition("/srv/")
+    if srv and name.endswith("_Event") and len(name) > len("_Event"):
+        return f"{head}/srv/{name[: -len('_Event')]}"
+    return msgtype
+
+
+def _definition(encoding: str, text: Any) -> Definition | None:
+    """A definition as a bag keeps it, if it holds one: ``ros2msg`` or ``ros2idl`` text,
+    or a service's (its ``SRV:`` section first), whatever the encoding it names."""
+    if not text or not isinstance(text, str):
+        return None
+    if encoding == "ros2msg":
+        return ("ros2msg", text)
+    if encoding == "ros2idl":
+        return ("ros2idl", text)
+    if text.startswith(f"{SEPARATOR}SRV: "):
+        return ("unknown", text)
+    return None
 
 
 def _schema_definition(schema: mcap_stream.Schema | None) -> Definition | None:
@@ -464,11 +497,7 @@ def _schema_definition(schema: mcap_stream.Schema | None) -> Definition | None:
         text = schema.data.decode("utf-8")
     except UnicodeDecodeError:
         return None
-    if schema.encoding == "ros2msg":
-        return ("ros2msg", text)
-    if schema.encoding == "ros2idl":
-        return ("ros2idl", text)
-    return None
+    return _definition(schema.encoding, text)
 
 
 def _unzstd(data: bytes) -> bytes:

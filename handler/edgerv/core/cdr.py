@@ -9,7 +9,9 @@ from the type's definition (rosbags' type store): it walks the CDR encoding
 (XCDR1, the ROS 2 default), aligning each primitive to its size relative to
 the start of the payload, skipping strings and sequences by their length
 prefix, and unpacks just the wanted values. Big-endian payloads and types it
-cannot walk (wstring) fall back to full deserialization.
+cannot walk (wstring) fall back to full deserialization. A field inside an empty
+optional (a sequence of at most one element, ``T[<=1]``, read as ``request[0].a``) is
+:data:`~edgerv.core.msgtypes.ABSENT`; an index beyond any other sequence is an error.
 
 Any bytes can arrive on a topic: a reader returns values or raises one of
 :data:`MALFORMED`, quickly. A length (a string's, a sequence's count) that runs
@@ -26,9 +28,11 @@ from collections.abc import Callable, Iterator, Sequence
 from typing import Any, TypeVar
 
 from edgerv.core.msgtypes import (
+    ABSENT,
     fielddefs,
     make_getter,
     normalize_type,
+    optional_steps,
     parse_field_path,
     starts_with_header,
     typestore,
@@ -210,8 +214,14 @@ class _Gen:
                 self.fits(elem, indent, self.lines)
             else:
                 self.emit(f"n = {count}", indent)
-            # a sequence too short for a wanted index fails like a getter would
-            self.emit(f"if n <= {max(indexes)}: raise IndexError({max(indexes)})", indent)
+            if kind == _SEQUENCE and count == 1 and indexes == {0}:  # an optional: when
+                self.emit("if not n:", indent)  # empty, nothing under it has a value
+                for slot in sorted(set(wanted.values())):
+                    self.emit(f"out[{slot}] = _ABSENT", indent + 1)
+                self.emit("else:", indent)
+                indent += 1
+            else:  # a sequence too short for a wanted index fails like a getter would
+                self.emit(f"if n <= {max(indexes)}: raise IndexError({max(indexes)})", indent)
             ekind, epay = int(elem[0]), elem[1]
             if ekind == _BASE and epay[0] in _PRIMITIVES:  # fixed size: read by offset
                 fmt, size = _PRIMITIVES[epay[0]]
@@ -320,13 +330,14 @@ def compile_reader(msg_type: str, paths: Sequence[str]) -> Reader:
     namespace: dict[str, Any] = {f: struct.Struct(fmt).unpack_from for fmt, f in gen.fmts.items()}
     namespace["_fallback"] = _fallback_reader(msg_type, paths, header)
     namespace["_LONG"] = _LONG
+    namespace["_ABSENT"] = ABSENT
     exec(compile(source, f"<cdr reader {msg_type}>", "exec"), namespace)
     reader: Reader = namespace["read"]
     return reader
 
 
 def _fallback_reader(msg_type: str, paths: Sequence[str], header: bool) -> Reader:
-    getters = [make_getter(p) for p in paths]
+    getters = [make_getter(p, optional_steps(msg_type, p)) for p in paths]
 
     def read(b: bytes) -> tuple[list[Any], int | None]:
         try:  # (rosbags' store is made at its first use: most readers never need it)

@@ -28,8 +28,18 @@ before its gather, and gathered offsets are clipped to the buffer besides: no by
 reader raise or read outside a message. A hostile length (2^32 - 1) costs what any other
 does: a count is refused as it is read, a string's length at the next read past it.
 
+A value inside an optional (a sequence of at most one element, ``T[<=1]``: a service
+event's ``request[0].a``) is read column-wise too: the optional's element is walked as if
+every message had one, where what each step checks and moves counts only for the messages
+whose optional holds it (a mask), and after it each message goes on from where its own
+walk is (past the element, or past the count of an empty optional). Its column holds
+Python objects: the values, and :data:`~edgerv.core.msgtypes.ABSENT` where the optional is
+empty, as the per-message reader gives them. A count above 1 refuses the batch (the
+per-message reader reads the first element).
+
 :func:`compile_column_reader` returns None for paths it cannot read column-wise: a wanted
-string (not a fixed-size column), a wanted value inside an array or sequence of messages,
+string (not a fixed-size column), a wanted value inside an array or sequence of messages
+(but an optional's), an optional inside an optional (but one of fixed size),
 a path that names no primitive, and anything after a skipped array or sequence whose
 elements vary in size (strings, sequences) or a wstring. Skipped arrays and sequences of
 fixed-size messages are read exactly: where an element ends depends only on where it
@@ -57,6 +67,7 @@ from edgerv.core.cdr import (
     min_size,
 )
 from edgerv.core.msgtypes import (
+    ABSENT,
     FieldError,
     ensure_type,
     fielddefs,
@@ -128,6 +139,11 @@ class _Batch:
         self._room: Int64s | None = self.plen  # plen - arr
         self._room_min: int | None = None
         self._views: dict[np.dtype[Any], npt.NDArray[Any]] = {}
+        # inside an optional: the messages whose optional holds its element, and the
+        # offset (its full value) each message goes on from when it does not
+        self.mask: npt.NDArray[np.bool_] | None = None
+        self.start: Int64s | int = 0
+        self.masks: list[npt.NDArray[np.bool_]] = []  # each optional's, in order
 
     def set(self, arr: Int64s) -> None:
         self.arr = arr
@@ -244,6 +260,38 @@ class _Gather:
         return True
 
 
+class _MaskedFits(_Fits):
+    """:class:`_Fits` inside an optional: the payloads whose optional holds its element."""
+
+    def __call__(self, batch: _Batch) -> bool:
+        if self.need <= 0:
+            return True
+        assert batch.mask is not None
+        room = batch.room()[batch.mask]
+        return not len(room) or int(room.min()) >= self.need
+
+
+class _MaskedGather(_Gather):
+    """:class:`_Gather` inside an optional: where no message holds its element, what is
+    gathered is never read (nor can the buffer hold it: zeros)."""
+
+    def __call__(self, batch: _Batch) -> bool:
+        assert batch.mask is not None
+        if batch.mask.any():
+            return super().__call__(batch)
+        n = len(batch.plen)
+        for _, dtype, _, keys in self.groups:
+            for key, name in keys:
+                batch.fields[key] = np.zeros(n, dtype if name is None else dtype[name])
+        return True
+
+
+def _masked(values: Int64s, batch: _Batch) -> Int64s:
+    """``values`` where a message's optional holds its element, else 0."""
+    assert batch.mask is not None
+    return np.where(batch.mask, values, 0)
+
+
 def _little_endian(key: _Key) -> _Op:
     """Every encapsulation is CDR_LE (0x0001; the per-message reader deserializes the
     others in full)."""
@@ -275,6 +323,16 @@ def _string(key: _Key) -> _Op:
     return op
 
 
+def _masked_string(key: _Key) -> _Op:
+    """:func:`_string` inside an optional."""
+
+    def op(batch: _Batch) -> bool:
+        batch.add(_masked(batch.ints(key), batch))
+        return True
+
+    return op
+
+
 def _align(const: int, size: int) -> _Op:
     def op(batch: _Batch) -> bool:
         assert batch.arr is not None
@@ -301,8 +359,62 @@ def _count(key: _Key, elem_min: int) -> _Op:
     return op
 
 
+def _masked_count(key: _Key, elem_min: int) -> _Op:
+    """:func:`_count` inside an optional: 0 where the optional is empty."""
+    after = key[1] + 4
+
+    def op(batch: _Batch) -> bool:
+        n = _masked(batch.ints(key), batch)
+        left = batch.room() - after
+        too_many = n * elem_min > left if elem_min < 1 << 30 else n > left // elem_min
+        if (too_many & (n > 0)).any():
+            return False
+        batch.count = n
+        return True
+
+    return op
+
+
 def _at_least(count: int) -> _Op:
     return lambda batch: bool(batch.count.min() >= count)
+
+
+def _masked_at_least(count: int) -> _Op:
+    def op(batch: _Batch) -> bool:
+        assert batch.mask is not None
+        held = batch.count[batch.mask]
+        return not len(held) or bool(held.min() >= count)
+
+    return op
+
+
+def _enter_optional(const: int) -> _Op:
+    """Into an optional whose count was just read: the messages that hold its element
+    (a count above 1 refuses the batch), and where the others go on from."""
+
+    def op(batch: _Batch) -> bool:
+        n = batch.count
+        if bool((n > 1).any()):
+            return False
+        batch.mask = n == 1
+        batch.start = batch.full(const)
+        return True
+
+    return op
+
+
+def _leave_optional(const: int) -> _Op:
+    """Past an optional: each message from where its own walk is."""
+
+    def op(batch: _Batch) -> bool:
+        mask = batch.mask
+        assert mask is not None
+        batch.set(np.where(mask, batch.full(const), batch.start) - const)
+        batch.masks.append(mask)
+        batch.mask = None
+        return True
+
+    return op
 
 
 def _add_count(size: int) -> _Op:
@@ -431,6 +543,9 @@ class _Plan:
         self.gathers: list[_Gather] = []
         self.check: _Fits | None = None  # of this version's reads
         self.gather: _Gather | None = None
+        self.masked = False  # walking an optional's element
+        self.optionals: dict[int, int] = {}  # slot -> the optional it is read inside
+        self.left = 0  # optionals walked
         # (the encapsulation's second byte, 3 bytes before the payload, is checked first)
         self.ops.append(_little_endian(self.field(-3, "B")))
         self.first, self.start = self.check, self.gather  # at the payload's start
@@ -448,7 +563,10 @@ class _Plan:
     def field(self, offset: int, fmt: str) -> _Key:
         """A value read at ``arr + offset``."""
         if self.check is None or self.gather is None:
-            self.check, self.gather = _Fits(), _Gather(self.version)
+            if self.masked:
+                self.check, self.gather = _MaskedFits(), _MaskedGather(self.version)
+            else:
+                self.check, self.gather = _Fits(), _Gather(self.version)
             self.ops += [self.check, self.gather]
             self.gathers.append(self.gather)
         self.check.need = max(self.check.need, offset + _GATHER[fmt].itemsize)
@@ -472,7 +590,8 @@ class _Plan:
 
     def count(self, elem: tuple[Any, Any]) -> None:
         self.align(4)
-        self.ops.append(_count(self.field(self.const, "I"), min_size(elem)))
+        counted = _masked_count if self.masked else _count
+        self.ops.append(counted(self.field(self.const, "I"), min_size(elem)))
         self.const += 4
 
     def skip(self, node: tuple[Any, Any]) -> None:
@@ -481,7 +600,8 @@ class _Plan:
             base = payload[0]
             if base == "string":
                 self.align(4)
-                self.ops.append(_string(self.field(self.const, "I")))
+                passed = _masked_string if self.masked else _string
+                self.ops.append(passed(self.field(self.const, "I")))
                 self.const += 4
                 self.changed(1)
             elif base in _PRIMITIVES:
@@ -496,6 +616,9 @@ class _Plan:
         elif kind in (_ARRAY, _SEQUENCE):
             elem, count = payload
             primitive = int(elem[0]) == _BASE and elem[1][0] in _PRIMITIVES
+            if not primitive and not _fixed(elem) and kind == _SEQUENCE and count == 1:
+                self.optional(elem, {}, ())  # an optional: walked where it holds its element
+                return
             if not primitive and not _fixed(elem):
                 raise _Unsupported(f"elements of varying size: {elem}")
             if kind == _ARRAY and primitive:
@@ -565,6 +688,14 @@ class _Plan:
         elif kind in (_ARRAY, _SEQUENCE):
             elem, count = payload
             depth = len(here)
+            if (
+                kind == _SEQUENCE
+                and count == 1
+                and all(len(p) > depth for p in wanted)
+                and {p[depth] for p in wanted} == {0}
+            ):  # an optional
+                self.optional(elem, wanted, (*here, 0))
+                return
             if int(elem[0]) != _BASE or elem[1][0] not in _PRIMITIVES:
                 raise _Unsupported(f"a value inside an array of {elem}")
             if any(len(p) != depth + 1 or not isinstance(p[depth], int) for p in wanted):
@@ -572,7 +703,7 @@ class _Plan:
             highest = max(p[depth] for p in wanted)
             if kind == _SEQUENCE:
                 self.count(elem)
-                self.ops.append(_at_least(highest + 1))
+                self.ops.append((_masked_at_least if self.masked else _at_least)(highest + 1))
             elif count <= highest:  # every message would raise IndexError
                 raise _Unsupported(f"index {highest} of an array of {count}")
             fmt, size = _PRIMITIVES[elem[1][0]]
@@ -587,6 +718,29 @@ class _Plan:
                 self.const += count * size
         else:
             raise _Unsupported(str(node))
+
+    def optional(
+        self, elem: tuple[Any, Any], wanted: dict[tuple[Any, ...], list[int]], here: tuple[Any, ...]
+    ) -> None:
+        """An optional's element (``here``: its path), read where the optional holds it
+        (none ``wanted``: skipped so)."""
+        if self.masked:
+            raise _Unsupported("an optional inside an optional")
+        self.count(elem)
+        self.ops.append(_enter_optional(self.const))
+        self.new_version()
+        self.masked = True
+        before = set(self.formats)
+        if wanted:
+            self.value(elem, wanted, here)
+        else:
+            self.skip(elem)
+        self.masked = False
+        self.ops.append(_leave_optional(self.const))
+        self.changed(1)
+        for slot in set(self.formats) - before:
+            self.optionals[slot] = self.left  # (the mask its _leave_optional keeps)
+        self.left += 1
 
     def read(self, fmt: str, offset: int, slots: list[int]) -> None:
         self.ops.append(_read(self.field(offset, fmt), slots))
@@ -625,6 +779,7 @@ def compile_column_reader(msg_type: str, paths: Sequence[str]) -> ColumnReader |
         gather.finish()
     ops = tuple(plan.ops)
     formats = [plan.formats[slot] for slot in range(len(paths))]
+    optionals = tuple(plan.optionals.items())
 
     def read(buf: npt.NDArray[np.uint8], starts: Int64s, ends: Int64s) -> Columns | None:
         batch = _batch(buf, starts, ends)
@@ -632,13 +787,20 @@ def compile_column_reader(msg_type: str, paths: Sequence[str]) -> ColumnReader |
             return None
         if not len(batch.plen):
             return Columns(
-                [np.empty(0, _COLUMN.get(f, np.int64)) for f in formats],
+                [
+                    np.empty(0, object if s in plan.optionals else _COLUMN.get(f, np.int64))
+                    for s, f in enumerate(formats)
+                ],
                 np.empty(0, np.int64) if header else None,
             )
         batch.values = [batch.plen] * len(formats)
         for op in ops:
             if not op(batch):
                 return None
+        for slot, optional in optionals:  # Python values, ABSENT where it is empty
+            held = batch.values[slot].astype(object)
+            held[~batch.masks[optional]] = ABSENT
+            batch.values[slot] = held
         if stamp is None:
             return Columns(batch.values, None)
         sec = batch.ints(stamp[0])

@@ -2,19 +2,25 @@
 
 from __future__ import annotations
 
-from collections.abc import Collection, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from itertools import chain, compress, count, repeat
-from operator import eq
 from typing import Any
 
+from edgerv.core.arrivals import (
+    Binding,
+    Column,
+    arrivals,
+    column_arrivals,
+    positions_by_topic,
+    rows_column,
+)
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import (
-    Arrivals,
     MonitorRuntime,
     MonitorState,
     Router,
+    TopicRoute,
     ValueTypeError,
     Verdict,
 )
@@ -87,18 +93,18 @@ class CheckRun:
 
     def feed_chunk(self, chunk: EventChunk) -> None:
         """Check a chunk of events: each topic's fields read for the whole chunk, each
-        monitor handed its events column by column (:meth:`MonitorRuntime.offer_arrivals`).
+        monitor handed its events column by column (:meth:`MonitorRuntime.offer_arrivals`,
+        which takes a field without a value, ABSENT, out of a monitor's updates).
         A message that lacks a field or holds a value of another kind sends the chunk
         through :meth:`_feed_events`, which stops at it with its place."""
         if chunk.columns is not None:
             self._feed_columns(chunk)
             return
-        columns: dict[str, tuple[list[int], list[list[Any]]]] = {}
+        columns: dict[str, Column] = {}
         rows = chunk.rows
-        for topic, indexes in _indexes_by_topic(chunk.topics, self.router.routes).items():
+        for topic, indexes in positions_by_topic(chunk.topics, self.router.routes).items():
             if rows is not None:  # read from CDR by the topic's fields: of their types
-                mine = map(rows.__getitem__, indexes)
-                columns[topic] = (indexes, list(map(list, zip(*mine, strict=True))))
+                columns[topic] = rows_column(indexes, rows)
                 continue
             msgs = list(map(chunk.msgs.__getitem__, indexes))
             values = self.router.routes[topic].extract_all(msgs, chunk.parsed_json)
@@ -110,7 +116,7 @@ class CheckRun:
         for name, reads in self.reads.items():
             runtime = self.router.runtimes[name]
             here = [(columns[t], binding) for t, binding in reads if t in columns]
-            if here and runtime.offer_arrivals(_arrivals(chunk, here, len(runtime.values))):
+            if here and runtime.offer_arrivals(arrivals(chunk.stamps, here, len(runtime.values))):
                 self.results[name].verdicts += runtime.evaluate()
 
     def _feed_columns(self, chunk: EventChunk) -> None:
@@ -123,8 +129,8 @@ class CheckRun:
             runtime = self.router.runtimes[name]
             here = [(columns[t], binding) for t, binding in reads if t in columns]
             if here and not runtime.halted:
-                arrivals = _column_arrivals(chunk.stamps, here, len(runtime.values))
-                if runtime.offer_arrivals(arrivals):
+                arrived = column_arrivals(chunk.stamps, here, len(runtime.values))
+                if runtime.offer_arrivals(arrived):
                     self.results[name].verdicts += runtime.evaluate()
 
     def _feed_events(self, events: Iterable[TraceEvent]) -> None:
@@ -138,6 +144,8 @@ class CheckRun:
                 message = (
                     str(exc)
                     if isinstance(exc, ValueTypeError)
+                    else _past_the_end(route, event.msg)
+                    if isinstance(exc, IndexError)
                     else f"no field {exc} in the message"
                 )
                 raise InputError(
@@ -192,71 +200,14 @@ def check_types(monitors: Sequence[CompiledMonitor], msgtypes: dict[str, str]) -
     return errors
 
 
-Binding = tuple[tuple[int, int], ...]  # (signal index in the monitor, field index) pairs
-Column = tuple[list[int], list[list[Any]]]  # a topic's events in a chunk, its fields' values
-FEW_TOPICS = 6  # up to this many topics, a chunk is split by one pass over it for each
-
-
-def _indexes_by_topic(topics: list[str], wanted: Collection[str]) -> dict[str, list[int]]:
-    """The positions in ``topics`` of each wanted topic present."""
-    if len(wanted) <= FEW_TOPICS:  # a C loop over the chunk per topic
-        found = {t: list(compress(range(len(topics)), map(eq, topics, repeat(t)))) for t in wanted}
-        return {t: i for t, i in found.items() if i}
-    out: dict[str, list[int]] = {}
-    for i, topic in enumerate(topics):
-        if topic in wanted:
-            out.setdefault(topic, []).append(i)
-    return out
-
-
-def _arrivals(chunk: EventChunk, reads: list[tuple[Column, Binding]], signals: int) -> Arrivals:
-    """A monitor's events of the chunk, from the columns of the topics it reads."""
-    keys, positions = _positions([indexes for (indexes, _), _ in reads], len(chunk))
-    stamps = chunk.stamps if len(keys) == len(chunk) else list(map(chunk.stamps.__getitem__, keys))
-    return Arrivals(stamps, *_updates(reads, positions, signals))
-
-
-def _updates(
-    reads: list[tuple[Any, Binding]], positions: list[Any], signals: int
-) -> tuple[list[tuple[Any, Any]], list[tuple[Any, tuple[int, ...]]]]:
-    """A monitor's changes and groups (:class:`Arrivals`): each topic's events at
-    ``positions`` among the monitor's, with the values of the fields its signals read."""
-    changes: list[tuple[Any, Any]] = [((), ())] * signals
-    groups: list[tuple[Any, tuple[int, ...]]] = []
-    for ((_, values), binding), at in zip(reads, positions, strict=True):
-        for s, f in binding:
-            changes[s] = (at, values[f])
-        groups.append((at, tuple(s for s, _ in binding)))
-    return changes, groups
-
-
-def _positions(indexes: list[list[int]], chunk: int) -> tuple[Sequence[int], list[Sequence[int]]]:
-    """The chunk positions of a monitor's events, in order, and where the events of each
-    of its topics (at these chunk positions) stand among them."""
-    if len(indexes) == 1:  # one topic: its events are the monitor's, in order
-        return indexes[0], [range(len(indexes[0]))]
-    if sum(map(len, indexes)) == chunk:  # every event of the chunk is the monitor's
-        return range(chunk), list(indexes)
-    keys = sorted(chain.from_iterable(indexes))
-    rank = dict(zip(keys, count()))
-    return keys, [list(map(rank.__getitem__, mine)) for mine in indexes]
-
-
-def _column_arrivals(stamps: Any, reads: list[tuple[Any, Binding]], signals: int) -> Arrivals:
-    """:func:`_arrivals` for a chunk read column-wise: the same, in arrays."""
-    import numpy as np  # (a chunk read column-wise comes with NumPy loaded)
-
-    indexes = [at for (at, _), _ in reads]
-    if len(indexes) == 1:
-        keys, positions = indexes[0], [np.arange(len(indexes[0]))]
-    elif sum(map(len, indexes)) == len(stamps):
-        keys, positions = None, indexes
-    else:  # the monitor's events among the chunk's, and each one's rank among them
-        mine = np.zeros(len(stamps), bool)
-        for at in indexes:
-            mine[at] = True
-        keys = np.flatnonzero(mine)
-        rank = np.cumsum(mine) - 1
-        positions = [rank[at] for at in indexes]
-    mine = stamps if keys is None else stamps[keys]
-    return Arrivals(mine, *_updates(reads, positions, signals), columnar=True)
+def _past_the_end(route: TopicRoute, msg: Any) -> str:
+    """What an index past the end of an array or sequence of ``msg`` is: the field read
+    through it (an empty optional is no error: its field has no value)."""
+    for path, get in zip(route.fields, route.getters, strict=True):
+        try:
+            get(msg)
+        except IndexError:
+            return f"field '{path}': an index past the end of an array or sequence"
+        except Exception:  # another field's error: said by the one looked for
+            continue
+    return "an index past the end of an array or sequence"

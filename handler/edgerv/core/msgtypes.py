@@ -10,6 +10,20 @@ file, looked up as ``<pkg>/msg/<Type>.msg`` under each directory of
 
 A field path is dotted (``twist.twist.linear.x``) with ``[i]`` for an element
 of an array or sequence (``ranges[0]``).
+
+Services: a service's events, the messages ``ros2 bag record --all-services`` records on
+``/<service>/_service_event`` (service introspection, Jazzy), are of the type
+``pkg/srv/Name_Event``: ``service_msgs/msg/ServiceEventInfo info``,
+``Name_Request[<=1] request``, ``Name_Response[<=1] response``. The three types are made
+from the service's definition: the one a bag carries (rosbag2 writes the ``.srv`` text
+after an ``SRV: pkg/srv/Name`` line, then its dependencies), else its ``.srv`` file,
+found as ``<pkg>/srv/<Name>.srv`` where ``.msg`` files are.
+
+Optionals: a sequence of at most one element (``T[<=1]``, ROS's idiom for an optional,
+as a service event's ``request`` and ``response``) is read through its element
+(``request[0].a``). When it is empty, a reader gives :data:`ABSENT` for every field
+inside it (:func:`optional_steps` says which steps of a path are such optionals), and
+the pipeline leaves that signal's update out of the event: it holds its value.
 """
 
 from __future__ import annotations
@@ -22,7 +36,7 @@ import sys
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 ValueKind = Literal["bool", "int", "float", "string"]
 
@@ -37,7 +51,29 @@ _BASE_KINDS: dict[str, ValueKind] = {
 }
 
 _PART = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)$")
-_TYPE = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)/(?:msg/)?([A-Za-z_][A-Za-z0-9_]*)$")
+_TYPE = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)/(?:(msg|srv)/)?([A-Za-z_][A-Za-z0-9_]*)$")
+SERVICE_PARTS = ("_Request", "_Response", "_Event")  # the types a service pkg/srv/Name makes
+SEPARATOR = "=" * 80 + "\n"  # between the definitions a bag concatenates (rosbag2's)
+_EMPTY_MEMBER = ("structure_needs_at_least_one_member", (1, ("uint8", 0)))
+_EVENT_INFO = "service_msgs/msg/ServiceEventInfo"
+
+
+class _Absent:
+    """The type of :data:`ABSENT` (one instance)."""
+
+    __slots__ = ()
+
+    def __repr__(self) -> str:
+        return "ABSENT"
+
+    def __reduce__(self) -> str:
+        return "ABSENT"
+
+
+# What a reader gives for a field inside an empty optional (a sequence of at most one
+# element, ``T[<=1]``): the message has no value for it, and the signal reading it holds
+# the one it had (docs/semantics.md, section 2).
+ABSENT: Final = _Absent()
 
 
 class FieldError(Exception):
@@ -134,7 +170,11 @@ def typestore() -> Any:
 
 def _register(known: dict[str, Any], types: dict[str, Any]) -> None:
     """Make ``types`` known (those not known already); the caller holds _REGISTER."""
-    new = {k: v for k, v in types.items() if k not in known}
+    new = {
+        k: (v if len(v[1]) else (v[0], [_EMPTY_MEMBER]))  # CDR gives an empty message a byte
+        for k, v in types.items()
+        if k not in known
+    }
     known.update(new)
     if _store is not None and new:
         _store.register(new)
@@ -158,16 +198,75 @@ def _definition_dirs() -> list[Path]:
 
 
 def _find_definition(msg_type: str) -> Path | None:
-    pkg, _, name = msg_type.split("/")
+    """The .msg file of ``pkg/msg/Type``, or the .srv file of ``pkg/srv/Name``."""
+    pkg, kind, name = msg_type.split("/")
+    suffix = ".srv" if kind == "srv" else ".msg"
     for d in _definition_dirs():
-        for candidate in (d / pkg / "msg" / f"{name}.msg", d / "msg" / f"{name}.msg"):
+        for candidate in (d / pkg / kind / f"{name}{suffix}", d / kind / f"{name}{suffix}"):
             if candidate.is_file() and (candidate.parent.parent.name == pkg or d.name == pkg):
                 return candidate
     return None
 
 
+def service_of(msg_type: str) -> str | None:
+    """``pkg/srv/Name`` for one of the types it makes (``pkg/srv/Name_Event``,
+    ``_Request``, ``_Response``; normalized), else None."""
+    pkg, kind, name = msg_type.split("/")
+    if kind != "srv":
+        return None
+    for part in SERVICE_PARTS:
+        if name.endswith(part) and len(name) > len(part):
+            return f"{pkg}/srv/{name[: -len(part)]}"
+    return None
+
+
+def _split_service(text: str) -> tuple[str, str]:
+    """A .srv text's request and response parts, on each side of its ``---`` line."""
+    lines = text.split("\n")
+    for i, line in enumerate(lines):
+        if line.strip() == "---":
+            return "\n".join(lines[:i]) + "\n", "\n".join(lines[i + 1 :]) + "\n"
+    raise ValueError("no '---' line between the request and the response")
+
+
+def service_types(service: str, text: str) -> dict[str, Any]:
+    """The types a service's .srv ``text`` makes (``service``: ``pkg/srv/Name``):
+    ``pkg/srv/Name_Request`` and ``_Response``, each part of the text as a .msg (type names
+    without a package are the service package's messages), and ``pkg/srv/Name_Event``, as
+    rosidl makes it for service introspection. Raises on a text that is not a .srv."""
+    from rosbags.typesys import get_types_from_msg
+
+    pkg, _, name = service.split("/")
+    types: dict[str, Any] = {}
+    for part, body in zip(("Request", "Response"), _split_service(text), strict=True):
+        parsed = f"{pkg}/msg/{name}_{part}"  # (rosbags names no srv/ type)
+        types[f"{service}_{part}"] = get_types_from_msg(body, parsed)[parsed]
+    types[f"{service}_Event"] = (
+        [],
+        [
+            ("info", (2, _EVENT_INFO)),
+            ("request", (4, ((2, f"{service}_Request"), 1))),
+            ("response", (4, ((2, f"{service}_Response"), 1))),
+        ],
+    )
+    return types
+
+
+def _dependencies(types: dict[str, Any]) -> list[str]:
+    """The message types the fields of ``types`` name (normalized)."""
+    out = []
+    for _, fields in types.values():
+        for _, node in fields:
+            while int(node[0]) in (3, 4):  # arrays and sequences: their element type
+                node = node[1][0]
+            if int(node[0]) == 2:
+                out.append(normalize_type(str(node[1])))
+    return out
+
+
 def ensure_type(msg_type: str) -> bool:
-    """Make ``msg_type`` (normalized) known, reading its .msg file if need be.
+    """Make ``msg_type`` (normalized) known, reading its .msg file if need be (a service's
+    request, response or event type: the service's .srv file, :func:`service_types`).
 
     Returns False when no definition is found. Types it refers to are resolved too.
     """
@@ -182,20 +281,20 @@ def ensure_type(msg_type: str) -> bool:
             name = pending.pop()
             if name in known or name in found:
                 continue
-            path = _find_definition(name)
+            service = service_of(name)
+            path = _find_definition(service or name)
             if path is None:
                 return False
             try:
-                types = get_types_from_msg(path.read_text(encoding="utf-8"), name)
+                text = path.read_text(encoding="utf-8")
+                if service is not None:
+                    types = service_types(service, text)
+                else:
+                    types = {name: get_types_from_msg(text, name)[name]}
+                pending += _dependencies(types)
             except Exception as exc:  # rosbags reports bad .msg syntax with several types
                 raise FieldError(f"cannot read {path}: {exc}", about="type") from None
             found.update(types)
-            fields: list[tuple[str, Any]] = list(types[name][1])
-            for _, node in fields:
-                while int(node[0]) in (3, 4):  # arrays and sequences: their element type
-                    node = node[1][0]
-                if int(node[0]) == 2:
-                    pending.append(normalize_type(str(node[1])))
         _register(known, found)
     return True
 
@@ -203,18 +302,21 @@ def ensure_type(msg_type: str) -> bool:
 def register_definition(msg_type: str, encoding: str, text: str) -> bool:
     """Make known the types that a bag's own definition of ``msg_type`` describes (an
     MCAP schema, a row of rosbag2's ``message_definitions``: ``ros2msg`` text with its
-    dependencies after ``MSG:`` lines, or ``ros2idl``), those not known already: the
-    built-in definitions come first; a ``.msg`` file found later (:func:`ensure_type`)
-    does not replace one registered here, which is what the bag's bytes were written
-    with. False when the text cannot be read (a service event's, an encoding not known):
-    the type stays unknown unless installed."""
+    dependencies after ``MSG:`` lines, or ``ros2idl``; a service's, as rosbag2 writes
+    it for a service event topic: an ``SRV:`` section, whatever the encoding it names),
+    those not known already: the built-in definitions come first; a ``.msg`` or ``.srv``
+    file found later (:func:`ensure_type`) does not replace one registered here, which is
+    what the bag's bytes were written with. False when the text cannot be read (empty, an
+    encoding not known): the type stays unknown unless installed."""
     from rosbags.typesys import get_types_from_idl, get_types_from_msg
 
     try:
-        if encoding == "ros2msg":
-            types = dict(get_types_from_msg(text, normalize_type(msg_type)))
+        if text.startswith(f"{SEPARATOR}SRV: "):
+            types = _service_definition(text)
+        elif encoding == "ros2msg":
+            types = _srv_names(dict(get_types_from_msg(text, normalize_type(msg_type))))
         elif encoding == "ros2idl":
-            sep = "=" * 80 + "\n"
+            sep = SEPARATOR
             parts = text.split(sep)[1:] if text.startswith(f"{sep}IDL: ") else [f"\n{text}"]
             types = {}
             for part in parts:
@@ -227,6 +329,64 @@ def register_definition(msg_type: str, encoding: str, text: str) -> bool:
     with _REGISTER:
         _register(known, types)
     return True
+
+
+def _service_definition(text: str) -> dict[str, Any]:
+    """The types of a service definition as rosbag2 (Jazzy) writes it for a service event
+    topic (rosbag2_cpp's LocalMessageDefinitionSource): sections after a line of 80 ``=``,
+    the first ``SRV: pkg/srv/Name`` and the .srv text, then each type it depends on,
+    ``MSG: pkg/Type`` and its .msg text or ``IDL: pkg/msg/Type`` and its IDL (a type found
+    only as IDL has an empty ``MSG:`` section before its ``IDL:`` one)."""
+    from rosbags.typesys import get_types_from_idl, get_types_from_msg
+
+    types: dict[str, Any] = {}
+    service: tuple[str, str] | None = None
+    msgs: list[tuple[str, str]] = []
+    for section in text.split(SEPARATOR)[1:]:
+        head, _, body = section.partition("\n")
+        kind, _, name = head.partition(": ")
+        if kind == "SRV" and service is None:
+            pkg, _, rest = name.strip().partition("/")
+            service = (f"{pkg}/srv/{rest.rpartition('/')[2]}", body)
+        elif kind == "MSG":
+            msgs.append((normalize_type(name.strip()), body))
+        elif kind == "IDL":
+            types.update(get_types_from_idl(body))
+        else:
+            raise ValueError(f"a section '{head}' in a service definition")
+    assert service is not None
+    for name, body in msgs:
+        if name not in types:  # (an empty MSG: section before the IDL: one of its type)
+            types[name] = get_types_from_msg(body, name)[name]
+    types.update(service_types(*service))
+    return types
+
+
+def _srv_names(types: dict[str, Any]) -> dict[str, Any]:
+    """Types rosbags parsed from a definition that names service types (``pkg/srv/X``,
+    which rosbags makes ``pkg/srv/msg/X``), with their names as ROS gives them: a
+    service's request, response and event ``pkg/srv/X``, any other ``pkg/msg/X``."""
+
+    def name(old: str) -> str:
+        pkg, srv, msg, rest = [*old.split("/"), "", ""][:4]
+        if (srv, msg) != ("srv", "msg") or not rest:
+            return old
+        return f"{pkg}/srv/{rest}" if rest.endswith(SERVICE_PARTS) else f"{pkg}/msg/{rest}"
+
+    def node(n: Any) -> Any:
+        kind = int(n[0])
+        if kind == 2:
+            return (n[0], name(str(n[1])))
+        if kind in (3, 4):
+            return (n[0], (node(n[1][0]), n[1][1]))
+        return n
+
+    if not any("/srv/msg/" in k for k in types):
+        return types
+    return {
+        name(k): (consts, [(f, node(n)) for f, n in fields])
+        for k, (consts, fields) in types.items()
+    }
 
 
 def starts_with_header(msg_type: str) -> bool:
@@ -247,7 +407,9 @@ def known_types() -> list[str]:
 
 
 def normalize_type(msg_type: str) -> str:
-    """``std_msgs/Bool`` and ``std_msgs/msg/Bool`` both name ``std_msgs/msg/Bool``."""
+    """``std_msgs/Bool`` and ``std_msgs/msg/Bool`` both name ``std_msgs/msg/Bool``; a
+    service's event, request and response types are ``pkg/srv/Name_Event`` (``_Request``,
+    ``_Response``)."""
     m = _TYPE.match(msg_type.strip())
     if not m:
         raise FieldError(
@@ -255,7 +417,17 @@ def normalize_type(msg_type: str) -> str:
             "write it as package/msg/Type, e.g. std_msgs/msg/Float64",
             about="type",
         )
-    return f"{m.group(1)}/msg/{m.group(2)}"
+    pkg, kind, name = m.groups()
+    if kind != "srv":
+        return f"{pkg}/msg/{name}"
+    if not name.endswith(SERVICE_PARTS) or name in SERVICE_PARTS:
+        raise FieldError(
+            f"'{msg_type}' names a service, not a message type",
+            f"a service's events (its topic /<service>/_service_event) are of the type "
+            f"{pkg}/srv/{name}_Event",
+            about="type",
+        )
+    return f"{pkg}/srv/{name}"
 
 
 def parse_field_path(path: str) -> tuple[FieldStep, ...]:
@@ -281,6 +453,13 @@ def field_kind(msg_type: str, path: str) -> ValueKind:
 
         close = difflib.get_close_matches(current, known, n=2, cutoff=0.7)
         own = "a package of your own: put its msg/ directory under a directory of $EDGERV_MSG_PATH"
+        service = service_of(current)
+        if service is not None:
+            pkg, _, name = service.split("/")
+            own = (
+                f"a service: its definition comes from the bag, else from {pkg}/srv/{name}.srv "
+                "under share/ of a ROS install prefix or under a directory of $EDGERV_MSG_PATH"
+            )
         hint = (
             ("did you mean " + " or ".join(close) + "? Or, for " + own)
             if close
@@ -289,13 +468,24 @@ def field_kind(msg_type: str, path: str) -> ValueKind:
         raise FieldError(f"unknown message type '{msg_type}'", hint, about="type")
     node: tuple[Any, Any] = (2, current)  # (Nodetype.NAME, name)
     walked: list[str] = []
-    for step in parse_field_path(path):
+    steps = parse_field_path(path)
+    for at, step in enumerate(steps):
         kind_code, payload = int(node[0]), node[1]
+        if _optional(node):
+            rest = ".".join(_spelled(s) for s in steps[at:])
+            raise FieldError(
+                f"field '{_spelled_path(steps[:at])}' of {msg_type} is an optional, "
+                f"so it has no field '{step.name}'",
+                f"{_spelled_path(steps[:at])} is an optional (a sequence of at most 1): "
+                f"write {_spelled_path(steps[:at])}[0].{rest}",
+            )
         if kind_code != 2:
             raise FieldError(
                 f"field '{'.'.join(walked)}' of {msg_type} is not a message, "
                 f"so it has no field '{step.name}'"
             )
+        if payload not in known and not ensure_type(payload):
+            raise FieldError(f"unknown message type '{payload}' (at '{'.'.join(walked)}')")
         fields = dict(known[payload][1])
         if step.name not in fields:
             raise FieldError(
@@ -305,11 +495,27 @@ def field_kind(msg_type: str, path: str) -> ValueKind:
             )
         node = fields[step.name]
         walked.append(step.name)
-        for _ in step.indexes:
+        for index in step.indexes:
             if int(node[0]) not in (3, 4):  # ARRAY, SEQUENCE
                 raise FieldError(f"field '{'.'.join(walked)}' of {msg_type} is not an array")
+            if _optional(node) and index:
+                spelled = _spelled_path(steps[:at]) + ("." if at else "") + step.name
+                raise FieldError(
+                    f"field '{spelled}' of {msg_type} is an optional: it has no element [{index}]",
+                    f"{spelled} is an optional (a sequence of at most 1): its element is "
+                    f"{spelled}[0]",
+                )
             node = node[1][0]
     kind_code, payload = int(node[0]), node[1]
+    if _optional(node):
+        element = node[1][0]
+        example = f"{path}[0]"
+        if int(element[0]) == 2 and known[element[1]][1]:
+            example += "." + known[element[1]][1][0][0]
+        raise FieldError(
+            f"field '{path}' of {msg_type} is an optional (a sequence of at most 1), not a value",
+            f"read it through its element, e.g. {example}",
+        )
     if kind_code in (3, 4):
         raise FieldError(
             f"field '{path}' of {msg_type} is an array",
@@ -327,9 +533,65 @@ def field_kind(msg_type: str, path: str) -> ValueKind:
     return _BASE_KINDS[base]
 
 
-def make_getter(path: str) -> Any:
-    """A function reading ``path`` from a message given as nested dicts/lists or objects."""
+def _optional(node: tuple[Any, Any]) -> bool:
+    """A sequence of at most one element (``T[<=1]``): ROS's idiom for an optional."""
+    return int(node[0]) == 4 and int(node[1][1]) == 1
+
+
+def _spelled(step: FieldStep) -> str:
+    return step.name + "".join(f"[{i}]" for i in step.indexes)
+
+
+def _spelled_path(steps: tuple[FieldStep, ...]) -> str:
+    return ".".join(map(_spelled, steps))
+
+
+def path_keys(path: str) -> tuple[str | int, ...]:
+    """A field path as the keys that read it: names and indexes, in order."""
+    keys: list[str | int] = []
+    for step in parse_field_path(path):
+        keys += [step.name, *step.indexes]
+    return tuple(keys)
+
+
+def optional_steps(msg_type: str, path: str) -> frozenset[int]:
+    """The positions in :func:`path_keys` of the indexes into an optional (a sequence of at
+    most one element) along ``path`` of ``msg_type``: a message whose optional is empty
+    there has no value at ``path`` (:data:`ABSENT`). Empty for an ordinary path, and for
+    a type or path not known."""
+    try:
+        keys = path_keys(path)
+        name = normalize_type(msg_type)
+        if not ensure_type(name):
+            return frozenset()
+    except FieldError:
+        return frozenset()
+    known = fielddefs()
+    node: Any = (2, name)
+    out = []
+    for at, key in enumerate(keys):
+        kind = int(node[0])
+        if isinstance(key, str):
+            fields = dict(known[node[1]][1]) if kind == 2 and node[1] in known else {}
+            if key not in fields:
+                return frozenset()
+            node = fields[key]
+        elif kind in (3, 4):
+            if _optional(node):
+                out.append(at)
+            node = node[1][0]
+        else:
+            return frozenset()
+    return frozenset(out)
+
+
+def make_getter(path: str, optional: frozenset[int] = frozenset()) -> Any:
+    """A function reading ``path`` from a message given as nested dicts/lists or objects;
+    :data:`ABSENT` where an index of ``optional`` (:func:`optional_steps`) goes into an
+    empty sequence."""
     steps = parse_field_path(path)
+    if optional:
+        return _optional_getter(path_keys(path), optional)
 
     def get(msg: Any) -> Any:
         value = msg
@@ -338,6 +600,21 @@ def make_getter(path: str) -> Any:
             for i in step.indexes:
                 value = value[i]
         # elements of arrays deserialized by rosbags are numpy scalars: make them Python values
+        return value.item() if hasattr(value, "item") else value
+
+    return get
+
+
+def _optional_getter(keys: tuple[str | int, ...], optional: frozenset[int]) -> Any:
+    def get(msg: Any) -> Any:
+        value = msg
+        for at, key in enumerate(keys):
+            if isinstance(key, str):
+                value = value[key] if isinstance(value, dict) else getattr(value, key)
+            elif at in optional and not len(value):
+                return ABSENT
+            else:
+                value = value[key]
         return value.item() if hasattr(value, "item") else value
 
     return get

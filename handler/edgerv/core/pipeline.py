@@ -8,7 +8,9 @@ are evaluated and bit-packed into one letter per event, without its timestamp
 :meth:`MonitorRuntime.evaluate` consumes the letters through the transition table.
 
 :class:`Router` is the "one subscription per topic" part: it reads each field
-once per message and hands every monitor that reads the topic its updates.
+once per message and hands every monitor that reads the topic its updates. A field
+inside an empty optional (:data:`~edgerv.core.msgtypes.ABSENT`) is no update: its
+signal holds its value, and the message is still one event.
 """
 
 from __future__ import annotations
@@ -16,15 +18,15 @@ from __future__ import annotations
 import math
 from array import array
 from bisect import bisect_left, bisect_right
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from itertools import accumulate, chain, compress, islice, repeat
-from operator import add, and_, itemgetter, lt, ne, sub
+from operator import add, and_, is_not, itemgetter, lt, ne, sub
 from typing import Any, Literal, NamedTuple
 
 from edgerv.core.documents import QosSpec
 from edgerv.core.monitor import AGE_CMP, EDGES, AtomRead, CompiledMonitor, TimedAtom
-from edgerv.core.msgtypes import ValueKind, make_getter, parse_field_path
+from edgerv.core.msgtypes import ABSENT, ValueKind, make_getter, optional_steps, path_keys
 from edgerv.core.past import Past
 from edgerv.core.snapshot import HandoffError, Snapshot, deciding_steps, runs_of
 
@@ -88,8 +90,8 @@ class Arrivals:
             head_groups.append((p[:i], signals))
             tail_groups.append((p[i:] - at, signals))
         return (
-            Arrivals(self.stamps[:at], heads, head_groups, columnar=True),
-            Arrivals(self.stamps[at:], tails, tail_groups, columnar=True),
+            type(self)(self.stamps[:at], heads, head_groups, columnar=True),
+            type(self)(self.stamps[at:], tails, tail_groups, columnar=True),
         )
 
     def as_arrays(self) -> Arrivals:
@@ -105,7 +107,7 @@ class Arrivals:
         def ints(values: Sequence[int]) -> Any:
             return np.array(values, np.int64)
 
-        return Arrivals(
+        return type(self)(
             ints(self.stamps),
             [(ints(p), objects(v)) for p, v in self.changes],
             [(ints(p), signals) for p, signals in self.groups],
@@ -114,7 +116,7 @@ class Arrivals:
 
     def as_lists(self) -> Arrivals:
         """The same arrivals in lists of Python values."""
-        return Arrivals(
+        return type(self)(
             _listed(self.stamps),
             [(_listed(p), _listed(v)) for p, v in self.changes],
             [(_listed(p), signals) for p, signals in self.groups],
@@ -144,6 +146,62 @@ class Arrivals:
             for k, updates in zip(positions, each, strict=True):
                 out[k] = updates
         return out
+
+
+class HeldArrivals(Arrivals):
+    """Arrivals where a signal may be updated by fewer events than its topic's: a message
+    without a value for it (a field inside an empty optional) is an event of its topic
+    that leaves it out of its updates, and the signal holds its value (its changes are
+    the events that gave it one)."""
+
+    def updates(self, k: int) -> tuple[Update, ...]:
+        """The ``k``-th event's updates: of its topic's signals, those it gives a value."""
+        for positions, signals in self.groups:
+            if _holds(positions, k):
+                return tuple(self._given(k, signals))
+        raise IndexError(k)
+
+    def _given(self, k: int, signals: tuple[int, ...]) -> Iterator[Update]:
+        for s in signals:
+            positions, values = self.changes[s]
+            if _holds(positions, k):
+                yield s, values[bisect_left(positions, k)]
+
+    def every_update(self) -> list[tuple[Update, ...]]:
+        """Each event's updates, in order (made an event at a time)."""
+        return [self.updates(k) for k in range(len(self.stamps))]
+
+
+def _without_absent(arrivals: Arrivals, held: frozenset[int]) -> Arrivals:
+    """``arrivals`` where the signals ``held`` are updated only by the events that give them
+    a value: ABSENT (a field inside an empty optional) taken out of their changes (a
+    :class:`HeldArrivals`; ``arrivals`` itself where none was ABSENT)."""
+    changes, taken = list(arrivals.changes), False
+    for s in held:
+        positions, values = changes[s]
+        dtype = getattr(values, "dtype", None)
+        if not len(positions) or (dtype is not None and not dtype.hasobject):
+            continue  # (an array of numbers holds no ABSENT)
+        present = list(map(is_not, values, repeat(ABSENT)))
+        if all(present):
+            continue
+        taken = True
+        if arrivals.columnar:
+            import numpy as np  # (arrays: NumPy is loaded)
+
+            mask: Any = np.array(present, bool)
+            given: Any = values
+            changes[s] = (np.asarray(positions)[mask], given[mask])
+        else:
+            changes[s] = (list(compress(positions, present)), list(compress(values, present)))
+    if not taken:
+        return arrivals
+    return HeldArrivals(arrivals.stamps, changes, arrivals.groups, columnar=arrivals.columnar)
+
+
+def _holds(positions: Sequence[int], k: int) -> bool:
+    i = bisect_left(positions, k)
+    return i < len(positions) and positions[i] == k
 
 
 def _listed(values: Any) -> list[Any]:
@@ -252,6 +310,10 @@ class MonitorRuntime:
     past: Past | None = field(init=False)  # its past operators' placeholders and state
     # (a monitor with either compresses its events one by one, never ahead nor with NumPy;
     # a check's chunks, a run of equal letters at a time: :meth:`offer_arrivals`)
+    # The signals read through an optional: a message whose optional is empty gives them
+    # ABSENT, no update (the signal holds its value). A monitor with one takes ABSENT out
+    # of the updates it is offered (the router's events come without: Router._offer_held).
+    held: frozenset[int] = field(init=False)
 
     def __post_init__(self) -> None:
         spec = self.monitor.spec
@@ -274,6 +336,13 @@ class MonitorRuntime:
         self.missing = sum(v is _UNSET for v in self.values)
         if not self.missing:
             self.valuation = self._full_valuation()
+        self.held = frozenset(
+            i
+            for i, n in enumerate(m.signal_names)
+            if optional_steps(spec.signals[n].msg_type, spec.signals[n].field)
+        )
+        if self.held:  # (so, not a test per message for the others)
+            self.offer = self._offer_held  # type: ignore[method-assign]
 
     @property
     def buffered(self) -> int:
@@ -296,6 +365,11 @@ class MonitorRuntime:
         Returns True when letters were produced and :meth:`evaluate` has work.
         """
         return self.offer_event((stamp, seq, updates))
+
+    def _offer_held(self, stamp: int, seq: int, updates: Sequence[Update]) -> bool:
+        """:meth:`offer` of a monitor with a signal read through an optional: an update
+        without a value (ABSENT) is none."""
+        return self.offer_event((stamp, seq, tuple(u for u in updates if u[1] is not ABSENT)))
 
     def offer_event(self, event: Event) -> bool:
         """:meth:`offer` for an event tuple ``(stamp, seq, updates)``, kept as it is: the
@@ -339,6 +413,8 @@ class MonitorRuntime:
         stamps = arrivals.stamps
         if not len(stamps) or self.halted:
             return False
+        if self.held:
+            arrivals = _without_absent(arrivals, self.held)
         if arrivals.columnar:
             if self._offer_columns(arrivals):
                 return len(self.letters) > 0
@@ -1057,6 +1133,8 @@ class TopicRoute:
     getters: list[Callable[[Any], Any]] = field(default_factory=list)
     checks: list[Callable[[Any], bool]] = field(default_factory=list)
     plain: list[Callable[[Any], Any]] = field(default_factory=list)  # for parsed JSON only
+    # the fields read through an optional (ABSENT where it is empty): their indexes
+    held: set[int] = field(default_factory=set)
     # the distinct bindings, each ((signal index, field index), ...): the monitors that
     # share one get one event tuple per message
     bindings: list[tuple[tuple[int, int], ...]] = field(default_factory=list)
@@ -1064,11 +1142,16 @@ class TopicRoute:
 
     def field_index(self, path: str, kind: ValueKind) -> int:
         if path not in self.fields:
+            optional = optional_steps(self.msg_type, path)
+            check = _checker(kind)
+            if optional:
+                self.held.add(len(self.fields))
+                check = _or_absent(check)
             self.fields.append(path)
             self.kinds.append(kind)
-            self.getters.append(make_getter(path))
-            self.checks.append(_checker(kind))
-            self.plain.append(_plain_getter(path))
+            self.getters.append(make_getter(path, optional))
+            self.checks.append(check)
+            self.plain.append(_plain_getter(path, optional))
         return self.fields.index(path)
 
     def extract_all(self, msgs: Sequence[Any], parsed_json: bool) -> list[list[Any]] | None:
@@ -1156,9 +1239,11 @@ class Router:
         admit: Callable[[MonitorRuntime], bool] | None = None,
     ) -> list[MonitorRuntime]:
         """Offer a message's field values (in ``route.fields`` order) to the route's monitors
-        (those ``admit`` accepts); return the monitors with letters to evaluate."""
+        (those ``admit`` accepts); return the monitors with letters to evaluate. A field the
+        message has no value for (ABSENT: inside an empty optional) is left out of the
+        event's updates."""
         self.seq += 1
-        seq, bindings = self.seq, route.bindings
+        seq, bindings, held = self.seq, route.bindings, route.held
         events: list[Event | None] = [None] * len(bindings)  # built on first use
         ready = []
         for runtime, b in route.readers:
@@ -1166,17 +1251,28 @@ class Router:
                 continue
             event = events[b]
             if event is None:
-                event = events[b] = (stamp, seq, tuple([(s, values[f]) for s, f in bindings[b]]))
+                updates = [(s, values[f]) for s, f in bindings[b]]
+                if held:
+                    updates = [u for u in updates if u[1] is not ABSENT]
+                event = events[b] = (stamp, seq, tuple(updates))
             if runtime.offer_event(event):
                 ready.append(runtime)
         return ready
 
 
-def _plain_getter(path: str) -> Callable[[Any], Any]:
+def _or_absent(check: Callable[[Any], bool]) -> Callable[[Any], bool]:
+    return lambda v: v is ABSENT or check(v)
+
+
+def _plain_getter(path: str, optional: frozenset[int] = frozenset()) -> Callable[[Any], Any]:
     """``path`` read with plain indexing: what the message's getter does on parsed JSON,
     where every message is a dict and no value has ``item`` (a NumPy scalar's); on
-    anything else it raises, and the getter itself reads it."""
-    keys = [key for step in parse_field_path(path) for key in (step.name, *step.indexes)]
+    anything else it raises, and the getter itself reads it. ABSENT where an index of
+    ``optional`` goes into an empty list."""
+    keys = path_keys(path)
+    if optional:
+        held: Callable[[Any], Any] = make_getter(path, optional)
+        return held
     if len(keys) == 1:
         return itemgetter(keys[0])
 

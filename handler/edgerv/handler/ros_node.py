@@ -58,10 +58,11 @@ Taken = tuple[int, str, list[Any], bytes, int]
 
 
 def message_class(msg_type: str) -> Any:
-    """The rclpy class of ``pkg/msg/Type``; raises ImportError with what to install."""
-    pkg, _, name = msg_type.split("/")
+    """The rclpy class of ``pkg/msg/Type`` (or of a service's event, ``pkg/srv/Name_Event``,
+    in its package's ``srv`` module); raises ImportError with what to install."""
+    pkg, kind, name = msg_type.split("/")
     try:
-        return getattr(importlib.import_module(f"{pkg}.msg"), name)
+        return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
     except (ImportError, AttributeError):
         raise ImportError(
             f"message type {msg_type} is not installed in this handler "
