@@ -92,7 +92,7 @@ def edgerv_live(
     start = time.perf_counter()
     for i in range(0, len(messages), batch):
         engine.ingest(messages[i : i + batch])
-        verdicts += len(engine.tick())  # a scheduler round
+        verdicts += len(engine.evaluate())  # a scheduler round
     engine.drain()
     elapsed = time.perf_counter() - start
     return rate(len(steps), elapsed), verdicts

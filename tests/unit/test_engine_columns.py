@@ -78,8 +78,8 @@ def run_side_by_side(monitors: list[Any], msgs: list[Any], sizes: list[int]) -> 
             assert single.ingest([msg], now=0.0)
         fed += len(part)
         assert observe(batched) == observe(single), fed
-        batched.emit(batched._evaluate())
-        single.emit(single._evaluate())
+        batched.emit(batched.evaluate())
+        single.emit(single.evaluate())
         assert b_sink.verdicts == s_sink.verdicts, fed
     assert batched.messages == single.messages and batched.newest == single.newest
     batched.drain()

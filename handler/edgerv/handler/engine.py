@@ -341,6 +341,11 @@ class Engine(HandoffSteps):
             with self.lock:
                 self._note_firsts(batch)
 
+    def evaluate(self) -> list[Verdict]:
+        """A scheduler round: evaluate the letters that wait (the verdicts, to emit)."""
+        with self.lock:
+            return self._evaluate()
+
     def _evaluate(self) -> list[Verdict]:
         """Evaluate the letters of the monitors that have some (not all monitors: cheap)."""
         verdicts: list[Verdict] = []
