@@ -78,12 +78,14 @@ def install(cluster: Cluster, release: str, ns: str, *values: str) -> None:
     args = [
         helm(), "install", release, str(CHART), "--namespace", ns,
         "--kubeconfig", cluster.kubeconfig, "--wait", "--timeout", "240s",
-        "--set", f"handler.rosDomainId={env.pop('ROS_DOMAIN_ID')}",
+        "--set", f"handler.rosDomainId={env['ROS_DOMAIN_ID']}",
+        "--set", f"handler.ros.transports={env['FASTDDS_BUILTIN_TRANSPORTS']}",
     ]  # fmt: skip
+    if "ROS_STATIC_PEERS" in env:  # the chart's value, as a user sets it
+        peers = env["ROS_STATIC_PEERS"].replace(";", ",")
+        args += ["--set", f"handler.ros.staticPeers={{{peers}}}"]
     for value in values:
         args += ["--set", value]
-    for key, value in env.items():
-        args += ["--set-string", f"handler.extraEnv.{key}={value}"]
     done = subprocess.run(args, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr + cluster.run("get", "pods", "-n", ns, "-o", "wide")
     assert f"helm test {release} --namespace {ns} --logs" in done.stdout, done.stdout  # NOTES

@@ -40,6 +40,14 @@ VALUE_SETS: dict[str, list[str]] = {
         "handler.image.digest=sha256:" + "ab" * 32,
         "metrics.serviceMonitor.enabled=true",
     ],
+    "DDS: discovery, static peers, shared memory": [
+        "handler.rosDomainId=42",
+        "handler.ros.discoveryRange=LOCALHOST",
+        "handler.ros.staticPeers={10.0.0.7,robot.local}",
+        "handler.ros.transports=DEFAULT",
+        "handler.ros.hostShm=true",
+        "handler.tiers.cloud.extraEnv.ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET",
+    ],
 }
 
 
@@ -85,6 +93,8 @@ def test_bad_values_are_refused_by_the_values_schema() -> None:
         ("tls.serverName=Not_A_Name", "at '/tls/serverName'"),
         ("tls.validityDays=0", "at '/tls/validityDays'"),
         ("tls.cert=x", "at '/tls': additional properties 'cert' not allowed"),
+        ("handler.ros.discoveryRange=LAN", "at '/handler/ros/discoveryRange'"),
+        ("handler.ros.staticPeers={a;b}", "at '/handler/ros/staticPeers/0'"),
     ]:
         done = subprocess.run(
             [helm(), "template", "r", str(CHART), "--set", value],
@@ -179,6 +189,20 @@ def test_each_value_set_renders_objects_the_api_server_accepts(
         assert endpoint["scheme"] == "https" and endpoint["tlsConfig"]["serverName"] == (
             f"r-handler.{scratch}.svc"
         ), endpoint
+    dds = name == "DDS: discovery, static peers, shared memory"
+    for tier, (ds, c) in handlers.items():  # ROS 2 discovery and transport, as the values say
+        env = env_of(c)
+        assert env["ROS_DOMAIN_ID"] == ("42" if dds else "0"), env
+        assert env["FASTDDS_BUILTIN_TRANSPORTS"] == ("DEFAULT" if dds else "UDPv4"), env
+        assert env.get("ROS_STATIC_PEERS") == ("10.0.0.7;robot.local" if dds else None), env
+        assert env.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == (
+            None if not dds else "SUBNET" if tier == "cloud" else "LOCALHOST"  # extraEnv wins
+        ), env
+        assert len(env) == len(c["env"]), c["env"]  # each variable once
+        pod = ds["spec"]["template"]["spec"]
+        shm = [v for v in pod["volumes"] if v.get("hostPath", {}).get("path") == "/dev/shm"]
+        mounted = [m for m in c["volumeMounts"] if m["mountPath"] == "/dev/shm"]
+        assert (len(shm), len(mounted)) == ((1, 1) if dds else (0, 0)), (shm, mounted)
     handler = handlers["edge"][1]
     tls = "tls.enabled=false" not in values
     assert ("--plain-http" in handler["args"]) is not tls, handler["args"]
