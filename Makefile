@@ -22,8 +22,9 @@ lint: install
 	$(BIN)/mypy
 	$(BIN)/lint-imports
 
+# The unit tier's tests are independent: they run on every core (pytest-xdist).
 test-unit: install
-	$(BIN)/pytest -q tests/unit
+	$(BIN)/pytest -q -n auto tests/unit
 
 test-integration: install
 	$(BIN)/pytest -q tests/integration
@@ -31,10 +32,12 @@ test-integration: install
 test-e2e: install
 	$(BIN)/pytest -q tests/e2e
 
-# All tiers: lint, unit (fast, no ROS), integration (real ROS 2, network namespaces),
-# e2e (a real cluster: $$KUBECONFIG's, else the project's own, brought up and down).
+# All tiers: lint, unit (fast, no ROS; on every core), integration (real ROS 2, network
+# namespaces) and e2e (a real cluster: $$KUBECONFIG's, else the project's own, brought up
+# and down), these two one test at a time: their timings and the cluster share the CPUs.
 test: lint
-	$(BIN)/pytest -q tests --tiers all
+	$(BIN)/pytest -q -n auto tests/unit
+	$(BIN)/pytest -q tests/integration tests/e2e
 
 # Fuzzing, longer than `make test` does: each coverage-guided target of tests/fuzz (atheris:
 # the CDR readers, the snapshot bundle) for FUZZ_SECONDS from its seed corpus (new inputs are

@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from test_cli import edgerv
+
 ROOT = Path(__file__).parents[2]
 ROBOT = ROOT / "examples/robot"
 S = 1_000_000_000
@@ -26,11 +28,7 @@ def check(monitors: Path, events: list[tuple[float, str, dict[str, object]]], tm
             json.dumps({"topic": t, "stamp": int(s * S), "msg": m}) + "\n" for s, t, m in events
         )
     )
-    done = subprocess.run(
-        [sys.executable, "-m", "edgerv", "check", str(monitors), str(trace), "--json"],
-        capture_output=True,
-        text=True,
-    )
+    done = edgerv("check", monitors, trace, "--json")
     assert done.returncode in (0, 1), done.stderr
     return {m["name"]: m["verdicts"] for m in json.loads(done.stdout)["monitors"]}
 

@@ -1,16 +1,28 @@
-"""``edgerv check`` as a user runs it: exit codes, the exact JSON, errors, bags."""
+"""``edgerv check`` as a user runs it: exit codes, the exact JSON, errors, bags.
+
+Most tests here (and in test_bags, test_trace_set, test_service_events, ...) run the
+command in this process (:func:`edgerv`: edgerv.cli.main, its exit code, stdout and
+stderr); what only a process of its own shows (the exit codes 0, 1 and 2 through
+os._exit, input that overflowed a parser's stack, the progress bar on a terminal) runs
+it as one (:func:`edgerv_process`)."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
+import logging
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from edgerv.cli import main
+from edgerv.core import cdr, cdr_columns, msgtypes
+from edgerv.core.spot_worker import worker
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "speed-limit.yaml"
@@ -73,13 +85,61 @@ def write_jsonl(path: Path, rows: list[tuple[str, int, dict[str, Any]]]) -> Path
     return path
 
 
-def edgerv(*args: str | Path) -> subprocess.CompletedProcess[str]:
+def edgerv_process(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    """``edgerv ARGS`` as a user runs it: a process of its own (its exit code through
+    os._exit, what reaches its stdout and stderr before it, a crash as a signal)."""
     return subprocess.run(
         [sys.executable, "-m", "edgerv", *map(str, args)],
         capture_output=True,
         text=True,
         timeout=120,
     )
+
+
+def edgerv(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    """``edgerv ARGS`` run here, by edgerv.cli.main, as a new process would run it (the
+    message types it knows start as the built-in ones; what it registers, its synthesis
+    budget and a logging handler it adds are undone after): its exit code, stdout and
+    stderr, without the 0.3 s of a new interpreter and its imports. An exception that
+    would have been a traceback on stderr is raised to the test. The process itself
+    (os._exit, a crash, a terminal) is :func:`edgerv_process`'s."""
+    argv = [str(a) for a in args]
+    out, err = io.StringIO(), io.StringIO()
+    with (
+        _as_a_new_process(),
+        contextlib.redirect_stdout(out),
+        contextlib.redirect_stderr(err),
+    ):
+        try:
+            code = main(argv)
+        except SystemExit as exc:  # argparse: a usage error, --version
+            if exc.code is None or isinstance(exc.code, int):
+                code = exc.code or 0
+            else:  # as the interpreter does with sys.exit("text")
+                print(exc.code, file=sys.stderr)
+                code = 1
+    return subprocess.CompletedProcess(["edgerv", *argv], code, out.getvalue(), err.getvalue())
+
+
+def _forget_types() -> None:
+    msgtypes._known = msgtypes._store = None  # fielddefs()/typestore() start over
+    cdr._message_min_size.cache_clear()  # (their caches are by type name)
+    cdr_columns._fixed_message.cache_clear()
+
+
+@contextlib.contextmanager
+def _as_a_new_process() -> Iterator[None]:
+    saved = msgtypes._known, msgtypes._store, worker.budget
+    root = logging.getLogger()
+    handlers, level = root.handlers[:], root.level
+    _forget_types()
+    try:
+        yield
+    finally:
+        _forget_types()
+        msgtypes._known, msgtypes._store, worker.budget = saved
+        root.handlers[:] = handlers
+        root.setLevel(level)
 
 
 @pytest.fixture
@@ -90,7 +150,8 @@ def monitors(tmp_path: Path) -> Path:
 
 
 def test_json_output_is_exact(monitors: Path, tmp_path: Path) -> None:
-    proc = edgerv("check", monitors, write_jsonl(tmp_path / "run.jsonl", RUN), "--json")
+    """In a process of its own: exit 1 through os._exit, once stdout is out."""
+    proc = edgerv_process("check", monitors, write_jsonl(tmp_path / "run.jsonl", RUN), "--json")
     assert proc.returncode == 1, proc.stderr
     assert proc.stderr == ""
     assert json.loads(proc.stdout) == {
@@ -111,17 +172,19 @@ def test_json_output_is_exact(monitors: Path, tmp_path: Path) -> None:
 
 
 def test_exit_0_without_violation_and_the_readable_table(monitors: Path, tmp_path: Path) -> None:
+    """In a process of its own: exit 0 through os._exit."""
     rows = [r for r in RUN if r[2].get("data") != 120.0 and r[2].get("data") != 150.0]
-    proc = edgerv("check", monitors, write_jsonl(tmp_path / "ok.jsonl", rows))
+    proc = edgerv_process("check", monitors, write_jsonl(tmp_path / "ok.jsonl", rows))
     assert proc.returncode == 0, proc.stderr
     assert "speed-limit" in proc.stdout and "pending" in proc.stdout
     assert "satisfied at step 2 @ 0.000000145" in proc.stdout
 
 
 def test_bad_assertion_exit_2_with_position(tmp_path: Path) -> None:
+    """In a process of its own: exit 2 through os._exit, no traceback."""
     bad = tmp_path / "bad.yaml"
     bad.write_text(MONITORS.replace("speed < limit", "sped < limit"))
-    proc = edgerv("check", bad, write_jsonl(tmp_path / "run.jsonl", RUN))
+    proc = edgerv_process("check", bad, write_jsonl(tmp_path / "run.jsonl", RUN))
     assert proc.returncode == 2
     assert proc.stderr.startswith(f"{bad}:5:35: error: unknown signal or parameter 'sped'")
     assert "Traceback" not in proc.stderr
@@ -153,7 +216,8 @@ def test_bad_assertion_exit_2_with_position(tmp_path: Path) -> None:
 def test_bad_trace_lines(monitors: Path, tmp_path: Path, line: str, expected: str) -> None:
     trace = write_jsonl(tmp_path / "t.jsonl", RUN[:2])
     trace.write_text(trace.read_text() + line + "\n")
-    proc = edgerv("check", monitors, trace, "--json")
+    deep = len(line) > 10_000  # what overflows the stack crashes a process: a process of its own
+    proc = (edgerv_process if deep else edgerv)("check", monitors, trace, "--json")
     assert proc.returncode == 2
     assert proc.stderr.startswith(f"{trace}{expected}"), proc.stderr
     assert "Traceback" not in proc.stderr
@@ -286,7 +350,7 @@ def test_a_monitor_file_nested_too_deep_is_an_input_error_not_a_crash(tmp_path: 
     deep = tmp_path / "deep.yaml"
     deep.write_text(MONITORS + "---\nspec: " + "[" * 50_000 + "]" * 50_000 + "\n")
     trace = write_jsonl(tmp_path / "t.jsonl", RUN[:2])
-    proc = edgerv("check", deep, trace)
+    proc = edgerv_process("check", deep, trace)
     assert proc.returncode == 2, proc.stderr
     assert "error: nested more than 64 levels deep" in proc.stderr
     assert "Traceback" not in proc.stderr
@@ -313,8 +377,13 @@ def test_a_long_check_on_a_terminal_shows_events_per_second(monitors: Path, tmp_
     import os
     import pty
 
-    rows = [("/speed", 1000 + i, {"data": float(i % 90)}) for i in range(300_000)]
-    trace = write_jsonl(tmp_path / "long.jsonl", rows)
+    trace = tmp_path / "long.jsonl"  # the lines write_jsonl writes, without 300,000 json.dumps
+    trace.write_text(
+        "".join(
+            f'{{"topic": "/speed", "stamp": {1000 + i}, "msg": {{"data": {float(i % 90)!r}}}}}\n'
+            for i in range(300_000)
+        )
+    )
     out_path = tmp_path / "out.json"
     pid, fd = pty.fork()
     if pid == 0:

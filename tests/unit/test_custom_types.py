@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from test_cli import edgerv
 
 from edgerv.core.cdr import compile_reader
 from edgerv.core.diagnostics import InputError
@@ -109,13 +107,7 @@ def test_check_on_an_mcap_bag_of_custom_messages(msg_path: Path, tmp_path: Path)
         w.finish()
     doc = tmp_path / "m.yaml"
     doc.write_text(MONITOR)
-    proc = subprocess.run(
-        [sys.executable, "-m", "edgerv", "check", str(doc), str(bag), "--json"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env=dict(os.environ),
-    )
+    proc = edgerv("check", doc, bag, "--json")  # $EDGERV_MSG_PATH: msg_path's
     assert proc.returncode == 1, proc.stderr
     verdicts = json.loads(proc.stdout)["monitors"][0]["verdicts"]
     assert [(v["step"], v["stamp"]) for v in verdicts] == [(2, 20), (4, 40)]

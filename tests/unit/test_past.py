@@ -11,7 +11,9 @@ definition.
 
 from __future__ import annotations
 
+import functools
 import random
+from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -83,6 +85,19 @@ def test_prev_is_the_operand_at_the_step_before() -> None:
 
 
 # -- differential: Reelay's monitors ----------------------------------------------------------
+
+
+@pytest.fixture(scope="module", autouse=True)
+def reelay_inspects_a_pattern_once() -> Iterator[None]:
+    """Each Reelay monitor (reelay.discrete_timed_monitor, dense_timed_monitor) first
+    inspects its pattern, a parse of the text as long as building the monitor itself, to
+    choose the kind to build; the tests below build each pattern four times, a run each.
+    The inspection, a pure function of the text, is kept; every monitor is built anew."""
+    from reelay import _pybind11_module as rym
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(rym, "inspect", functools.cache(rym.inspect))
+        yield
 
 
 def random_past(rng: random.Random, depth: int, timed: bool) -> tuple[str, str, int]:

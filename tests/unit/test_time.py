@@ -14,13 +14,12 @@ import itertools
 import json
 import math
 import random
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
 import spot
+from test_cli import edgerv
 
 from edgerv.core.assertion import parse_assertion
 from edgerv.core.diagnostics import InputError
@@ -94,7 +93,9 @@ def test_a_deadline_is_reported_at_the_instant_it_passes_offline() -> None:
     assert verdicts(result) == [("violated", 4, 325 * MS)]  # 200 ms + 125 ms: a clock step
 
 
-def test_a_check_ends_its_clock_at_the_traces_last_stamp(tmp_path: Path) -> None:
+def test_a_check_ends_its_clock_at_the_traces_last_stamp(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """`edgerv check` on JSON Lines: lines of topics no monitor reads still show time."""
     (tmp_path / "m.yaml").write_text(
         "apiVersion: edgerv.io/v1alpha1\nkind: Monitor\nmetadata: {name: fresh}\nspec:\n"
@@ -104,10 +105,8 @@ def test_a_check_ends_its_clock_at_the_traces_last_stamp(tmp_path: Path) -> None
     lines = [{"topic": "/cmd", "stamp": t * MS, "msg": {"data": 1.0}} for t in (0, 100)]
     lines.append({"topic": "/other", "stamp": 400 * MS, "msg": {"data": 1}})
     (tmp_path / "t.jsonl").write_text("".join(json.dumps(x) + "\n" for x in lines))
-    done = subprocess.run(
-        [sys.executable, "-m", "edgerv", "check", "m.yaml", "t.jsonl", "--json"],
-        cwd=tmp_path, capture_output=True, text=True, check=False,
-    )  # fmt: skip
+    monkeypatch.chdir(tmp_path)
+    done = edgerv("check", "m.yaml", "t.jsonl", "--json")
     assert done.returncode == 1, done.stderr
     (mon,) = json.loads(done.stdout)["monitors"]
     assert mon["verdicts"] == [{"verdict": "violated", "stamp": 225 * MS, "step": 3}]
