@@ -2,7 +2,8 @@
 
 It loads the monitors of a file or directory (a bad monitor is reported and
 skipped; the others run), runs the active ones on live ROS 2 traffic, and
-reports verdicts on ``/edgerv/verdicts``, in ``--verdict-log`` and as metrics.
+reports verdicts on ``/edgerv/verdicts``, in ``--verdict-log`` and as metrics; its
+health and its monitors' on ``/diagnostics``, its log lines on stderr and ``/rosout``.
 SIGTERM or SIGINT stops it cleanly: no new messages are taken, every buffered
 event is evaluated, the verdict log is flushed, and it exits 0. With ``--drain
 SECONDS`` it first runs on (monitors and API) until no monitor is active here
@@ -30,6 +31,7 @@ from edgerv.core.diagnostics import Diagnostic, InputError, Location
 from edgerv.core.documents import MonitorSpec, read_monitors
 from edgerv.core.spot_worker import add_budget_argument, worker
 from edgerv.handler.engine import Engine, VerdictSink
+from edgerv.handler.health import DiagnosticsConfig, Health
 from edgerv.handler.limits import Limits
 from edgerv.handler.sinks import VerdictLog
 from edgerv.handler.tls import is_loopback, server_context
@@ -80,6 +82,14 @@ def drain_limit(text: str) -> float:
         if 0 <= (value := float(text)) <= 86400:
             return value
     raise argparse.ArgumentTypeError(f"'{text}' is not a number of seconds from 0 to 86400")
+
+
+def seconds_or_zero(text: str) -> float:
+    """SECONDS from 0, finite (0: off, or never)."""
+    with contextlib.suppress(ValueError):
+        if 0 <= (value := float(text)) < math.inf:
+            return value
+    raise argparse.ArgumentTypeError(f"'{text}' is not a number of seconds from 0")
 
 
 def read_token(args: argparse.Namespace) -> Token:
@@ -236,6 +246,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="on SIGTERM, first run on until no monitor is active here (moved away by the "
         "operator), at most this long (default 0: stop at once)",
     )
+    given_diagnostics = DiagnosticsConfig()
+    p.add_argument(
+        "--diagnostics-period",
+        type=seconds_or_zero,
+        default=given_diagnostics.period,
+        metavar="SECONDS",
+        help="publish the handler's and its monitors' statuses on /diagnostics this often, "
+        f"and at once when a level changes (default {given_diagnostics.period:g}; 0: off)",
+    )
+    p.add_argument(
+        "--diagnostics-hold",
+        type=seconds_or_zero,
+        default=given_diagnostics.hold,
+        metavar="SECONDS",
+        help="a monitor's violation shows as ERROR on /diagnostics this long "
+        f"(default {given_diagnostics.hold:g})",
+    )
+    p.add_argument(
+        "--diagnostics-stale",
+        type=seconds_or_zero,
+        default=given_diagnostics.stale,
+        metavar="SECONDS",
+        help="a monitor that had no event this long shows as STALE on /diagnostics "
+        f"(default {given_diagnostics.stale:g}; 0: never)",
+    )
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
 
 
@@ -349,8 +384,15 @@ def run(args: argparse.Namespace) -> int:
         reorder_window=window,
         deadline=MakespanWindow(deadline.topic, deadline.budget_ns) if deadline else None,
     )
-    ros = ros_node.RosIngest(engine, args.name, reorder_window=window)
+    health = Health(
+        args.name,
+        DiagnosticsConfig(args.diagnostics_period, args.diagnostics_hold, args.diagnostics_stale),
+    )
+    ros = ros_node.RosIngest(engine, args.name, reorder_window=window, health=health)
+    ros.forward_logs(logging.getLogger("edgerv"))  # /rosout, besides stderr
     engine.sinks.append(ros)
+    if ros.health is not None:
+        engine.sinks.append(health)  # notes violations as they come: published at once
     engine.matched = ros.matched
     diagnostics += load(engine, specs, active, args.max_monitors)
     for d in diagnostics:

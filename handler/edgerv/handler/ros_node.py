@@ -14,6 +14,11 @@ With ``--deadline TOPIC=DURATION`` it also subscribes to TOPIC (raw, a subscript
 of its own whatever the monitors read) once the ROS graph shows a publisher and
 so its type, and feeds each message's makespan (source timestamp minus
 ``header.stamp``) to the engine's :class:`~edgerv.core.deadline.MakespanWindow`.
+
+It publishes the handler's health on ``/diagnostics`` (``diagnostic_msgs/msg/
+DiagnosticArray``, from a thread of its own: the statuses are built by
+:mod:`edgerv.handler.health`) and forwards the handler's log lines to ``/rosout``
+through the node's logger (:class:`RosoutHandler`).
 """
 
 from __future__ import annotations
@@ -22,6 +27,9 @@ import contextlib
 import importlib
 import json
 import logging
+import os
+import struct
+import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -42,12 +50,22 @@ from edgerv.core.documents import QosSpec
 from edgerv.core.msgtypes import starts_with_header
 from edgerv.core.pipeline import TopicRoute, Verdict
 from edgerv.handler.engine import Engine
+from edgerv.handler.health import Health, Pacer, Reading, Status, read_engine
 from edgerv.handler.reorder import ReorderWindow
 from edgerv.handler.sinks import verdict_record
 
 log = logging.getLogger("edgerv.handler.ros")
 
 VERDICT_TOPIC = "/edgerv/verdicts"
+DIAGNOSTICS_TOPIC = "/diagnostics"
+# diagnostic_updater's publisher (reliable, volatile; it keeps 1, we keep 10: an update
+# made at once for a change of level and the periodic one right after both reach a reader)
+DIAGNOSTICS_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
 TAKE_PER_WAKE = 2000  # messages taken from one subscription before looking at the others
 QOS_CHECK_SECONDS = 1.0
 COALESCE_SECONDS = 0.0005  # at most this much latency for much less work per message
@@ -79,9 +97,125 @@ def type_problem(msg_type: str) -> str | None:
 
 
 def init_ros() -> None:
-    """Start rclpy without its signal handlers: the handler's main() owns SIGINT/SIGTERM."""
+    """Start rclpy without its signal handlers (the handler's main() owns SIGINT/SIGTERM)
+    and without ROS's console output: the handler's log lines reach stderr through
+    Python's logging as they always did, and /rosout through the node's logger
+    (:class:`RosoutHandler`); ROS's console would print each of them a second time."""
     if not ok():
-        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+        rclpy.init(
+            args=["edgerv", "--ros-args", "--disable-stdout-logs"],
+            signal_handler_options=SignalHandlerOptions.NO,
+        )
+
+
+# -- /rosout -------------------------------------------------------------------------------
+
+# Python's levels -> rcutils' severities (DEBUG, INFO, WARN, ERROR, FATAL: 10 to 50)
+_SEVERITIES = (
+    (logging.CRITICAL, 50),
+    (logging.ERROR, 40),
+    (logging.WARNING, 30),
+    (logging.INFO, 20),
+)
+
+
+def ros_severity(levelno: int) -> int:
+    """The rcutils severity of a Python logging level: DEBUG, INFO, WARNING, ERROR and
+    CRITICAL map to DEBUG, INFO, WARN, ERROR and FATAL (a level between two, down)."""
+    return next((severity for at, severity in _SEVERITIES if levelno >= at), 10)
+
+
+class RosoutHandler(logging.Handler):
+    """A logging handler that hands each record to the node's rclpy logger (rcutils),
+    which publishes it on /rosout under the node's name (and writes ROS's log file).
+
+    Safe from any thread (logging serializes a handler's calls under its lock). It never
+    raises and never logs: a line that cannot be sent is counted in :attr:`failures`
+    (the handler's diagnostic status shows it) and the first failure is written to
+    stderr directly, not through logging, which would come back here. A record logged
+    while one is being sent (from within rclpy) is not sent, and a forked child (the
+    Spot worker) sends nothing: the node is its parent's."""
+
+    def __init__(self, logger_name: str) -> None:
+        super().__init__()
+        self.logger_name = logger_name
+        self.failures = 0
+        self._pid = os.getpid()
+        self._sending = threading.local()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if os.getpid() != self._pid or getattr(self._sending, "on", False):
+            return
+        self._sending.on = True
+        try:
+            _rclpy.rclpy_logging_rcutils_log(
+                ros_severity(record.levelno),
+                self.logger_name,
+                self.format(record),  # the message, and its traceback if any
+                record.funcName or "",
+                record.pathname or "",
+                record.lineno or 0,
+            )
+        except Exception as exc:  # never into logging: it would come back here
+            self.failures += 1
+            if self.failures == 1:
+                with contextlib.suppress(Exception):
+                    sys.stderr.write(f"edgerv: a log line could not be sent to /rosout: {exc!r}\n")
+        finally:
+            self._sending.on = False
+
+    def handleError(self, record: logging.LogRecord) -> None:
+        self.failures += 1  # (logging's own would print a traceback for each)
+
+
+# -- /diagnostics --------------------------------------------------------------------------
+
+_U32 = struct.Struct("<I").pack
+_STAMP = struct.Struct("<iI").pack
+_NULS = tuple(bytes(n) for n in range(5))
+
+
+def _cdr_string(text: str) -> bytes:
+    """A CDR string, padded after it to a multiple of 4 bytes (what the next string or
+    count needs): its length with the NUL, its bytes, the NUL, the padding."""
+    data = text.encode()
+    size = len(data) + 1
+    return _U32(size) + data + _NULS[1 + -size % 4]
+
+
+def encode_diagnostic_array(statuses: Sequence[Status], stamp_ns: int) -> bytes:
+    """``diagnostic_msgs/msg/DiagnosticArray`` as CDR (little endian): the message rclpy's
+    own serializer gives (tests/integration/test_ros_outputs.py), at a fraction of its
+    cost (rclpy builds a Python object per KeyValue, then converts each to C).
+
+    Strings and counts are 4-byte aligned; only a status's level (one byte) is not, so
+    every string is written with the padding after it that the next one needs, except a
+    status's last, after which the next status's level follows at once."""
+    seconds, nanoseconds = divmod(stamp_ns, 1_000_000_000)
+    parts = [
+        b"\x00\x01\x00\x00",  # the encapsulation: CDR, little endian
+        _STAMP(seconds, nanoseconds),  # header.stamp
+        _cdr_string(""),  # header.frame_id
+        _U32(len(statuses)),
+    ]
+    append = parts.append
+    known: dict[str, bytes] = {}  # keys, and values such as "0", repeat across statuses
+    end = 0  # the offset after the last part, modulo 4
+    for status in statuses:
+        append(bytes((int(status.level),)) + _NULS[-(end + 1) % 4])
+        for text in (status.name, status.message, status.hardware_id):
+            append(known.get(text) or known.setdefault(text, _cdr_string(text)))
+        values = status.values
+        append(_U32(len(values)))
+        end = 0
+        for key, value in values:
+            append(known.get(key) or known.setdefault(key, _cdr_string(key)))
+            append(known.get(value) or known.setdefault(value, _cdr_string(value)))
+        if values:  # the last string without its padding
+            size = len(value.encode()) + 1
+            parts[-1] = parts[-1][: len(parts[-1]) - -size % 4]
+            end = size % 4
+    return b"".join(parts)
 
 
 @dataclass
@@ -96,9 +230,9 @@ class _Sub:
     # has one publisher (a gap after it: messages the middleware lost); None otherwise
     last_seq: int | None = None
     # the topic's publishers as the QoS thread last counted them (the ROS graph, once a
-    # second): asked in the take loop, the count takes a lock the middleware's own threads
-    # hold, which on a starved CPU can stall the loop
-    publishers: int = 0
+    # second; None until it has): asked in the take loop, the count takes a lock the
+    # middleware's own threads hold, which on a starved CPU can stall the loop
+    publishers: int | None = None
 
 
 @dataclass
@@ -121,9 +255,16 @@ def _node_name(name: str) -> str:
 
 
 class RosIngest:
-    """The handler's ROS node: subscriptions, the take loop, the verdict publisher."""
+    """The handler's ROS node: subscriptions, the take loop, the verdict publisher, the
+    diagnostics (given ``health``, whose config's period is above 0) and /rosout."""
 
-    def __init__(self, engine: Engine, name: str, reorder_window: float = 0.02) -> None:
+    def __init__(
+        self,
+        engine: Engine,
+        name: str,
+        reorder_window: float = 0.02,
+        health: Health | None = None,
+    ) -> None:
         from std_msgs.msg import String
 
         self.engine = engine
@@ -146,6 +287,18 @@ class RosIngest:
         self._resubscribe: set[str] = set()  # topics the QoS thread wants re-created
         self.reorder_window = reorder_window
         self.deadline = _Deadline(engine.deadline) if engine.deadline is not None else None
+        self.health = health if health is not None and health.config.period > 0 else None
+        self.diagnostics: Any = None
+        if self.health is not None:
+            self.diagnostics = self.node.create_publisher(
+                message_class("diagnostic_msgs/msg/DiagnosticArray"),
+                DIAGNOSTICS_TOPIC,
+                DIAGNOSTICS_QOS,
+            )
+        self._diagnostics_thread: threading.Thread | None = None
+        self._diagnostics_failures = 0
+        self.rosout: RosoutHandler | None = None
+        self._rosout_logger: logging.Logger | None = None
 
     # -- verdicts out ----------------------------------------------------------------------
 
@@ -153,6 +306,77 @@ class RosIngest:
         """A verdict sink: one std_msgs/String with a JSON object per verdict."""
         for v in verdicts:
             self.verdicts.publish(self._string(data=json.dumps(verdict_record(handler, v))))
+
+    # -- /rosout ---------------------------------------------------------------------------
+
+    def forward_logs(self, logger: logging.Logger) -> RosoutHandler:
+        """Send what ``logger`` (and its children) log to /rosout too, under this node's
+        name, from the level Python's logging lets through (the node's rcutils logger is
+        set to the same level: the default INFO would hold DEBUG back)."""
+        ros_logger = self.node.get_logger()
+        ros_logger.set_level(ros_severity(logger.getEffectiveLevel()))
+        self.rosout = RosoutHandler(ros_logger.name)
+        self._rosout_logger = logger
+        logger.addHandler(self.rosout)
+        return self.rosout
+
+    # -- /diagnostics ----------------------------------------------------------------------
+
+    def _reading_now(self) -> Reading:
+        """The engine and this node's own counts, for the statuses."""
+        publishers = {
+            topic: sub.publishers
+            for topic, sub in list(self.subs.items())
+            if sub.publishers is not None
+        }
+        return read_engine(
+            self.engine,
+            publishers=publishers,
+            incompatible=dict(self.qos_problems),
+            bad=dict(self.bad_messages),
+            rosout_failures=self.rosout.failures if self.rosout else 0,
+        )
+
+    def diagnose(self, health: Health, update: bool) -> list[Status] | None:
+        """One check of the levels: the statuses published (all of them, as
+        diagnostic_updater does) when ``update`` is due or a level changed, else None."""
+        now = health.clock.monotonic()
+        levels = health.check(self._reading_now(), now)
+        if not update and not health.level_changed(levels):
+            return None
+        statuses = health.statuses()
+        stamp = self.node.get_clock().now().nanoseconds
+        self.diagnostics.publish(encode_diagnostic_array(statuses, stamp))
+        health.published(statuses)
+        return statuses
+
+    def _diagnose_loop(self, health: Health) -> None:
+        """The diagnostics thread: an update every period, a check of the levels between
+        (published at once when one changed; a violation wakes it), within its CPU budget
+        (health.Pacer). It takes the engine's lock only to copy a few hundred monitors at a
+        time, and never waits for the take loop."""
+        pacer = Pacer(health.config.period, start=health.clock.monotonic())
+        while not self._stop.is_set():
+            now = health.clock.monotonic()
+            wait = pacer.wait(now, health.next_change(now))
+            if wait > 0:
+                health.changed.wait(wait)  # set by a violation, or to stop
+                rest = pacer.not_before - health.clock.monotonic()
+                if rest > 0 and self._stop.wait(rest):  # the CPU budget comes first
+                    break
+            if self._stop.is_set():
+                break
+            health.changed.clear()
+            started = time.thread_time()
+            update = pacer.update_due(health.clock.monotonic())
+            try:
+                self.diagnose(health, update)
+            except Exception:  # a failed update is retried; it must not stop the handler
+                self._diagnostics_failures += 1
+                n = self._diagnostics_failures
+                if n in (1, 10, 100) or n % 1000 == 0:
+                    log.exception("publishing /diagnostics failed (%d times)", n)
+            pacer.worked(health.clock.monotonic(), time.thread_time() - started, update)
 
     # -- subscriptions ---------------------------------------------------------------------
 
@@ -575,6 +799,14 @@ class RosIngest:
         self._thread.start()
         self._qos_thread = threading.Thread(target=self._watch_qos, name="edgerv-qos", daemon=True)
         self._qos_thread.start()
+        if self.health is not None:
+            self._diagnostics_thread = threading.Thread(
+                target=self._diagnose_loop,
+                args=(self.health,),
+                name="edgerv-diagnostics",
+                daemon=True,
+            )
+            self._diagnostics_thread.start()
 
     def _run(self, on_failure: Callable[[], None]) -> None:
         try:
@@ -591,9 +823,13 @@ class RosIngest:
     def stop(self) -> None:
         self._stop.set()
         self.wake()
-        for thread in (self._thread, self._qos_thread):
+        if self.health is not None:
+            self.health.changed.set()  # the diagnostics thread waits on it
+        for thread in (self._thread, self._qos_thread, self._diagnostics_thread):
             if thread is not None:
                 thread.join(timeout=10)
 
     def close(self) -> None:
+        if self.rosout is not None and self._rosout_logger is not None:
+            self._rosout_logger.removeHandler(self.rosout)  # before the node goes
         self.node.destroy_node()

@@ -1,0 +1,532 @@
+"""A handler's health as ROS 2 diagnostics report it, without ROS: one status per
+active monitor and one for the handler, built from the engine's state and the time.
+
+:func:`read_engine` copies what the statuses need from an :class:`Engine` (its lock
+taken a few hundred monitors at a time); :class:`Health` remembers what it saw before
+(when a monitor was last violated, when its events last came, the counters a period
+ago) and turns a reading into :class:`Status` records: plain data that the ROS layer
+(:mod:`edgerv.handler.ros_node`) publishes on ``/diagnostics`` as
+``diagnostic_msgs/msg/DiagnosticArray``. :class:`Pacer` says when the next reading is
+due. docs/handler.md, "Topics", says what each level and value means.
+
+A monitor's status is named ``edgerv: <monitor>`` whatever handler runs it (a moved
+monitor stays one entry in the tools, updated by its new handler, whose name is the
+status's ``hardware_id``); the handler's own is ``edgerv handler: <name>``.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import IntEnum
+from typing import NamedTuple
+
+from edgerv.core.deadline import DeadlineLoad
+from edgerv.core.pipeline import Verdict
+from edgerv.handler.clock import Clock, SystemClock
+from edgerv.handler.engine import HIGH_WATER, Engine
+
+MONITOR_PREFIX = "edgerv: "
+HANDLER_PREFIX = "edgerv handler: "
+# Between two periodic updates the levels are checked this often, so that a change of
+# level is published at once (a violation wakes the check sooner: Health.write).
+CHECK_SECONDS = 0.25
+# Diagnostics use at most this share of one CPU on average: with thousands of monitors a
+# publication is made less often than the period asks (Pacer).
+CPU_BUDGET = 0.05
+READ_CHUNK = 256  # monitors read under one hold of the engine's lock
+
+
+class Level(IntEnum):
+    """``diagnostic_msgs/msg/DiagnosticStatus``'s levels, by their values there."""
+
+    OK = 0
+    WARN = 1
+    ERROR = 2
+    STALE = 3
+
+
+# Which level wins when several conditions hold: ERROR, then STALE, then WARN. A held
+# violation outranks silence (a monitor violated and then cut off must still show the
+# violation), and silence outranks a warning (a monitor that receives nothing checks
+# nothing: its warnings, such as a topic without a publisher, are given as the reason).
+RANK = {Level.OK: 0, Level.WARN: 1, Level.STALE: 2, Level.ERROR: 3}
+
+
+def worst(levels: Iterable[Level]) -> Level:
+    return max(levels, key=RANK.__getitem__, default=Level.OK)
+
+
+@dataclass(frozen=True)
+class DiagnosticsConfig:
+    """``--diagnostics-period``, ``--diagnostics-hold``, ``--diagnostics-stale``."""
+
+    period: float = 1.0  # seconds between updates; 0: no /diagnostics
+    hold: float = 10.0  # a violation shows as ERROR this long
+    stale: float = 10.0  # a monitor without an event this long is STALE; 0: never
+
+
+@dataclass(frozen=True)
+class Status:
+    """One ``diagnostic_msgs/msg/DiagnosticStatus``; ``values`` are its KeyValues."""
+
+    level: Level
+    name: str
+    message: str
+    hardware_id: str
+    values: tuple[tuple[str, str], ...]
+
+
+class MonitorReading(NamedTuple):
+    """What one active monitor's status needs, copied under the engine's lock."""
+
+    name: str
+    instance: int  # its slot's identity: a redefined monitor is tracked afresh
+    state: str  # pending, violated, satisfied, halted
+    step: int
+    last_verdict: Verdict | None
+    violations: int
+    satisfactions: int
+    events: int
+    dropped: int
+    late: int
+    buffered: int
+    capacity: int
+    migration_wanted: bool
+    tier: str | None
+    migrate: str
+    epoch: int
+    handoff: str | None
+    topics: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Reading:
+    """The handler at one instant: its active monitors and its counters. The ROS
+    layer's own counts come with it (absent without ROS)."""
+
+    monitors: tuple[MonitorReading, ...]
+    defined: int
+    messages: int  # messages ingested, all topics
+    lost: Mapping[str, int]  # topic -> messages lost before the handler took them
+    ingest_lag: float
+    deadline: DeadlineLoad | None = None
+    # topic -> its publishers as the ROS layer last counted them (absent: not yet counted)
+    publishers: Mapping[str, int] = field(default_factory=dict)
+    incompatible: Mapping[str, int] = field(default_factory=dict)  # publishers, bad QoS
+    bad: Mapping[str, int] = field(default_factory=dict)  # topic -> unreadable messages
+    rosout_failures: int = 0  # log lines that could not be sent to /rosout
+
+
+def read_engine(
+    engine: Engine,
+    publishers: Mapping[str, int] | None = None,
+    incompatible: Mapping[str, int] | None = None,
+    bad: Mapping[str, int] | None = None,
+    rosout_failures: int = 0,
+) -> Reading:
+    """A :class:`Reading` of ``engine``. The lock is held for at most READ_CHUNK monitors
+    at a time: the ingest and scheduler threads wait for it no longer than that."""
+    with engine.lock:
+        slots = list(engine.slots.values())
+        messages = sum(engine.messages.values())
+        lost = dict(engine.lost)
+        lag = engine.ingest_lag
+    monitors: list[MonitorReading] = []
+    for start in range(0, len(slots), READ_CHUNK):
+        with engine.lock:
+            current = engine.slots
+            for slot in slots[start : start + READ_CHUNK]:
+                rt = slot.runtime
+                if rt is None or not slot.active or current.get(slot.name) is not slot:
+                    continue  # idle here, or removed or redefined since the list was taken
+                placement = slot.compiled.spec.placement
+                monitors.append(
+                    MonitorReading(
+                        slot.name,
+                        id(slot),
+                        rt.status,
+                        rt.step,
+                        slot.last_verdict,
+                        slot.verdicts["violated"],
+                        slot.verdicts["satisfied"],
+                        slot.events,
+                        slot.dropped,
+                        rt.late_events,
+                        rt.buffered,
+                        slot.capacity,
+                        slot.migration_wanted,
+                        placement.tier,
+                        placement.migrate,
+                        slot.epoch,
+                        None if slot.handoff is None else str(slot.handoff),
+                        tuple(slot.compiled.spec.topics),
+                    )
+                )
+    deadline = engine.deadline.report(time.monotonic_ns()) if engine.deadline else None
+    return Reading(
+        tuple(monitors),
+        len(slots),
+        messages,
+        lost,
+        lag,
+        deadline,
+        dict(publishers or {}),
+        dict(incompatible or {}),
+        dict(bad or {}),
+        rosout_failures,
+    )
+
+
+def stamp_text(ns: int) -> str:
+    """A stamp as ROS tools print one: seconds.nanoseconds."""
+    seconds, nanoseconds = divmod(ns, 1_000_000_000)
+    return f"{seconds}.{nanoseconds:09d}"
+
+
+def _verdict_text(v: Verdict) -> str:
+    return f"{v.verdict} at step {v.step} (stamp {stamp_text(v.stamp)})"
+
+
+def _rate(count: float, seconds: float) -> str:
+    return f"{count / seconds:.1f}" if seconds > 0 else "0.0"
+
+
+@dataclass
+class _Track:
+    """What the statuses remember of one active monitor."""
+
+    instance: int
+    since: float  # first seen active here
+    events: int  # its events when first seen (the base of a rate until a sample has it)
+    dropped: int  # its dropped events when first seen
+    seen: int  # events and drops at the last reading
+    last_event: float  # when they last grew (or since)
+    violations: int  # at the last reading
+    violated_at: float | None = None  # when the handler last reached a violation
+    violation: Verdict | None = None  # that violation, when known
+
+
+class _Sample(NamedTuple):
+    """The counters at one reading: the base of "in the last period"."""
+
+    at: float
+    messages: int
+    lost: Mapping[str, int]
+    bad: Mapping[str, int]
+    monitors: Mapping[str, tuple[int, int, int]]  # name -> (instance, events, dropped)
+
+
+class Health:
+    """The statuses of one handler over time. :meth:`write` (a verdict sink, on the
+    scheduler thread) notes violations as they are reached and sets :attr:`changed`;
+    :meth:`check` and :meth:`statuses` are called by one thread (the ROS layer's
+    diagnostics thread)."""
+
+    def __init__(
+        self,
+        handler: str,
+        config: DiagnosticsConfig | None = None,
+        clock: Clock | None = None,
+    ) -> None:
+        self.handler = handler
+        self.config = config or DiagnosticsConfig()
+        self.clock: Clock = clock or SystemClock()
+        self.changed = threading.Event()  # a violation came: check the levels now
+        self._lock = threading.Lock()
+        self._violated: dict[str, tuple[float, Verdict]] = {}  # write(): the newest, when
+        self._tracks: dict[str, _Track] = {}
+        self._samples: deque[_Sample] = deque()
+        self._published: dict[str, Level] = {}
+        self._last: tuple[Reading, _Sample, float, dict[str, list[tuple[Level, str]]]] | None = None
+
+    # -- a verdict sink ----------------------------------------------------------------
+
+    def write(self, handler: str, verdicts: Sequence[Verdict]) -> None:
+        """Note when each monitor was last violated (the hold counts from here), and wake
+        the diagnostics thread if that makes a status ERROR that was published otherwise
+        (a monitor violated at every step does not wake it at every step)."""
+        violated = {v.monitor: v for v in verdicts if v.verdict == "violated"}
+        if violated:
+            now = self.clock.monotonic()
+            with self._lock:
+                for name, v in violated.items():
+                    self._violated[name] = (now, v)
+            published = self._published
+            if any(published.get(MONITOR_PREFIX + name) != Level.ERROR for name in violated):
+                self.changed.set()
+
+    # -- readings ------------------------------------------------------------------------
+
+    def _update(self, reading: Reading, now: float) -> _Sample:
+        """Track each monitor of ``reading``; return the base sample of "the last period"
+        (the newest at least a period old, else the oldest kept) and keep this one."""
+        with self._lock:
+            violated, self._violated = self._violated, {}
+        tracks: dict[str, _Track] = {}
+        for m in reading.monitors:
+            seen = m.events + m.dropped
+            t = self._tracks.get(m.name)
+            if t is None or t.instance != m.instance:
+                t = _Track(m.instance, now, m.events, m.dropped, seen, now, m.violations)
+            elif seen != t.seen:
+                t.seen, t.last_event = seen, now
+            noted = violated.get(m.name)  # as the sink saw it: when, exactly
+            if noted is not None:
+                t.violated_at, t.violation = noted
+            elif m.violations > t.violations:  # reached since the last reading: about now
+                last = m.last_verdict
+                t.violated_at = now
+                t.violation = last if last is not None and last.verdict == "violated" else None
+            t.violations = m.violations
+            tracks[m.name] = t
+        self._tracks = tracks
+        sample = _Sample(
+            now,
+            reading.messages,
+            reading.lost,
+            reading.bad,
+            {m.name: (m.instance, m.events, m.dropped) for m in reading.monitors},
+        )
+        samples, period = self._samples, self.config.period
+        while len(samples) > 1 and samples[1].at <= now - period:
+            samples.popleft()
+        base = samples[0] if samples else sample
+        samples.append(sample)
+        return base
+
+    def _monitor_problems(
+        self, m: MonitorReading, t: _Track, base: _Sample, reading: Reading, now: float
+    ) -> list[tuple[Level, str]]:
+        """The conditions that make ``m`` other than OK, each with its level and why."""
+        problems: list[tuple[Level, str]] = []
+        last = m.last_verdict
+        if m.state == "halted" and last is not None and last.verdict == "violated":
+            problems.append((Level.ERROR, f"halted after it was {_verdict_text(last)}"))
+        elif t.violated_at is not None and now - t.violated_at < self.config.hold:
+            what = "violated" if t.violation is None else _verdict_text(t.violation)
+            problems.append((Level.ERROR, f"{what}, {max(0.0, now - t.violated_at):.0f} s ago"))
+        if self.config.stale > 0 and now - t.last_event >= self.config.stale:
+            problems.append((Level.STALE, f"no event for {now - t.last_event:.0f} s"))
+        fill = m.buffered / m.capacity
+        if fill >= HIGH_WATER:
+            problems.append((Level.WARN, f"buffer {fill:.0%} full"))
+        if m.migration_wanted:
+            problems.append((Level.WARN, "wants to migrate (its buffer stayed half full)"))
+        before = base.monitors.get(m.name)
+        since = before if before is not None and before[0] == m.instance else None
+        dropped = m.dropped - (t.dropped if since is None else since[2])
+        span = now - (t.since if since is None else base.at)
+        if dropped > 0:
+            problems.append(
+                (Level.WARN, f"{dropped} events dropped in the last {span:.1f} s (buffer full)")
+            )
+        silent = [topic for topic in m.topics if reading.publishers.get(topic, 1) == 0]
+        if silent:
+            problems.append((Level.WARN, f"no publisher on {', '.join(silent)}"))
+        for topic in m.topics:
+            n = reading.incompatible.get(topic, 0)
+            if n:
+                problems.append((Level.WARN, f"{n} publisher(s) of {topic} with incompatible QoS"))
+        return problems
+
+    def _handler_problems(
+        self, reading: Reading, base: _Sample, now: float
+    ) -> list[tuple[Level, str]]:
+        problems: list[tuple[Level, str]] = []
+        span = now - base.at
+        for counts, before, what in (
+            (reading.lost, base.lost, "lost before the handler took them"),
+            (reading.bad, base.bad, "could not be read"),
+        ):
+            grew = {t: n - before.get(t, 0) for t, n in counts.items() if n > before.get(t, 0)}
+            if grew:
+                topics = ", ".join(f"{t} {n}" for t, n in sorted(grew.items()))
+                problems.append(
+                    (
+                        Level.WARN,
+                        f"{sum(grew.values())} messages {what} in the last {span:.1f} s ({topics})",
+                    )
+                )
+        d = reading.deadline
+        if d is not None and d["p95Ms"] is not None and d["p95Ms"] >= d["budgetMs"]:
+            problems.append(
+                (
+                    Level.WARN,
+                    f"deadline pressure: {d['topic']}'s makespan p95 {d['p95Ms']:g} ms "
+                    f"reaches its {d['budgetMs']:g} ms deadline",
+                )
+            )
+        return problems
+
+    def check(self, reading: Reading, now: float) -> dict[str, Level]:
+        """Take ``reading`` (made at ``now``) into account; return each status's level by
+        its name. :meth:`statuses` then builds the statuses of this reading."""
+        base = self._update(reading, now)
+        problems = {
+            MONITOR_PREFIX + m.name: self._monitor_problems(
+                m, self._tracks[m.name], base, reading, now
+            )
+            for m in reading.monitors
+        }
+        problems[HANDLER_PREFIX + self.handler] = self._handler_problems(reading, base, now)
+        self._last = (reading, base, now, problems)
+        return {name: worst(level for level, _ in p) for name, p in problems.items()}
+
+    def statuses(self) -> list[Status]:
+        """The statuses of the last :meth:`check`: the handler's, then each active
+        monitor's by name."""
+        if self._last is None:
+            return []
+        reading, base, now, problems = self._last
+        out = [self._handler_status(reading, base, now, problems[HANDLER_PREFIX + self.handler])]
+        for m in sorted(reading.monitors, key=lambda m: m.name):
+            p = problems[MONITOR_PREFIX + m.name]
+            out.append(self._monitor_status(m, self._tracks[m.name], base, now, p))
+        return out
+
+    def _monitor_status(
+        self,
+        m: MonitorReading,
+        t: _Track,
+        base: _Sample,
+        now: float,
+        problems: list[tuple[Level, str]],
+    ) -> Status:
+        problems = sorted(problems, key=lambda p: -RANK[p[0]])  # the worst first
+        last = m.last_verdict
+        if problems:
+            message = "; ".join(text for _, text in problems)
+        elif last is None:
+            message = m.state  # pending: no verdict yet
+        elif m.state == "satisfied":
+            message = _verdict_text(last)
+        elif m.state == "violated":  # the hold is over and no step came since
+            message = f"{_verdict_text(last)}; no step since"
+        elif m.state == "halted":
+            message = f"halted after it was {_verdict_text(last)}"
+        else:
+            message = f"{m.state} (last verdict: {_verdict_text(last)})"
+        before = base.monitors.get(m.name)
+        if before is not None and before[0] == m.instance and now > base.at:
+            rate = _rate(m.events - before[1], now - base.at)
+        else:
+            rate = _rate(m.events - t.events, now - t.since)
+        handoff = f" (handoff: {m.handoff})" if m.handoff else ""
+        values = (
+            ("state", m.state),
+            ("step", str(m.step)),
+            ("last verdict", f"{last.verdict} at step {last.step}" if last else "none"),
+            ("last verdict stamp", stamp_text(last.stamp) if last else ""),
+            ("violations", str(m.violations)),
+            ("satisfactions", str(m.satisfactions)),
+            ("events", str(m.events)),
+            ("events per second", rate),
+            ("buffer fill", f"{m.buffered / m.capacity:.0%} ({m.buffered} of {m.capacity})"),
+            ("dropped events", str(m.dropped)),
+            ("late events", str(m.late)),
+            ("migration wanted", "yes" if m.migration_wanted else "no"),
+            ("tier", (m.tier or "lowest") + (" (pinned)" if m.migrate == "pinned" else "")),
+            ("epoch", f"{m.epoch}{handoff}"),
+            ("topics", ", ".join(m.topics)),
+        )
+        return Status(
+            worst(p[0] for p in problems), MONITOR_PREFIX + m.name, message, self.handler, values
+        )
+
+    def _handler_status(
+        self, reading: Reading, base: _Sample, now: float, problems: list[tuple[Level, str]]
+    ) -> Status:
+        span = now - base.at
+        rate = _rate(reading.messages - base.messages, span)
+        active = len(reading.monitors)
+        message = "; ".join(text for _, text in problems) or (
+            f"{active} of {reading.defined} monitors active, {rate} messages/s"
+        )
+        values = [
+            ("monitors active", str(active)),
+            ("monitors defined", str(reading.defined)),
+            ("messages", str(reading.messages)),
+            ("messages per second", rate),
+            ("ingest lag", f"{reading.ingest_lag:.3f} s"),
+            ("messages lost", str(sum(reading.lost.values()))),
+            ("bad messages", str(sum(reading.bad.values()))),
+            ("log lines not sent to /rosout", str(reading.rosout_failures)),
+        ]
+        d = reading.deadline
+        if d is not None:
+
+            def ms(v: float | None) -> str:
+                return "" if v is None else f"{v:g} ms"
+
+            values += [
+                ("deadline topic", d["topic"]),
+                ("deadline", f"{d['budgetMs']:g} ms"),
+                ("deadline window", f"{d['windowSeconds']:g} s"),
+                ("deadline makespans in window", str(d["count"])),
+                ("deadline misses in window", str(d["misses"])),
+                ("deadline makespan p50", ms(d["p50Ms"])),
+                ("deadline makespan p95", ms(d["p95Ms"])),
+                ("deadline makespan max", ms(d["maxMs"])),
+                ("deadline misses total", str(d["missesTotal"])),
+            ]
+        return Status(
+            worst(p[0] for p in problems),
+            HANDLER_PREFIX + self.handler,
+            message,
+            self.handler,
+            tuple(values),
+        )
+
+    # -- when to publish -----------------------------------------------------------------
+
+    def level_changed(self, levels: Mapping[str, Level]) -> bool:
+        """Whether a status's level differs from the one last published (a status that
+        comes or goes is published with the next periodic update)."""
+        published = self._published
+        return any(published.get(name, level) != level for name, level in levels.items())
+
+    def published(self, statuses: Iterable[Status]) -> None:
+        self._published = {s.name: s.level for s in statuses}
+
+    def next_change(self, now: float) -> float | None:
+        """The next instant a level changes by time alone (a hold ends, a monitor goes
+        stale), if any: the check is made then."""
+        hold, stale = self.config.hold, self.config.stale
+        times = [t.violated_at + hold for t in self._tracks.values() if t.violated_at is not None]
+        if stale > 0:
+            times += [t.last_event + stale for t in self._tracks.values()]
+        later = [x for x in times if x > now]
+        return min(later) if later else None
+
+
+class Pacer:
+    """When the diagnostics thread works next: a periodic update every ``period``, a
+    check of the levels every CHECK_SECONDS and at the instants :meth:`Health.next_change`
+    names; never more than ``budget`` of one CPU on average (a reading and a
+    publication that took ``c`` CPU seconds are followed by ``c / budget - c`` idle)."""
+
+    def __init__(self, period: float, budget: float = CPU_BUDGET, start: float = 0.0) -> None:
+        self.period = period
+        self.budget = budget
+        self.next_update = start  # the first update is made at once
+        self.not_before = start
+
+    def wait(self, now: float, change: float | None) -> float:
+        """Seconds to wait before the next check (or update)."""
+        due = min(self.next_update, now + CHECK_SECONDS)
+        if change is not None:
+            due = min(due, change)
+        return max(due, self.not_before) - now
+
+    def update_due(self, now: float) -> bool:
+        return now >= self.next_update
+
+    def worked(self, now: float, cpu_seconds: float, updated: bool) -> None:
+        """A check (or, ``updated``, an update) ended at ``now`` and took ``cpu_seconds``."""
+        self.not_before = now + cpu_seconds * (1 / self.budget - 1)
+        if updated:
+            self.next_update = max(now + self.period, self.not_before)
