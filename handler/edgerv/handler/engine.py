@@ -292,13 +292,18 @@ class Engine(HandoffSteps):
         :class:`~edgerv.core.pipeline.Arrivals`, which give the letters of offering them
         one by one (runs of equal letters at once). A monitor whose buffer cannot take
         all of its messages is offered them one by one, and drops what does not fit, as
-        :meth:`_ingest_each` would."""
+        :meth:`_ingest_each` would. A batch with fewer than COLUMNS_FROM messages on
+        every topic goes to :meth:`_ingest_each` whole."""
         routes, slots = self.router.routes, self.slots
         stamps_, topics, rows = (list(c) for c in zip(*batch, strict=True))
+        by_topic = batches.positions_by_topic(topics, routes)
+        if max(map(len, by_topic.values()), default=0) < COLUMNS_FROM:
+            # spread over many topics: no monitor has enough of them for NumPy to pay
+            return self._ingest_each(batch, now, admit)
         stamps = np.array(stamps_, np.int64)
         reads: dict[str, list[tuple[batches.Column, batches.Binding]]] = {}
         runtimes: dict[str, MonitorRuntime] = {}
-        for topic, at in batches.positions_by_topic(topics, routes).items():
+        for topic, at in by_topic.items():
             route, column = routes[topic], batches.array_column(at, rows)
             self.messages[topic] = self.messages.get(topic, 0) + len(at)
             self.heard[topic] = now
