@@ -85,7 +85,7 @@ bench: install
 # The images' dependencies, pinned with their hashes (images/*/requirements.lock), from
 # pyproject.toml: run after changing a dependency, and commit the result.
 LOCK := $(BIN)/python -m piptools compile --quiet --generate-hashes --strip-extras \
-	--allow-unsafe --no-emit-index-url --no-header
+	--allow-unsafe --no-emit-index-url --no-emit-find-links --no-header
 lock: install
 	$(BIN)/python -m pip install --quiet 'pip-tools>=7.4'
 	$(LOCK) --extra ros -o images/handler/requirements.lock pyproject.toml

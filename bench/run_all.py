@@ -20,6 +20,7 @@ MODULES = [
     "check_jsonl",
     "timed_check",
     "migrate",
+    "reactions",
 ]
 
 

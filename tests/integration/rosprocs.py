@@ -6,21 +6,48 @@ localhost, so tests neither see each other nor send anything off this machine.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 import urllib.error
 import urllib.request
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from pki import NAME, shared_pki
 
 TOKEN = "integration-secret"
+
+
+@contextlib.contextmanager
+def own_node(domain: int, name: str) -> Iterator[Any]:
+    """An rclpy node of the test process in ``domain`` (a context of its own, discovery on
+    localhost as the processes here), spun by an executor thread until the block ends."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    context = rclpy.context.Context()
+    rclpy.init(context=context, domain_id=domain)
+    node = rclpy.create_node(name, context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        yield node
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+        spinner.join(timeout=5)
 
 
 def free_port() -> int:

@@ -22,10 +22,9 @@ rclpy = pytest.importorskip("rclpy")
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
 from rcl_interfaces.msg import Log  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.serialization import deserialize_message  # noqa: E402
-from rosprocs import HandlerProcess, publisher, wait_for  # noqa: E402
+from rosprocs import HandlerProcess, own_node, publisher, wait_for  # noqa: E402
 
 from edgerv.core.documents import load_monitors_text  # noqa: E402
 from edgerv.core.monitor import compile_monitor  # noqa: E402
@@ -107,12 +106,8 @@ class Heard:
 
 
 @pytest.fixture
-def heard(domain: int, monkeypatch: pytest.MonkeyPatch) -> Iterator[Heard]:
+def heard(domain: int) -> Iterator[Heard]:
     """A node of this test's own on /diagnostics and /rosout (as the tools subscribe)."""
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")  # as rosprocs' processes
-    context = rclpy.context.Context()
-    rclpy.init(context=context, domain_id=domain)
-    node = rclpy.create_node("ros_outputs_listener", context=context)
     got = Heard()
 
     def on_array(msg: Any) -> None:
@@ -123,19 +118,10 @@ def heard(domain: int, monkeypatch: pytest.MonkeyPatch) -> Iterator[Heard]:
         with got.lock:
             got.logs.append(msg)
 
-    got.subscription = node.create_subscription(DiagnosticArray, "/diagnostics", on_array, 100)
-    node.create_subscription(Log, "/rosout", on_log, ROSOUT_QOS)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
-    try:
+    with own_node(domain, "ros_outputs_listener") as node:
+        got.subscription = node.create_subscription(DiagnosticArray, "/diagnostics", on_array, 100)
+        node.create_subscription(Log, "/rosout", on_log, ROSOUT_QOS)
         yield got
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=context)
-        spinner.join(timeout=5)
 
 
 def values(status: Any) -> dict[str, str]:

@@ -46,6 +46,15 @@ BASE: dict[str, Any] = {
         "sortThreshold": 1,
         "bufferCapacity": 10**8,  # at least any sortThreshold probed
         "onVerdict": "reset",
+        "onViolation": {
+            "publish": {"topic": "/stop", "type": "std_msgs/msg/Bool", "message": {"data": True}},
+            "call": {
+                "service": "/estop",
+                "type": "std_srvs/srv/SetBool",
+                "request": {"data": True},
+                "timeoutMs": 1000,
+            },
+        },
         "placement": {"tier": "edge", "migrate": "auto", "maxLatencyMs": 20},
     },
 }

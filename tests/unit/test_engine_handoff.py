@@ -10,6 +10,7 @@ import pytest
 
 from edgerv.core.handoff import HandoffError, bundle, decode_frames, encode, unbundle
 from edgerv.core.pipeline import Verdict
+from edgerv.core.reactions import Reaction
 from edgerv.handler.engine import Engine
 from edgerv.handler.handoff_state import HandoffState, HandoffStateError, check_transition
 from helpers import compiled
@@ -23,8 +24,30 @@ class Collect:
         self.got += [(v.verdict, v.step, v.stamp) for v in verdicts]
 
 
+class Reactions:
+    """A reactor that notes what it is asked to do (the ROS one publishes it)."""
+
+    def __init__(self) -> None:
+        self.prepared: list[Reaction] = []
+        self.done: list[tuple[str, int, int]] = []
+
+    def prepare(self, reaction: Reaction) -> None:
+        self.prepared.append(reaction)
+
+    def react(self, handler: str, due: Sequence[tuple[Verdict, Reaction]]) -> None:
+        self.done += [(v.verdict, v.step, v.stamp) for v, _ in due]
+
+
+STOP = {"publish": {"topic": "/cmd_vel", "type": "geometry_msgs/msg/Twist"}}
+
+
 def monitor(threshold: int = 2):  # type: ignore[no-untyped-def]
-    return compiled("always (a -> x < 5)", {"a": "bool", "x": "float"}, sortThreshold=threshold)
+    return compiled(
+        "always (a -> x < 5)",
+        {"a": "bool", "x": "float"},
+        sortThreshold=threshold,
+        onViolation=STOP,
+    )
 
 
 def batches(seed: int, most: int = 3) -> list[list[tuple[int, str, list[object]]]]:
@@ -67,6 +90,9 @@ def test_handoff_between_engines(seed: int, threshold: int, most: int) -> None:
     rng = random.Random(seed)
     sinks = [Collect(), Collect()]
     engines = [Engine(f"h{i}", [sinks[i]], flush_after=1e9) for i in (0, 1)]
+    reactors = [Reactions(), Reactions()]
+    for e, r in zip(engines, reactors, strict=True):
+        e.reactor = r
     engines[0].put(monitor(threshold), active=True)
     engines[1].put(monitor(threshold), active=False)
     owner, epoch, phase, cut = 0, 0, None, None
@@ -120,6 +146,14 @@ def test_handoff_between_engines(seed: int, threshold: int, most: int) -> None:
     got = sorted(sinks[0].got + sinks[1].got, key=lambda v: v[1])
     assert got == alone(seed, threshold, most)
     assert sum(1 for e in engines if e.slots["m"].active) == 1
+    # each violation reacted to once, by the engine that evaluated it (spec.onViolation)
+    for sink, reactor in zip(sinks, reactors, strict=True):
+        assert reactor.done == [v for v in sink.got if v[0] == "violated"]
+        assert len(reactor.prepared) == 1  # when the monitor was defined, active or not
+    assert sorted(reactors[0].done + reactors[1].done, key=lambda v: v[1]) == [
+        v for v in got if v[0] == "violated"
+    ]
+    assert any(v[0] == "violated" for v in got)  # (it has some to react to)
 
 
 def test_epochs_fence_stale_and_duplicate_calls() -> None:
@@ -358,7 +392,7 @@ def test_a_new_placement_alone_keeps_the_monitor_running_with_its_state() -> Non
     assert before["step"] > 0
     moved = compiled(
         "always (a -> x < 5)", {"a": "bool", "x": "float"}, sortThreshold=2,
-        placement={"tier": "cloud"},
+        placement={"tier": "cloud"}, onViolation=STOP,
     )  # fmt: skip
     assert e.put(moved, active=True) is False
     after = e.slots["m"].describe("one")

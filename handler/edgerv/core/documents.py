@@ -19,8 +19,9 @@ from typing import Any, Literal, cast
 import yaml
 
 from edgerv.core.diagnostics import Diagnostic, InputError, Location, did_you_mean
-from edgerv.core.msgtypes import FieldError, ValueKind, field_kind, normalize_type
+from edgerv.core.msgtypes import FieldError, ValueKind, field_kind, normalize_type, require_type
 from edgerv.core.placement import Placement
+from edgerv.core.reactions import Call, Fields, Publish, Reaction, request_type, value_fits
 
 API_VERSION = "edgerv.io/v1alpha1"
 KIND = "Monitor"
@@ -33,6 +34,7 @@ OnVerdict = Literal["reset", "halt"]
 _NAME = re.compile(r"^[a-z0-9]([-a-z0-9.]{0,251}[a-z0-9])?$")  # Kubernetes object name
 _IDENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _TIER = re.compile(r"^[a-z0-9]([-a-z0-9]{0,61}[a-z0-9])?$")  # a label value, e.g. edge, cloud
+_SERVICE_TYPE = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)/(?:srv/)?([A-Za-z_][A-Za-z0-9_]*)$")
 _TOPIC = re.compile(r"^/?[A-Za-z_~{][A-Za-z0-9_/{}~]*$")
 
 # Words of the assertion language that cannot name a signal or a parameter.
@@ -101,6 +103,7 @@ class MonitorSpec:
     # Maps (offset, length) in the assertion text to its place in the file.
     locate_assertion: Callable[[int, int], Location] = field(repr=False, compare=False)
     placement: Placement = field(default_factory=Placement)
+    on_violation: Reaction | None = None  # off unless written
 
     @functools.cached_property  # read per message during a handoff: computed once
     def topics(self) -> list[str]:
@@ -220,18 +223,6 @@ def topic_name(text: str) -> str | None:
     return text if text.startswith("/") else "/" + text
 
 
-def _value_fits(value: Value, kind: ValueKind) -> bool:
-    if kind == "bool":
-        return isinstance(value, bool)
-    if kind == "string":
-        return isinstance(value, str)
-    if isinstance(value, bool):
-        return False
-    if kind == "int":
-        return isinstance(value, int)
-    return isinstance(value, int | float)
-
-
 def _parse_signal(doc: _Doc, name: str, knode: yaml.Node, node: yaml.Node) -> SignalSpec | None:
     where = f"spec.signals.{name}"
     if not _IDENT.match(name) or name in RESERVED:
@@ -269,7 +260,7 @@ def _parse_signal(doc: _Doc, name: str, knode: yaml.Node, node: yaml.Node) -> Si
     initial: Value | None = None
     if "initial" in items:
         initial = _parse_value(doc, items["initial"][1], f"{where}.initial")
-        if initial is not None and not _value_fits(initial, kind):
+        if initial is not None and not value_fits(initial, kind):
             doc.error(
                 items["initial"][1],
                 f"{where}.initial",
@@ -355,6 +346,148 @@ def _parse_placement(doc: _Doc, node: yaml.Node) -> Placement:
     return Placement(tier, cast(Literal["auto", "pinned"], migrate), budget)
 
 
+def _parse_fields(doc: _Doc, node: yaml.Node, where: str, msg_type: str | None) -> Fields:
+    """A message's field values (nested mappings for nested messages) as dotted paths,
+    each checked against ``msg_type`` (None: the type is wrong, only the shape is read)."""
+    out: list[tuple[str, Any]] = []
+
+    def walk(node: yaml.Node, prefix: str) -> None:
+        if not isinstance(node, yaml.MappingNode):
+            doc.error(node, where + (f".{prefix}" if prefix else ""), "must be a mapping of fields")
+            return
+        for key, (knode, vnode) in _mapping(node).items():
+            path = f"{prefix}.{key}" if prefix else key
+            if isinstance(vnode, yaml.MappingNode):
+                walk(vnode, path)
+                continue
+            if isinstance(vnode, yaml.SequenceNode):
+                doc.error(
+                    vnode,
+                    f"{where}.{path}",
+                    "an array cannot be set in a reaction",
+                    "set scalar fields; arrays keep their default (empty)",
+                )
+                continue
+            value = _parse_value(doc, vnode, f"{where}.{path}")
+            if value is None or msg_type is None:
+                continue
+            try:
+                kind = field_kind(msg_type, path)
+            except FieldError as exc:
+                doc.error(knode, f"{where}.{path}", str(exc), exc.hint)
+                continue
+            if not value_fits(value, kind):
+                problem = (
+                    f"{value!r} is not a {kind} value, but {msg_type} field '{path}' is {kind}"
+                )
+                doc.error(vnode, f"{where}.{path}", problem)
+                continue
+            out.append((path, value))
+
+    if not (isinstance(node, yaml.ScalarNode) and node.value in ("", "~", "null")):
+        walk(node, "")
+    return tuple(out)
+
+
+def _parse_type(
+    doc: _Doc, items: dict[str, tuple[yaml.Node, yaml.Node]], where: str, service: bool
+) -> str | None:
+    """The known message type (``service``: service type, ``pkg/srv/Name``) at
+    ``items["type"]``, normalized; None and an error otherwise."""
+    value = _parse_value(doc, items["type"][1], f"{where}.type", (str,))
+    if not isinstance(value, str):
+        return None
+    try:
+        if not service:
+            return require_type(value)
+        m = _SERVICE_TYPE.match(value.strip())
+        if not m:
+            raise FieldError(
+                f"'{value}' is not a service type name",
+                "write it as package/srv/Name, e.g. std_srvs/srv/Trigger",
+            )
+        srv_type = f"{m.group(1)}/srv/{m.group(2)}"
+        try:
+            require_type(request_type(srv_type))
+        except FieldError:
+            raise FieldError(
+                f"unknown service type '{value}'",
+                "edgerv knows std_srvs' services, and those of a .srv file under share/ of "
+                "a ROS install prefix or under a directory of $EDGERV_MSG_PATH",
+            ) from None
+        return srv_type
+    except FieldError as exc:
+        doc.error(items["type"][1], f"{where}.type", str(exc), exc.hint)
+        return None
+
+
+def _parse_reaction(doc: _Doc, node: yaml.Node) -> Reaction | None:
+    where = "spec.onViolation"
+    items = _check_keys(doc, node, where, {"publish", "call"}, set())
+    if not items:
+        if isinstance(node, yaml.MappingNode):
+            doc.error(node, where, "names no reaction", "write publish:, call: or both")
+        return None
+    publish = call = None
+    if "publish" in items:
+        sub = f"{where}.publish"
+        p = _check_keys(
+            doc, items["publish"][1], sub, {"topic", "type", "message"}, {"topic", "type"}
+        )
+        if "topic" in p and "type" in p:
+            topic = _parse_value(doc, p["topic"][1], f"{sub}.topic", (str,))
+            absolute = topic_name(topic) if isinstance(topic, str) else None
+            if isinstance(topic, str) and absolute is None:
+                doc.error(p["topic"][1], f"{sub}.topic", f"'{topic}' is not a ROS topic name")
+            msg_type = _parse_type(doc, p, sub, service=False)
+            fields = (
+                _parse_fields(doc, p["message"][1], f"{sub}.message", msg_type)
+                if "message" in p
+                else ()
+            )
+            if absolute is not None and msg_type is not None:
+                publish = Publish(absolute, msg_type, fields)
+    if "call" in items:
+        sub = f"{where}.call"
+        c = _check_keys(
+            doc,
+            items["call"][1],
+            sub,
+            {"service", "type", "request", "timeoutMs"},
+            {"service", "type"},
+        )
+        if "service" in c and "type" in c:
+            service = _parse_value(doc, c["service"][1], f"{sub}.service", (str,))
+            absolute = topic_name(service) if isinstance(service, str) else None
+            if isinstance(service, str) and absolute is None:
+                doc.error(
+                    c["service"][1], f"{sub}.service", f"'{service}' is not a ROS service name"
+                )
+            srv_type = _parse_type(doc, c, sub, service=True)
+            request = (
+                _parse_fields(doc, c["request"][1], f"{sub}.request", request_type(srv_type))
+                if "request" in c and srv_type is not None
+                else ()
+            )
+            timeout = 1000.0
+            if "timeoutMs" in c:
+                value = _parse_value(doc, c["timeoutMs"][1], f"{sub}.timeoutMs", (int, float))
+                if isinstance(value, int | float) and not isinstance(value, bool):
+                    if 0 < value <= 600_000 and math.isfinite(value):
+                        timeout = float(value)
+                    else:
+                        doc.error(
+                            c["timeoutMs"][1],
+                            f"{sub}.timeoutMs",
+                            "must be above 0 and at most 600000",
+                        )
+            if absolute is not None and srv_type is not None:
+                call = Call(absolute, srv_type, request, timeout / 1000)
+    if publish is None and call is None:
+        return None
+    return Reaction(publish, call)
+
+
 def _parse_int(
     doc: _Doc, items: dict[str, tuple[yaml.Node, yaml.Node]], key: str, default: int, minimum: int
 ) -> int:
@@ -430,6 +563,7 @@ def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
             "onVerdict",
             "bufferCapacity",
             "placement",
+            "onViolation",
         },
         {"assertion", "signals"},
     )
@@ -481,6 +615,7 @@ def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
             problem = f"{buffer_capacity} is less than sortThreshold ({sort_threshold})"
         doc.error(spec[key][1], f"spec.{key}", problem)
     placement = _parse_placement(doc, spec["placement"][1]) if "placement" in spec else Placement()
+    on_violation = _parse_reaction(doc, spec["onViolation"][1]) if "onViolation" in spec else None
     if doc.diagnostics or not isinstance(name, str) or not isinstance(assertion, str):
         return None
     assert isinstance(assertion_node, yaml.ScalarNode)
@@ -495,6 +630,7 @@ def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
         location=doc.loc(meta["name"][1]),
         placement=placement,
         locate_assertion=doc.scalar_locator(assertion_node),
+        on_violation=on_violation,
     )
 
 

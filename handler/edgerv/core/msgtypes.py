@@ -56,6 +56,14 @@ SERVICE_PARTS = ("_Request", "_Response", "_Event")  # the types a service pkg/s
 SEPARATOR = "=" * 80 + "\n"  # between the definitions a bag concatenates (rosbag2's)
 _EMPTY_MEMBER = ("structure_needs_at_least_one_member", (1, ("uint8", 0)))
 _EVENT_INFO = "service_msgs/msg/ServiceEventInfo"
+# std_srvs' services (Jazzy's std_srvs 5.3, comments left out), known without ROS installed
+# (the operator's image) as the message packages are: a reaction calls them (spec.onViolation).
+# test_reactions.py keeps them equal to the installed .srv files.
+STD_SRVS: Final = {
+    "std_srvs/srv/Empty": "---\n",
+    "std_srvs/srv/SetBool": "bool data\n---\nbool success\nstring message\n",
+    "std_srvs/srv/Trigger": "---\nbool success\nstring message\n",
+}
 
 
 class _Absent:
@@ -283,10 +291,11 @@ def ensure_type(msg_type: str) -> bool:
                 continue
             service = service_of(name)
             path = _find_definition(service or name)
-            if path is None:
+            builtin = STD_SRVS.get(service or "")
+            if path is None and builtin is None:
                 return False
             try:
-                text = path.read_text(encoding="utf-8")
+                text = path.read_text(encoding="utf-8") if path is not None else str(builtin)
                 if service is not None:
                     types = service_types(service, text)
                 else:
@@ -444,8 +453,9 @@ def parse_field_path(path: str) -> tuple[FieldStep, ...]:
     return tuple(steps)
 
 
-def field_kind(msg_type: str, path: str) -> ValueKind:
-    """The kind of value at ``path`` in ``msg_type``; raises :class:`FieldError`."""
+def require_type(msg_type: str) -> str:
+    """``msg_type`` normalized, when its definition is known or found; raises
+    :class:`FieldError` saying where a definition could come from."""
     known = fielddefs()
     current = normalize_type(msg_type)
     if not ensure_type(current):
@@ -466,6 +476,13 @@ def field_kind(msg_type: str, path: str) -> ValueKind:
             else ("edgerv knows the standard ROS 2 Jazzy message packages; for " + own)
         )
         raise FieldError(f"unknown message type '{msg_type}'", hint, about="type")
+    return current
+
+
+def field_kind(msg_type: str, path: str) -> ValueKind:
+    """The kind of value at ``path`` in ``msg_type``; raises :class:`FieldError`."""
+    known = fielddefs()
+    current = require_type(msg_type)
     node: tuple[Any, Any] = (2, current)  # (Nodetype.NAME, name)
     walked: list[str] = []
     steps = parse_field_path(path)

@@ -30,6 +30,7 @@ from edgerv.core.handoff import HandoffError
 from edgerv.core.monitor import EDGES, CompiledMonitor, compile_monitor
 from edgerv.core.pipeline import MonitorRuntime, Router, TopicRoute, Verdict
 from edgerv.core.placement import placement_json
+from edgerv.core.reactions import Reaction
 from edgerv.handler.clock import Clock, SystemClock
 from edgerv.handler.handoff_steps import HandoffSteps
 from edgerv.handler.payloads import MonitorReport
@@ -68,6 +69,14 @@ def _letters_a_message(runtime: MonitorRuntime) -> int | None:
 
 class VerdictSink(Protocol):
     def write(self, handler: str, verdicts: Sequence[Verdict]) -> None: ...
+
+
+class Reactor(Protocol):
+    """Does monitors' reactions (``spec.onViolation``): the ROS layer's."""
+
+    def prepare(self, reaction: Reaction) -> None: ...
+
+    def react(self, handler: str, due: Sequence[tuple[Verdict, Reaction]]) -> None: ...
 
 
 class Engine(HandoffSteps):
@@ -121,6 +130,10 @@ class Engine(HandoffSteps):
         self.in_handoff: dict[str, MonitorSlot] = {}  # so ingest need not scan every slot
         # --deadline: the makespans of the robot's real-time task (the ROS layer measures)
         self.deadline = deadline
+        # violations whose monitor reacts, evaluated here and not yet handed to the reactor:
+        # a violation is evaluated once, on one handler, so it is reacted to once
+        self.reactions_due: list[tuple[Verdict, Reaction]] = []
+        self.reactor: Reactor | None = None
 
     # -- monitors --------------------------------------------------------------------------
 
@@ -135,6 +148,23 @@ class Engine(HandoffSteps):
                     errors.append(
                         Diagnostic(sig.location, f"spec.signals.{sig.name}.type: {problem}")
                     )
+            reaction = spec.on_violation
+            used = (
+                []
+                if reaction is None
+                else [
+                    (f"spec.onViolation.{part}.type", t)
+                    for part, t in (
+                        ("publish", reaction.publish and reaction.publish.msg_type),
+                        ("call", reaction.call and reaction.call.srv_type),
+                    )
+                    if t
+                ]
+            )
+            for where, msg_type in used:
+                problem = self.type_check(msg_type)
+                if problem:
+                    errors.append(Diagnostic(spec.location, f"{where}: {problem}"))
             if errors:
                 raise InputError(errors)
         return compiled
@@ -148,7 +178,12 @@ class Engine(HandoffSteps):
         placement, and the monitor runs on (or stays idle) with its state and counts
         (the operator's tier edits). A monitor in a handoff is not redefined (HandoffError:
         that would restart it and lose the move): settle or abort the handoff first.
+
+        A monitor that reacts has its publisher and client made now, active or not: a
+        publisher made at the violation would publish before any subscriber matched it.
         """
+        if self.reactor is not None and compiled.spec.on_violation is not None:
+            self.reactor.prepare(compiled.spec.on_violation)
         with self.lock:
             old = self.slots.get(compiled.name)
             if old is not None and old.handoff is not None:
@@ -363,6 +398,9 @@ class Engine(HandoffSteps):
                 slot.verdicts[v.verdict] += 1
                 slot.last_verdict = v
                 verdicts.append(v)
+                reaction = slot.compiled.spec.on_violation
+                if reaction is not None and v.verdict == "violated":
+                    self.reactions_due.append((v, reaction))
         return verdicts
 
     def advance_clocks(self, wall_ns: int) -> None:
@@ -428,6 +466,16 @@ class Engine(HandoffSteps):
             return self._evaluate()
 
     def emit(self, verdicts: Sequence[Verdict]) -> None:
+        """Hand verdicts to the sinks, and the violations due a reaction to the reactor
+        (first: the reaction is the one that cannot wait)."""
+        if self.reactions_due:
+            with self.lock:
+                due, self.reactions_due = self.reactions_due, []
+            if due and self.reactor is not None:
+                try:
+                    self.reactor.react(self.name, due)
+                except Exception:  # it must not stop the scheduler: logged, counted there
+                    log.exception("the reactor failed")
         if verdicts:
             for sink in self.sinks:
                 try:

@@ -394,6 +394,9 @@ def run(args: argparse.Namespace) -> int:
     if ros.health is not None:
         engine.sinks.append(health)  # notes violations as they come: published at once
     engine.matched = ros.matched
+    from edgerv.handler.reactor import Reactor
+
+    reactor = engine.reactor = Reactor(args.name)  # spec.onViolation
     diagnostics += load(engine, specs, active, args.max_monitors)
     for d in diagnostics:
         print(d.render(), file=sys.stderr)
@@ -447,6 +450,7 @@ def run(args: argparse.Namespace) -> int:
                 f"{exc.strerror}",
                 file=sys.stderr,
             )
+            reactor.close()
             ros.close()
             return EXIT_INPUT
     scheduler_stop = threading.Event()
@@ -474,6 +478,7 @@ def run(args: argparse.Namespace) -> int:
     engine.wake()
     scheduler.join(timeout=10)
     engine.drain()
+    reactor.close()  # after the last violations' reactions
     if api:
         api.stop()
     if verdict_log:

@@ -249,7 +249,8 @@ class _Deadline:
         return self.msg_type is not None and self.subscription is None and not self.given_up
 
 
-def _node_name(name: str) -> str:
+def node_name(name: str) -> str:
+    """The handler's node name: ``edgerv_`` and its name, each other character ``_``."""
     clean = "".join(c if c.isalnum() else "_" for c in name)
     return f"edgerv_{clean}"
 
@@ -268,7 +269,7 @@ class RosIngest:
         from std_msgs.msg import String
 
         self.engine = engine
-        self.node = rclpy.create_node(_node_name(name))
+        self.node = rclpy.create_node(node_name(name))
         self._string = String
         self.verdicts = self.node.create_publisher(
             String, VERDICT_TOPIC, QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)

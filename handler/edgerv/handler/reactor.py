@@ -1,0 +1,226 @@
+"""Monitors' reactions on ROS (``spec.onViolation``): a message published, a service called.
+
+The engine hands the reactor each violation of a monitor that reacts, once: a violation is
+evaluated on one handler only (the handoff's guarantee, docs/protocol.md), so the
+reaction is done once, by the handler that ran the monitor at that moment. A message is
+published at once, from the thread that evaluated the violation (the scheduler's); a
+service is called by a thread of the reactor's (it waits for the service, up to its
+timeout, and for the answer), so a slow service never holds verdicts back.
+
+Publishers and clients are made on first use, one per topic or service, on a node of the
+reactor's own (``edgerv_<handler>_reactions``), which an executor of its own spins for
+the services' answers.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from edgerv.core.pipeline import Verdict
+from edgerv.core.reactions import Call, Fields, Publish, Reaction
+from edgerv.handler.ros_node import message_class, node_name
+
+log = logging.getLogger("edgerv.handler.reactor")
+
+# What a reaction publishes with: `ros2 topic pub`'s profile (reliable, volatile, 10); a
+# best-effort subscriber (a controller's /cmd_vel) receives it too.
+REACTION_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+QUEUED_CALLS = 1000  # calls waiting for the caller thread; past it, a call is dropped (logged)
+
+
+def build_message(cls: Any, fields: Fields) -> Any:
+    """A ``cls`` message with ``fields`` set (dotted paths; the rest default). The values
+    were checked against the type's definition (edgerv.core.documents); a number is made
+    the field's Python type here (``0`` for a float field), and rclpy's own setters refuse
+    what is out of the field's range (ValueError, AssertionError, TypeError)."""
+    msg = cls()
+    for path, value in fields:
+        *parents, leaf = path.split(".")
+        obj = msg
+        for name in parents:
+            obj = getattr(obj, name)
+        current = getattr(obj, leaf)
+        if isinstance(current, float) and not isinstance(value, bool):
+            value = float(value)
+        setattr(obj, leaf, value)
+    return msg
+
+
+class Reactor:
+    """Does reactions on ROS for one handler (an engine's ``reactor``). Thread-safe."""
+
+    def __init__(self, handler: str) -> None:
+        self.node = rclpy.create_node(node_name(handler) + "_reactions")
+        self._executor = SingleThreadedExecutor()
+        self._executor.add_node(self.node)
+        self._lock = threading.Lock()
+        self._publishers: dict[tuple[str, str], Any] = {}
+        self._clients: dict[tuple[str, str], Any] = {}
+        self._messages: dict[Publish, Any] = {}
+        self._calls: queue.Queue[tuple[Verdict, Call] | None] = queue.Queue(QUEUED_CALLS)
+        self.done: dict[str, int] = {}  # monitor -> reactions done (published, answered)
+        self.failed: dict[str, int] = {}  # monitor -> reactions that could not be done
+        self._spinner = threading.Thread(target=self._spin, name="edgerv-reactor-spin", daemon=True)
+        self._caller = threading.Thread(target=self._call_loop, name="edgerv-reactor", daemon=True)
+        self._spinner.start()
+        self._caller.start()
+
+    # -- what the engine calls -----------------------------------------------------------------
+
+    def prepare(self, reaction: Reaction) -> None:
+        """Make the reaction's publisher, message and client (when a monitor is defined):
+        subscribers and servers match them before any violation. A problem is logged, and
+        told again at the violation."""
+        try:
+            if reaction.publish is not None:
+                self._publisher(reaction.publish)
+            if reaction.call is not None:
+                self._client(reaction.call)
+        except Exception as exc:
+            log.error("cannot prepare the reaction to %s: %s", reaction.describe(), exc)
+
+    def react(self, handler: str, due: Sequence[tuple[Verdict, Reaction]]) -> None:
+        for verdict, reaction in due:
+            if reaction.publish is not None:
+                self._publish(verdict, reaction.publish)
+            if reaction.call is not None:
+                try:
+                    self._calls.put_nowait((verdict, reaction.call))
+                except queue.Full:
+                    self._count(self.failed, verdict.monitor)
+                    log.error(
+                        "monitor %s violated at step %d: %d service calls already wait: "
+                        "%s not called",
+                        verdict.monitor,
+                        verdict.step,
+                        QUEUED_CALLS,
+                        reaction.call.service,
+                    )
+
+    # -- publishing ----------------------------------------------------------------------------
+
+    def _publisher(self, p: Publish) -> tuple[Any, Any]:
+        """The publisher of ``p`` and its message, made once."""
+        with self._lock:
+            msg = self._messages.get(p)
+            if msg is None:
+                msg = self._messages[p] = build_message(message_class(p.msg_type), p.fields)
+            key = (p.topic, p.msg_type)
+            pub = self._publishers.get(key)
+            if pub is None:
+                pub = self._publishers[key] = self.node.create_publisher(
+                    type(msg), p.topic, REACTION_QOS
+                )
+            return pub, msg
+
+    def _client(self, call: Call) -> Any:
+        """The client of ``call``'s service, made once."""
+        with self._lock:
+            key = (call.service, call.srv_type)
+            client = self._clients.get(key)
+            if client is None:
+                srv = message_class(call.srv_type)
+                client = self._clients[key] = self.node.create_client(srv, call.service)
+            return client
+
+    def _publish(self, verdict: Verdict, p: Publish) -> None:
+        try:
+            pub, msg = self._publisher(p)
+            pub.publish(msg)
+        except Exception as exc:  # a type gone, a value out of range, the node closing
+            self._count(self.failed, verdict.monitor)
+            log.error(
+                "monitor %s violated at step %d: cannot publish %s on %s: %s",
+                verdict.monitor,
+                verdict.step,
+                p.msg_type,
+                p.topic,
+                exc,
+            )
+            return
+        self._count(self.done, verdict.monitor)
+        log.info(
+            "monitor %s violated at step %d: published %s on %s",
+            verdict.monitor,
+            verdict.step,
+            p.msg_type,
+            p.topic,
+        )
+
+    # -- calling -------------------------------------------------------------------------------
+
+    def _call_loop(self) -> None:
+        while True:
+            item = self._calls.get()
+            if item is None:
+                return
+            verdict, call = item
+            try:
+                failure, answer = self._call(call)
+            except Exception as exc:  # a type gone, a value out of range, the node closing
+                failure, answer = f"failed: {exc}", ""
+            where = f"monitor {verdict.monitor} violated at step {verdict.step}"
+            if failure is not None:
+                self._count(self.failed, verdict.monitor)
+                log.error("%s: the call of %s %s", where, call.service, failure)
+                continue
+            self._count(self.done, verdict.monitor)
+            log.info("%s: called %s (%s)%s", where, call.service, call.srv_type, answer)
+
+    def _call(self, call: Call) -> tuple[str | None, str]:
+        """Call the service: (None, what it answered) when it answered, else (what went
+        wrong, "")."""
+        client = self._client(call)
+        started = time.monotonic()
+        if not client.wait_for_service(timeout_sec=call.timeout):
+            return f"found no server within {call.timeout:g} s", ""
+        answered = threading.Event()
+        future = client.call_async(build_message(client.srv_type.Request, call.fields))
+        future.add_done_callback(lambda _: answered.set())
+        left = max(0.0, call.timeout - (time.monotonic() - started))
+        if not answered.wait(left):
+            client.remove_pending_request(future)
+            return f"had no answer within {call.timeout:g} s", ""
+        response = future.result()
+        fields = [
+            f"{name} {getattr(response, name)!r}"
+            for name in ("success", "message")
+            if hasattr(response, name)
+        ]
+        if getattr(response, "success", True) is False:
+            log.warning("service %s answered success False: %s", call.service, fields)
+        return None, f": it answered {', '.join(fields)}" if fields else ""
+
+    # -- running -------------------------------------------------------------------------------
+
+    def _spin(self) -> None:
+        try:
+            self._executor.spin()
+        except Exception:  # the context shut down under it
+            log.debug("the reactor's executor stopped", exc_info=True)
+
+    def _count(self, counts: dict[str, int], monitor: str) -> None:
+        with self._lock:
+            counts[monitor] = counts.get(monitor, 0) + 1
+
+    def close(self) -> None:
+        """Finish the calls queued (each within its timeout), then stop."""
+        self._calls.put(None)
+        self._caller.join(timeout=30)
+        self._executor.shutdown(timeout_sec=1)
+        self._spinner.join(timeout=5)
+        self.node.destroy_node()
