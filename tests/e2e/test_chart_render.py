@@ -1,6 +1,19 @@
-"""The chart rendered for the value sets users choose, checked by the real API server of
-Kubernetes v1.33 (a server-side dry run: every object validated against the server's own
-schemas, admission included; the closest thing here to kubeconform), and `helm lint`.
+"""The chart rendered for the value sets users choose, checked twice, and `helm lint`.
+
+Offline, with no cluster (helm and kubeconform as tests/cluster/build.sh builds them):
+every manifest of every value set, hooks and `helm test`'s pod included, validated by
+`kubeconform -strict` against JSON schemas of Kubernetes v1.33 made from its own OpenAPI
+spec (`api/openapi-spec/swagger.json` of the k8s.io/kubernetes v1.33.13 module) and, for
+custom resources, from their CRDs: the chart's (`files/crds/`) and the Prometheus
+Operator's ServiceMonitor (generated from its Go types by controller-gen), by
+tests/cluster/k8s_schemas.py. Unknown fields, wrong types, enums, bounds and quantities
+are refused with the field's path; a resource without a schema fails, it is never
+skipped. The Monitor documents of the examples and the docs are validated against the
+Monitor CRD's schema the same way.
+
+On the cluster, by the real API server of Kubernetes v1.33 (a server-side dry run: every
+object validated against the server's own schemas, admission included, and what no
+schema says).
 
 Each value set also has what it promises checked in the rendered objects: TLS on or off
 end to end (handler flags, probes' scheme, the operator's settings, the mounts), the
@@ -11,14 +24,17 @@ from __future__ import annotations
 
 import json
 import subprocess
+import sys
 import uuid
 from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
 from kube import Cluster
-from test_chart_and_operator import CHART, helm
+from test_chart_and_operator import CHART, ROOT, helm
 
 VALUE_SETS: dict[str, list[str]] = {
     "defaults": [],
@@ -254,3 +270,202 @@ def test_the_charts_certificate_names_the_server_and_is_signed_by_its_ca(
     for d in docs:
         if d["kind"] in ("DaemonSet", "Deployment"):
             assert d["spec"]["template"]["metadata"]["annotations"]["checksum/tls"] == digest
+
+
+# --- Offline: kubeconform against Kubernetes v1.33's schemas (no cluster) ------------------
+
+BUILD = ROOT / "tests" / "cluster" / "build.sh"
+OFFLINE_NS = "edgerv-render"  # the namespace of the offline renders (NS in VALUE_SETS)
+# Where Monitor documents live besides the CRD: the examples, and the docs' YAML blocks.
+MONITOR_DOCS = ["examples/**/*.yaml", "README.md", "docs/*.md"]
+
+
+@dataclass(frozen=True)
+class Kubeconform:
+    """helm, kubeconform and the JSON schemas, as tests/cluster/build.sh makes them:
+    Kubernetes' from its OpenAPI spec, the custom resources' from their CRDs (the chart's,
+    and the Prometheus Operator's ServiceMonitor) by tests/cluster/k8s_schemas.py."""
+
+    helm: str
+    kubeconform: str
+    version: str
+    locations: tuple[str, ...]
+    custom: tuple[str, ...]  # the CRDs' schema files
+
+    def template(self, values: list[str]) -> str:
+        args = [self.helm, "template", "r", str(CHART), "--namespace", OFFLINE_NS]
+        for value in values:
+            args += ["--set", value]
+        done = subprocess.run(args, capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0, done.stderr
+        return done.stdout
+
+    def validate(self, text: str) -> tuple[list[dict[str, Any]], dict[str, int]]:
+        """kubeconform -strict -summary over ``text``: each resource's result, the summary."""
+        args = [self.kubeconform, "-strict", "-summary", "-output", "json", "-verbose"]
+        args += ["-kubernetes-version", self.version]
+        for location in self.locations:
+            args += ["-schema-location", location]
+        done = subprocess.run([*args, "-"], input=text, capture_output=True, text=True, timeout=120)
+        out = json.loads(done.stdout)
+        bad = out["summary"]["invalid"] + out["summary"]["errors"]
+        assert done.returncode == (1 if bad else 0), done.stderr  # no other failure
+        return out["resources"], out["summary"]
+
+
+def _versions() -> dict[str, str]:
+    text = (BUILD.parent / "versions.env").read_text()
+    return dict(line.split("=", 1) for line in text.splitlines() if "=" in line and line[:1] != "#")
+
+
+@pytest.fixture(scope="module")
+def kubeconform(tmp_path_factory: pytest.TempPathFactory) -> Kubeconform:
+    """Builds what is missing (build.sh, cached under ~/.cache/edgerv: the first time on a
+    machine a few minutes, Go compiling): a failed build fails the tests, never skips them."""
+    built = subprocess.run(
+        ["bash", str(BUILD), "helm", "kubeconform", "schemas"],
+        capture_output=True, text=True, timeout=3600,
+    )  # fmt: skip
+    if built.returncode != 0:
+        pytest.fail(f"build.sh helm kubeconform schemas failed:\n{built.stderr[-4000:]}")
+    bins = Path(built.stdout.strip().splitlines()[-1])
+    sys.path.insert(0, str(BUILD.parent))
+    import k8s_schemas
+
+    versions = _versions()
+    version = versions["K8S_VERSION"]
+    kubernetes = k8s_schemas.kubernetes_root(version)
+    prometheus = (
+        kubernetes.parent
+        / "crds"
+        / f"prometheus-operator-v{versions['PROMETHEUS_OPERATOR_VERSION']}"
+    )
+    crds = [*sorted((CHART / "files" / "crds").glob("*.yaml")),
+            prometheus / "monitoring.coreos.com_servicemonitors.yaml"]  # fmt: skip
+    docs = [d for path in crds for d in yaml.safe_load_all(path.read_text())]
+    out = tmp_path_factory.mktemp("crd-schemas")
+    custom = k8s_schemas.make_crds(docs, version, out, kubernetes)
+    return Kubeconform(
+        str(bins / "helm"), str(bins / "kubeconform"), version,
+        (str(kubernetes), str(out)), tuple(custom),
+    )  # fmt: skip
+
+
+def test_the_schemas_cover_every_kind_the_chart_renders(kubeconform: Kubeconform) -> None:
+    assert kubeconform.custom == (
+        "clusterkopfpeering-kopf-v1.json",
+        "kopfpeering-kopf-v1.json",
+        "monitor-edgerv-v1alpha1.json",
+        "servicemonitor-monitoring-v1.json",
+    )
+    strict = Path(kubeconform.locations[0]) / f"v{kubeconform.version}-standalone-strict"
+    assert len(list(strict.glob("*-*.json"))) > 250  # every kind of the spec, alpha included
+    schema = json.loads((strict / "deployment-apps-v1.json").read_text())
+    assert schema["properties"]["apiVersion"]["enum"] == ["apps/v1"]
+    assert schema["definitions"]["io.k8s.api.core.v1.Container"]["additionalProperties"] is False
+
+
+@pytest.mark.parametrize("name", list(VALUE_SETS))
+def test_each_value_set_renders_manifests_kubeconform_finds_valid(
+    kubeconform: Kubeconform, name: str
+) -> None:
+    """Every manifest the value set renders (hooks and `helm test`'s pod included),
+    validated by kubeconform -strict against Kubernetes v1.33's schemas and the CRDs':
+    each one valid, none skipped for want of a schema."""
+    text = kubeconform.template([v.replace("NS", OFFLINE_NS) for v in VALUE_SETS[name]])
+    docs = [d for d in yaml.safe_load_all(text) if d]
+    results, summary = kubeconform.validate(text)
+    not_valid = [r for r in results if r["status"] != "statusValid"]
+    assert summary == {"valid": len(docs), "invalid": 0, "errors": 0, "skipped": 0}, not_valid
+    assert sorted((r["kind"], r["name"]) for r in results) == sorted(
+        (d["kind"], d["metadata"]["name"]) for d in docs
+    )
+    kinds = {d["kind"] for d in docs}
+    assert "DaemonSet" in kinds, kinds
+    assert ("CustomResourceDefinition" in kinds) is ("crds.install=false" not in VALUE_SETS[name])
+
+
+def _monitor_documents() -> dict[str, list[dict[str, Any]]]:
+    """Each file's Monitor documents: YAML files, and the ```yaml blocks of Markdown."""
+    found: dict[str, list[dict[str, Any]]] = {}
+    for pattern in MONITOR_DOCS:
+        for path in sorted(ROOT.glob(pattern)):
+            text = path.read_text()
+            blocks = (
+                [b.split("```", 1)[0] for b in text.split("```yaml\n")[1:]]
+                if path.suffix == ".md"
+                else [text]
+            )
+            docs = [d for b in blocks for d in yaml.safe_load_all(b) if d]
+            monitors = [d for d in docs if isinstance(d, dict) and d.get("kind") == "Monitor"]
+            if monitors:
+                found[str(path.relative_to(ROOT))] = monitors
+    return found
+
+
+def test_the_monitor_examples_are_valid_for_the_crds_schema(kubeconform: Kubeconform) -> None:
+    found = _monitor_documents()
+    assert {"examples/speed-limit.yaml", "examples/robot/case-study.yaml"} <= set(found), found
+    for path, monitors in found.items():
+        text = "\n---\n".join(json.dumps(d) for d in monitors)
+        results, summary = kubeconform.validate(text)
+        not_valid = [r for r in results if r["status"] != "statusValid"]
+        assert summary == {"valid": len(monitors), "invalid": 0, "errors": 0, "skipped": 0}, (
+            path, not_valid,
+        )  # fmt: skip
+
+
+def test_kubeconform_refuses_a_wrong_manifest_naming_the_field(kubeconform: Kubeconform) -> None:
+    """The same checks refuse what the API server would refuse: each manifest here is a
+    valid one of the chart (or an example) with one mistake, refused with its field's path
+    and what is wrong there; and a kind without a schema is an error, not a pass."""
+    text = kubeconform.template(["metrics.serviceMonitor.enabled=true"])
+    docs = [d for d in yaml.safe_load_all(text) if d]
+    of = {d["kind"]: d for d in docs}
+    monitor = _monitor_documents()["examples/speed-limit.yaml"][0]
+    pod = "/spec/template/spec"
+
+    def changed(doc: dict[str, Any], path: str, value: Any) -> dict[str, Any]:
+        doc = json.loads(json.dumps(doc))
+        *parents, last = path.strip("/").split("/")
+        at: Any = doc
+        for key in parents:
+            at = at[int(key)] if isinstance(at, list) else at[key]
+        at[last] = value
+        return doc
+
+    cases = [  # (manifest, the field's path, what kubeconform says there)
+        (changed(of["Deployment"], f"{pod}/containers/0/imagePullPolcy", "Always"),
+         f"{pod}/containers/0", "additional properties 'imagePullPolcy' not allowed"),
+        (changed(of["DaemonSet"], "/spec/minReadySeconds", "ten"),
+         "/spec/minReadySeconds", "got string, want null or integer"),
+        (changed(of["DaemonSet"], f"{pod}/containers/0/resources/limits/memory", "1GB"),
+         f"{pod}/containers/0/resources/limits/memory", "'1GB' does not match pattern"),
+        (changed(of["Service"], "/spec/ports/0/port", 2**31),
+         "/spec/ports/0/port", "maximum: got 2.147483648"),  # int32's; printed as 2.1×10⁰⁹
+        (changed(of["Secret"], "/metadata/labels/tier", 1),
+         "/metadata/labels/tier", "got number, want null or string"),
+        (changed(of["CustomResourceDefinition"], "/spec/versions/0/schema/openAPIV3Schema/"
+                 "properties/status/minLenght", 1),
+         "/spec/versions/0/schema/openAPIV3Schema/properties/status",
+         "additional properties 'minLenght' not allowed"),
+        (changed(monitor, "/spec/sortTreshold", 3), "/spec",
+         "additional properties 'sortTreshold' not allowed"),
+        (changed(monitor, "/spec/onVerdict", "restart"), "/spec/onVerdict",
+         "value must be one of 'reset', 'halt'"),
+        (changed(monitor, "/spec/signals/speed/qos", {"depth": 0}),
+         "/spec/signals/speed/qos/depth", "minimum: got 0, want 1"),
+        (changed(of["ServiceMonitor"], "/spec/endpoints/0/scheme", "tls"),
+         "/spec/endpoints/0/scheme", "value must be one of"),
+    ]  # fmt: skip
+    for doc, path, says in cases:
+        (result,), summary = kubeconform.validate(json.dumps(doc))
+        assert summary["invalid"] == 1 and result["status"] == "statusInvalid", (says, result)
+        # the whole tree of errors ("validationErrors" has its first level only)
+        assert f"at '{path}': {says}" in result["msg"], (path, says, result["msg"])
+    # A kind no schema describes fails: nothing checked is never a pass.
+    (result,), summary = kubeconform.validate(
+        "apiVersion: example.com/v1\nkind: Widget\nmetadata: {name: w}\n"
+    )
+    assert summary == {"valid": 0, "invalid": 0, "errors": 1, "skipped": 0}, summary
+    assert result["msg"] == "could not find schema for Widget", result
