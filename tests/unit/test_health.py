@@ -117,6 +117,7 @@ def test_a_monitors_values() -> None:
         "tier": "edge (pinned)",
         "epoch": "0",
         "topics": "/speed",
+        "reactions": "off",
     }
     assert stamp_text(1_700_000_000_003_000_000) == "1700000000.003000000"
 
@@ -319,6 +320,40 @@ def test_warn_when_the_buffer_is_half_full_and_when_the_monitor_wants_to_migrate
     status = rig.monitor()
     assert values(status)["migration wanted"] == "yes"
     assert status.message == "buffer 50% full; wants to migrate (its buffer stayed half full)"
+
+
+class Reactor:
+    """Fails each reaction whose violation's step is in ``fail``, does the others, and
+    tells the engine as the ROS reactor does (edgerv.handler.reactor)."""
+
+    def __init__(self, engine: Engine, fail: set[int]) -> None:
+        self.engine, self.fail = engine, fail
+
+    def prepare(self, reaction: Any) -> None:
+        pass
+
+    def react(self, handler: str, due: Any) -> None:
+        for v, _ in due:
+            failed = v.step in self.fail
+            self.engine.note_reaction(v.monitor, "/estop found no server" if failed else None)
+
+
+def test_warn_while_the_newest_reaction_failed_and_the_counts_in_the_values() -> None:
+    rig = Rig(stale=0, hold=0)
+    rig.engine.reactor = Reactor(rig.engine, fail={2})
+    reaction = {"call": {"service": "/estop", "type": "std_srvs/srv/Trigger"}}
+    rig.put(onViolation=reaction)
+    rig.send(150.0)  # step 1: done
+    status = rig.monitor()
+    assert status.level == Level.OK and values(status)["reactions"] == "1 done, 0 failed"
+    rig.send(150.0)  # step 2: failed
+    status = rig.monitor()
+    assert status.level == Level.WARN
+    assert status.message == "its last reaction failed: /estop found no server"
+    assert values(status)["reactions"] == "1 done, 1 failed"
+    rig.send(150.0)  # step 3: done again
+    status = rig.monitor()
+    assert status.level == Level.OK and values(status)["reactions"] == "2 done, 1 failed"
 
 
 def test_warn_for_events_dropped_in_the_last_period() -> None:

@@ -381,6 +381,18 @@ class Engine(HandoffSteps):
             with self.lock:
                 self._note_firsts(batch)
 
+    def note_reaction(self, monitor: str, problem: str | None) -> None:
+        """The reactor's outcome of one reaction of ``monitor``: done (None) or why not."""
+        with self.lock:
+            slot = self.slots.get(monitor)
+            if slot is None:
+                return  # removed since
+            if problem is None:
+                slot.reactions += 1
+            else:
+                slot.reaction_failures += 1
+            slot.reaction_problem = problem
+
     def evaluate(self) -> list[Verdict]:
         """A scheduler round: evaluate the letters that wait (the verdicts, to emit)."""
         with self.lock:

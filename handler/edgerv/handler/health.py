@@ -101,6 +101,10 @@ class MonitorReading(NamedTuple):
     epoch: int
     handoff: str | None
     topics: tuple[str, ...]
+    reacts: bool  # spec.onViolation is written
+    reactions: int  # done here
+    reaction_failures: int
+    reaction_problem: str | None  # why the newest failed; None: it was done
 
 
 @dataclass(frozen=True)
@@ -164,6 +168,10 @@ def read_engine(
                         slot.epoch,
                         None if slot.handoff is None else str(slot.handoff),
                         tuple(slot.compiled.spec.topics),
+                        slot.compiled.spec.on_violation is not None,
+                        slot.reactions,
+                        slot.reaction_failures,
+                        slot.reaction_problem,
                     )
                 )
     deadline = engine.deadline.report(time.monotonic_ns()) if engine.deadline else None
@@ -316,6 +324,8 @@ class Health:
             problems.append((Level.WARN, f"buffer {fill:.0%} full"))
         if m.migration_wanted:
             problems.append((Level.WARN, "wants to migrate (its buffer stayed half full)"))
+        if m.reaction_problem is not None:
+            problems.append((Level.WARN, f"its last reaction failed: {m.reaction_problem}"))
         before = base.monitors.get(m.name)
         since = before if before is not None and before[0] == m.instance else None
         dropped = m.dropped - (t.dropped if since is None else since[2])
@@ -432,6 +442,10 @@ class Health:
             ("tier", (m.tier or "lowest") + (" (pinned)" if m.migrate == "pinned" else "")),
             ("epoch", f"{m.epoch}{handoff}"),
             ("topics", ", ".join(m.topics)),
+            (
+                "reactions",
+                f"{m.reactions} done, {m.reaction_failures} failed" if m.reacts else "off",
+            ),
         )
         return Status(
             worst(p[0] for p in problems), MONITOR_PREFIX + m.name, message, self.handler, values

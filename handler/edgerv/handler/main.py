@@ -396,7 +396,7 @@ def run(args: argparse.Namespace) -> int:
     engine.matched = ros.matched
     from edgerv.handler.reactor import Reactor
 
-    reactor = engine.reactor = Reactor(args.name)  # spec.onViolation
+    reactor = engine.reactor = Reactor(args.name, engine.note_reaction)  # spec.onViolation
     diagnostics += load(engine, specs, active, args.max_monitors)
     for d in diagnostics:
         print(d.render(), file=sys.stderr)

@@ -18,7 +18,7 @@ import logging
 import queue
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import rclpy
@@ -63,7 +63,12 @@ def build_message(cls: Any, fields: Fields) -> Any:
 class Reactor:
     """Does reactions on ROS for one handler (an engine's ``reactor``). Thread-safe."""
 
-    def __init__(self, handler: str) -> None:
+    def __init__(
+        self, handler: str, on_outcome: Callable[[str, str | None], None] | None = None
+    ) -> None:
+        # each reaction's outcome: (monitor, None) done, (monitor, why) not (the engine's
+        # note_reaction: counted in /diagnostics)
+        self.on_outcome = on_outcome
         self.node = rclpy.create_node(node_name(handler) + "_reactions")
         self._executor = SingleThreadedExecutor()
         self._executor.add_node(self.node)
@@ -72,8 +77,6 @@ class Reactor:
         self._clients: dict[tuple[str, str], Any] = {}
         self._messages: dict[Publish, Any] = {}
         self._calls: queue.Queue[tuple[Verdict, Call] | None] = queue.Queue(QUEUED_CALLS)
-        self.done: dict[str, int] = {}  # monitor -> reactions done (published, answered)
-        self.failed: dict[str, int] = {}  # monitor -> reactions that could not be done
         self._spinner = threading.Thread(target=self._spin, name="edgerv-reactor-spin", daemon=True)
         self._caller = threading.Thread(target=self._call_loop, name="edgerv-reactor", daemon=True)
         self._spinner.start()
@@ -101,7 +104,7 @@ class Reactor:
                 try:
                     self._calls.put_nowait((verdict, reaction.call))
                 except queue.Full:
-                    self._count(self.failed, verdict.monitor)
+                    self._outcome(verdict.monitor, f"{QUEUED_CALLS} calls already waited")
                     log.error(
                         "monitor %s violated at step %d: %d service calls already wait: "
                         "%s not called",
@@ -142,7 +145,7 @@ class Reactor:
             pub, msg = self._publisher(p)
             pub.publish(msg)
         except Exception as exc:  # a type gone, a value out of range, the node closing
-            self._count(self.failed, verdict.monitor)
+            self._outcome(verdict.monitor, f"cannot publish on {p.topic}: {exc}")
             log.error(
                 "monitor %s violated at step %d: cannot publish %s on %s: %s",
                 verdict.monitor,
@@ -152,7 +155,7 @@ class Reactor:
                 exc,
             )
             return
-        self._count(self.done, verdict.monitor)
+        self._outcome(verdict.monitor, None)
         log.info(
             "monitor %s violated at step %d: published %s on %s",
             verdict.monitor,
@@ -174,11 +177,10 @@ class Reactor:
             except Exception as exc:  # a type gone, a value out of range, the node closing
                 failure, answer = f"failed: {exc}", ""
             where = f"monitor {verdict.monitor} violated at step {verdict.step}"
+            self._outcome(verdict.monitor, None if failure is None else f"{call.service} {failure}")
             if failure is not None:
-                self._count(self.failed, verdict.monitor)
                 log.error("%s: the call of %s %s", where, call.service, failure)
                 continue
-            self._count(self.done, verdict.monitor)
             log.info("%s: called %s (%s)%s", where, call.service, call.srv_type, answer)
 
     def _call(self, call: Call) -> tuple[str | None, str]:
@@ -213,9 +215,9 @@ class Reactor:
         except Exception:  # the context shut down under it
             log.debug("the reactor's executor stopped", exc_info=True)
 
-    def _count(self, counts: dict[str, int], monitor: str) -> None:
-        with self._lock:
-            counts[monitor] = counts.get(monitor, 0) + 1
+    def _outcome(self, monitor: str, problem: str | None) -> None:
+        if self.on_outcome is not None:
+            self.on_outcome(monitor, problem)
 
     def close(self) -> None:
         """Finish the calls queued (each within its timeout), then stop."""

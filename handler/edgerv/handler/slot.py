@@ -46,6 +46,11 @@ class MonitorSlot:
     adopted: list[int] = field(default_factory=list)
     forgotten: int = 0
     prehold: int = 0  # H1: events buffered before the hold, not yet compressed (see hold)
+    # spec.onViolation, done here: reactions done, failed, and why the newest failed (None:
+    # it was done)
+    reactions: int = 0
+    reaction_failures: int = 0
+    reaction_problem: str | None = None
 
     @property
     def name(self) -> str:
