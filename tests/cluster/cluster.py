@@ -598,6 +598,15 @@ def images() -> list[Path]:
          str(wheels), str(ROOT)],
         check=True,
     )  # fmt: skip
+    for old in wheels.glob("edgerv_msgs-*.whl"):
+        old.unlink()
+    built = sorted((ROOT / "images" / "build" / "wheels").glob("edgerv_msgs-*.whl"))
+    if len(built) != 1:
+        raise RuntimeError(
+            f"{len(built)} edgerv_msgs wheels in images/build/wheels: `make install` "
+            "(interfaces/build.sh) leaves the one the handler's image needs there"
+        )
+    shutil.copy(built[0], wheels)
     tars = []
     for image, kind in ((HANDLER_IMAGE, "handler"), (OPERATOR_IMAGE, "operator")):
         log(f"docker build {image}")
