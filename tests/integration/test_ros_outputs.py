@@ -28,9 +28,10 @@ from rosprocs import HandlerProcess, own_node, publisher, wait_for  # noqa: E402
 
 from edgerv.core.documents import load_monitors_text  # noqa: E402
 from edgerv.core.monitor import compile_monitor  # noqa: E402
+from edgerv.handler.cdr_out import encode_diagnostic_array  # noqa: E402
 from edgerv.handler.engine import Engine  # noqa: E402
 from edgerv.handler.health import DiagnosticsConfig, Health, Level, read_engine  # noqa: E402
-from edgerv.handler.ros_node import RosoutHandler, encode_diagnostic_array  # noqa: E402
+from edgerv.handler.ros_node import RosoutHandler  # noqa: E402
 
 pytestmark = pytest.mark.integration
 

@@ -32,7 +32,7 @@ from std_msgs.msg import String  # noqa: E402
 
 from edgerv.core.cdr import compile_reader  # noqa: E402
 from edgerv.core.msgtypes import field_kind, typestore  # noqa: E402
-from edgerv.handler.ros_node import encode_verdict_array, encode_verdict_message  # noqa: E402
+from edgerv.handler.cdr_out import encode_verdict_array, encode_verdict_message  # noqa: E402
 
 pytestmark = pytest.mark.integration
 

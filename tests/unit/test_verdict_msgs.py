@@ -19,7 +19,7 @@ from edgerv.core.msgtypes import field_kind, typestore
 INTERFACES = Path(__file__).parents[2] / "interfaces"
 MSG = INTERFACES / "edgerv_msgs" / "msg"
 
-# what the handler fills in (ros_node.encode_verdict), in this order: a field renamed,
+# what the handler fills in (cdr_out.encode_verdict), in this order: a field renamed,
 # retyped, added, removed or moved in the .msg fails here
 VERDICT_FIELDS = [
     ("monitor", "string"),

@@ -34,7 +34,6 @@ import importlib
 import json
 import logging
 import os
-import struct
 import sys
 import threading
 import time
@@ -55,34 +54,19 @@ from edgerv.core.deadline import MakespanWindow
 from edgerv.core.documents import QosSpec
 from edgerv.core.msgtypes import starts_with_header
 from edgerv.core.pipeline import TopicRoute, Verdict
+from edgerv.handler.cdr_out import encode_diagnostic_array
 from edgerv.handler.engine import Engine
 from edgerv.handler.health import Health, Pacer, Reading, Status, read_engine
 from edgerv.handler.reorder import ReorderWindow
 from edgerv.handler.sinks import verdict_record
+from edgerv.handler.verdict_topics import LAST_VERDICTS_SECONDS, LAST_VERDICTS_TOPIC, TypedVerdicts
 
 log = logging.getLogger("edgerv.handler.ros")
 
 VERDICT_TOPIC = "/edgerv/verdicts"  # JSON in std_msgs/String: kept for compatibility
-TYPED_VERDICT_TOPIC = "/edgerv/verdict"  # edgerv_msgs/msg/Verdict, each as reached
-LAST_VERDICTS_TOPIC = "/edgerv/last_verdicts"  # edgerv_msgs/msg/VerdictArray, per handler
-# A late subscriber (transient local) gets the recent verdicts on /edgerv/verdict, and the
-# newest array of each handler on /edgerv/last_verdicts: with it, each monitor's last one.
-TYPED_VERDICT_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=100,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
-LAST_VERDICTS_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.TRANSIENT_LOCAL,
-)
-LAST_VERDICTS_SECONDS = 0.2  # the array is checked (and published if changed) this often
 BUILD_MSGS = (
     "edgerv_msgs is not installed in this Python environment: no typed verdicts on "
-    f"{TYPED_VERDICT_TOPIC} and {LAST_VERDICTS_TOPIC} (the JSON on {VERDICT_TOPIC} goes "
+    "/edgerv/verdict and /edgerv/last_verdicts (the JSON on {VERDICT_TOPIC} goes "
     "on); build it from edgerv's source tree with `make install`, or `bash "
     "interfaces/build.sh <venv>` for another venv"
 )
@@ -195,228 +179,6 @@ class RosoutHandler(logging.Handler):
 
     def handleError(self, record: logging.LogRecord) -> None:
         self.failures += 1  # (logging's own would print a traceback for each)
-
-
-# -- /diagnostics --------------------------------------------------------------------------
-
-_U32 = struct.Struct("<I").pack
-_STAMP = struct.Struct("<iI").pack
-_NULS = tuple(bytes(n) for n in range(5))
-
-
-def _cdr_string(text: str) -> bytes:
-    """A CDR string, padded after it to a multiple of 4 bytes (what the next string or
-    count needs): its length with the NUL, its bytes, the NUL, the padding."""
-    data = text.encode()
-    size = len(data) + 1
-    return _U32(size) + data + _NULS[1 + -size % 4]
-
-
-def encode_diagnostic_array(statuses: Sequence[Status], stamp_ns: int) -> bytes:
-    """``diagnostic_msgs/msg/DiagnosticArray`` as CDR (little endian): the message rclpy's
-    own serializer gives (tests/integration/test_ros_outputs.py), at a fraction of its
-    cost (rclpy builds a Python object per KeyValue, then converts each to C).
-
-    Strings and counts are 4-byte aligned; only a status's level (one byte) is not, so
-    every string is written with the padding after it that the next one needs, except a
-    status's last, after which the next status's level follows at once."""
-    seconds, nanoseconds = divmod(stamp_ns, 1_000_000_000)
-    parts = [
-        b"\x00\x01\x00\x00",  # the encapsulation: CDR, little endian
-        _STAMP(seconds, nanoseconds),  # header.stamp
-        _cdr_string(""),  # header.frame_id
-        _U32(len(statuses)),
-    ]
-    append = parts.append
-    known: dict[str, bytes] = {}  # keys, and values such as "0", repeat across statuses
-    end = 0  # the offset after the last part, modulo 4
-    for status in statuses:
-        append(bytes((int(status.level),)) + _NULS[-(end + 1) % 4])
-        for text in (status.name, status.message, status.hardware_id):
-            append(known.get(text) or known.setdefault(text, _cdr_string(text)))
-        values = status.values
-        append(_U32(len(values)))
-        end = 0
-        for key, value in values:
-            append(known.get(key) or known.setdefault(key, _cdr_string(key)))
-            append(known.get(value) or known.setdefault(value, _cdr_string(value)))
-        if values:  # the last string without its padding
-            size = len(value.encode()) + 1
-            parts[-1] = parts[-1][: len(parts[-1]) - -size % 4]
-            end = size % 4
-    return b"".join(parts)
-
-
-# -- typed verdicts: /edgerv/verdict, /edgerv/last_verdicts (edgerv_msgs) ------------------
-
-_U64 = struct.Struct("<Q").pack
-_CDR_LE = b"\x00\x01\x00\x00"  # the encapsulation: CDR, little endian
-_U64_MAX = 2**64 - 1
-# an edgerv_msgs/msg/Verdict's fields: monitor, verdict, stamp (ns), step, handler,
-# assertion, epoch
-VerdictFields = tuple[str, str, int, int, str, str, int]
-
-
-def encode_verdict(
-    monitor: str,
-    verdict: str,
-    stamp_ns: int,
-    step: int,
-    handler: str,
-    assertion: str,
-    epoch: int,
-    at: int = 0,
-) -> bytes:
-    """One ``edgerv_msgs/msg/Verdict`` as CDR (little endian), without the encapsulation,
-    at offset ``at`` (0 or 4 modulo 8) of the message it is in: its two uint64 (step,
-    epoch) align to 8 from the message's start. It ends 8-aligned (with epoch), so in a
-    VerdictArray every verdict after the first starts at 0 modulo 8: the bytes encoded for
-    /edgerv/verdict are kept and joined as they are (:func:`encode_verdict_array`).
-    The same bytes as rclpy's serializer (tests/integration/test_typed_verdicts.py)."""
-    seconds, nanoseconds = divmod(stamp_ns, 1_000_000_000)
-    head = _cdr_string(monitor) + _cdr_string(verdict) + _STAMP(seconds, nanoseconds)
-    tail = _cdr_string(handler) + _cdr_string(assertion)
-    to_step = -(at + len(head)) % 8  # 0 or 4: every part is 4-aligned
-    to_epoch = -(at + len(head) + to_step + 8 + len(tail)) % 8
-    return b"".join(
-        (
-            head,
-            _NULS[to_step],
-            _U64(min(max(step, 0), _U64_MAX)),
-            tail,
-            _NULS[to_epoch],
-            _U64(min(max(epoch, 0), _U64_MAX)),  # (an epoch is any integer a driver sent)
-        )
-    )
-
-
-def encode_verdict_message(fields: VerdictFields) -> bytes:
-    """A whole ``edgerv_msgs/msg/Verdict`` message (what rclpy's serialize_message gives)."""
-    return _CDR_LE + encode_verdict(*fields)
-
-
-def encode_verdict_array(
-    stamp_ns: int,
-    handler: str,
-    verdicts: Sequence[VerdictFields],
-    encoded: Sequence[bytes] | None = None,
-) -> bytes:
-    """``edgerv_msgs/msg/VerdictArray`` as CDR (little endian). ``encoded``: each verdict's
-    :func:`encode_verdict` at offset 0, where kept; only the first is encoded again, when
-    it starts at 4 modulo 8 (after the stamp, the handler's name and the count)."""
-    seconds, nanoseconds = divmod(stamp_ns, 1_000_000_000)
-    head = _STAMP(seconds, nanoseconds) + _cdr_string(handler) + _U32(len(verdicts))
-    parts = [_CDR_LE, head]
-    parts += encoded if encoded is not None else [encode_verdict(*f) for f in verdicts]
-    if verdicts and len(head) % 8:
-        parts[2] = encode_verdict(*verdicts[0], at=len(head))
-    return b"".join(parts)
-
-
-@dataclass
-class _Kept:
-    """A monitor's last verdict written on /edgerv/verdict: its fields and bytes."""
-
-    verdict: Verdict
-    fields: VerdictFields
-    cdr: bytes  # encode_verdict(*fields) at offset 0
-
-
-class TypedVerdicts:
-    """The typed verdict topics: ``/edgerv/verdict`` (``edgerv_msgs/msg/Verdict``), each
-    verdict as reached (:meth:`write`, in the scheduler's thread, as a verdict sink), and
-    ``/edgerv/last_verdicts`` (``edgerv_msgs/msg/VerdictArray``), this handler's last
-    verdict of every monitor defined on it that has one (:meth:`refresh`, in a thread of
-    its own every LAST_VERDICTS_SECONDS, published when its content changed). Both
-    transient local: a late subscriber gets the recent verdicts and the newest array.
-
-    Both publish CDR made here: rclpy would convert a Python object per verdict to C (70
-    ms for an array of 10,000); each verdict is encoded once, when written, and an array
-    joins the bytes kept (about 3 ms for 10,000: docs/handler.md)."""
-
-    def __init__(self, node: Any, engine: Engine, verdict_type: Any, array_type: Any) -> None:
-        self.engine = engine
-        self.each = node.create_publisher(verdict_type, TYPED_VERDICT_TOPIC, TYPED_VERDICT_QOS)
-        self.last = node.create_publisher(array_type, LAST_VERDICTS_TOPIC, LAST_VERDICTS_QOS)
-        self._lock = threading.Lock()  # write() and refresh() both change _kept
-        self._kept: dict[str, _Kept] = {}  # monitor -> its last verdict written
-        self.written = 0  # verdicts written: refresh() looks again when the count moves
-        self._seen: tuple[int, int] | None = None  # (written, routes_version) looked at
-        self._published: list[VerdictFields] | None = None  # the last array's verdicts
-        self.arrays = 0  # arrays published
-
-    def write(self, handler: str, verdicts: Sequence[Verdict]) -> None:
-        """Publish each verdict on /edgerv/verdict, with its monitor's assertion and
-        epoch as they are now (the verdict was reached a moment ago), and keep it."""
-        engine = self.engine
-        with engine.lock:
-            about = []
-            for v in verdicts:
-                slot = engine.slots.get(v.monitor)  # None: removed since it was reached
-                if slot is None:
-                    about.append((v, "", 0))
-                else:
-                    about.append((v, slot.compiled.spec.assertion, slot.epoch))
-        kept = []
-        publish = self.each.publish
-        for v, assertion, epoch in about:
-            fields = (v.monitor, v.verdict, v.stamp, v.step, handler, assertion, epoch)
-            cdr = encode_verdict(*fields)
-            publish(_CDR_LE + cdr)
-            kept.append(_Kept(v, fields, cdr))
-        with self._lock:
-            for k in kept:
-                self._kept[k.verdict.monitor] = k
-            self.written += len(kept)
-
-    def refresh(self, now_ns: int | None = None) -> bool:
-        """Publish the array if its content changed since the last one (the first time
-        too, empty or not: each handler has one); True if it did. Cheap when nothing
-        happened: a verdict written or a monitor added, removed or redefined (the engine's
-        routes_version) since the last look is what makes it look again."""
-        engine = self.engine
-        seen = (self.written, engine.routes_version)
-        if seen == self._seen:
-            return False
-        monitors_changed = self._seen is None or seen[1] != self._seen[1]
-        self._seen = seen
-        kept = self._kept
-        items: list[_Kept | tuple[Verdict, str, int]] = []
-        with engine.lock:  # a few ms for 10,000 monitors
-            for slot in engine.slots.values():
-                v = slot.last_verdict
-                if v is None:
-                    continue
-                k = kept.get(v.monitor)
-                if k is not None and k.verdict is v:
-                    items.append(k)
-                else:  # reached, not written yet: encoded here (written soon after)
-                    items.append((v, slot.compiled.spec.assertion, slot.epoch))
-            names = set(engine.slots) if monitors_changed else None
-        if names is not None:  # forget the monitors removed
-            with self._lock:
-                for name in [n for n in self._kept if n not in names]:
-                    del self._kept[name]
-        handler = engine.name
-        fields: list[VerdictFields] = []
-        encoded: list[bytes] = []
-        for item in items:
-            if isinstance(item, _Kept):
-                fields.append(item.fields)
-                encoded.append(item.cdr)
-            else:
-                v, assertion, epoch = item
-                f = (v.monitor, v.verdict, v.stamp, v.step, handler, assertion, epoch)
-                fields.append(f)
-                encoded.append(b"")  # encoded below, if the array is published
-        if fields == self._published:  # (the same tuples, mostly: compared by identity)
-            return False
-        encoded = [e or encode_verdict(*f) for e, f in zip(encoded, fields, strict=True)]
-        stamp = time.time_ns() if now_ns is None else now_ns
-        self.last.publish(encode_verdict_array(stamp, handler, fields, encoded))
-        self._published = fields
-        self.arrays += 1
-        return True
 
 
 @dataclass
