@@ -101,6 +101,10 @@ lock: install
 	$(BIN)/python -m pip install --quiet 'pip-tools>=7.4'
 	$(LOCK) --extra ros -o images/handler/requirements.lock pyproject.toml
 	$(LOCK) --extra operator -o images/operator/requirements.lock pyproject.toml
+	@# the handler FROM ros:jazzy (Dockerfile.jazzy): ROS from apt, Spot from its source
+	mkdir -p images/build
+	$(BIN)/python -c 'import tomllib; d = tomllib.load(open("pyproject.toml", "rb"))["project"]["dependencies"]; print("\n".join(x for x in d if not x.startswith("spottl")))' > images/build/jazzy.in
+	$(LOCK) -o images/handler/requirements-jazzy.lock images/build/jazzy.in
 
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache .mypy_cache .ruff_cache
