@@ -1,10 +1,12 @@
 """A monitor's reaction to its violation (``spec.onViolation``), done by real handlers: a
 message published, a service called, once per violation, by the handler that evaluated it
 (docs/handler.md, "Reactions"), also when the monitor moved between the violating
-message and its evaluation.
+message and its evaluation; and the same violation on the typed verdict topic and at
+level ERROR on /diagnostics, from that handler (issue #19's acceptance).
 
 Real ``edgerv handler`` processes and a real publisher; this test's own rclpy node is the
-robot's side: a /cmd_vel subscriber and a std_srvs/SetBool server on /estop.
+robot's side: a /cmd_vel subscriber and a std_srvs/SetBool server on /estop, and what a
+user's tools read: /edgerv/verdict and /diagnostics.
 """
 
 from __future__ import annotations
@@ -20,12 +22,16 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from edgerv_msgs.msg import Verdict  # noqa: E402
 from geometry_msgs.msg import Twist  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rosprocs import HandlerProcess, own_node, publisher, wait_for  # noqa: E402
 from std_srvs.srv import SetBool  # noqa: E402
 from test_migrate import migrate  # noqa: E402
 
 pytestmark = pytest.mark.integration
+ERROR = bytes([2])  # diagnostic_msgs/DiagnosticStatus.ERROR (a byte, as rclpy gives it)
 
 STOP = """\
 apiVersion: edgerv.io/v1alpha1
@@ -59,6 +65,8 @@ class Robot:
 
     twists: list[Any] = field(default_factory=list)
     estops: list[bool] = field(default_factory=list)
+    verdicts: list[Any] = field(default_factory=list)  # edgerv_msgs/msg/Verdict
+    errors: list[Any] = field(default_factory=list)  # speed-cap's ERROR statuses
     lock: threading.Lock = field(default_factory=threading.Lock)
     subscription: Any = None
 
@@ -81,9 +89,26 @@ def robot(domain: int) -> Iterator[Robot]:
         response.success, response.message = True, "stopped"
         return response
 
+    def on_verdict(msg: Any) -> None:
+        with got.lock:
+            got.verdicts.append(msg)
+
+    def on_diagnostics(msg: Any) -> None:
+        with got.lock:
+            got.errors += [
+                s for s in msg.status if s.name == "edgerv: speed-cap" and s.level == ERROR
+            ]
+
+    typed = QoSProfile(
+        depth=100,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+    )
     with own_node(domain, "robot") as node:
         got.subscription = node.create_subscription(Twist, "/cmd_vel", on_twist, 100)
         node.create_service(SetBool, "/estop", on_estop)
+        node.create_subscription(Verdict, "/edgerv/verdict", on_verdict, typed)
+        node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 100)
         yield got
 
 
@@ -163,6 +188,17 @@ def test_a_monitor_moved_between_its_violation_and_its_evaluation_reacts_once_th
         assert violations(cloud) == [6] and violations(edge) == []
         assert "published geometry_msgs/msg/Twist" in cloud.stderr
         assert "published" not in edge.stderr and "called /estop" not in edge.stderr
+        # the same violation, typed, from the cloud, once; and ERROR there on /diagnostics
+        assert wait_for(lambda: robot.errors, timeout=10), "no ERROR on /diagnostics"
+        with robot.lock:
+            typed = [
+                (v.handler, v.verdict, v.step) for v in robot.verdicts if v.monitor == "speed-cap"
+            ]
+            errors = list(robot.errors)
+        assert [t for t in typed if t[0:2] == ("cloud", "violated")] == [("cloud", "violated", 6)]
+        assert not [t for t in typed if t[0] == "edge" and t[1] == "violated"]
+        assert {e.hardware_id for e in errors} == {"cloud"}
+        assert errors[0].message.startswith("violated at step 6")
     finally:
         stopped = (edge.stop(), cloud.stop())
         assert stopped == (0, 0), edge.stderr + cloud.stderr
