@@ -1,8 +1,9 @@
 """``edgerv-operator``: run the operator (``kopf run`` on its handlers).
 
-It watches the namespaces of ``EDGERV_WATCH_NAMESPACES`` (comma-separated) and its
-handlers' (``EDGERV_NAMESPACE``), or all; it answers its liveness probe on
-``EDGERV_LIVENESS`` (default ``http://0.0.0.0:8080/healthz``; empty: none). With
+Its Monitors are those of the namespaces of ``EDGERV_WATCH_NAMESPACES`` (comma-separated),
+or of all; the handler pods it reads in their namespace only (``EDGERV_NAMESPACE``), by a
+second Kopf operator its startup starts (:mod:`edgerv_operator.pods`). It answers its
+liveness probe on ``EDGERV_LIVENESS`` (default ``http://0.0.0.0:8080/healthz``; empty: none). With
 ``EDGERV_PEERING`` (the chart sets it) replicas meet in that Kopf peering object and
 only the one of highest priority acts (each draws its priority at random when it
 starts); without it the operator runs alone (``--standalone``).
@@ -18,9 +19,6 @@ from kopf.cli import main as kopf_cli
 
 def main() -> None:
     watched = [n.strip() for n in os.environ.get("EDGERV_WATCH_NAMESPACES", "").split(",")]
-    watched = [n for n in watched if n]
-    if watched:  # the handler pods are indexed from their own namespace
-        watched.append(os.environ.get("EDGERV_NAMESPACE", ""))
     namespaces = [n for n in dict.fromkeys(watched) if n]
     scope = [a for n in namespaces for a in ("--namespace", n)] or ["--all-namespaces"]
     liveness = os.environ.get("EDGERV_LIVENESS", "http://0.0.0.0:8080/healthz")

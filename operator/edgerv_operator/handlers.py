@@ -6,7 +6,9 @@ chart's DaemonSet, one per node, host networking) and runs on one: where it runs
 already, else a ready handler of its home tier (``placement.tier``, default the
 lowest), else of the nearest tier above (:func:`~edgerv_operator.placement.choose`). What
 the operator keeps between calls lives in Kopf's ``memo`` (an :class:`Operator`);
-the handler pods and the nodes' tiers come from Kopf indexes, kept by watching.
+the nodes' tiers come from a Kopf index, kept by watching; the handler pods from the
+index of a second Kopf operator that watches them in their own namespace only
+(:mod:`~edgerv_operator.pods`, started and stopped with this one).
 
 Every few seconds (the Monitors' status timers; the first one due does it for
 all) the operator asks each handler once for all its monitors (the *survey*),
@@ -22,7 +24,6 @@ from __future__ import annotations
 
 import datetime
 import logging
-import os
 import threading
 import time
 from collections.abc import Mapping, Sequence
@@ -42,7 +43,7 @@ from edgerv.handler.client import (
 from edgerv.handler.migrate import migrate, settle
 from edgerv.handler.orchestrate import Orchestrator, Target
 from edgerv.handler.payloads import MonitorReport
-from edgerv_operator.config import ConfigError, OperatorConfig, selector_labels
+from edgerv_operator.config import ConfigError, OperatorConfig
 from edgerv_operator.documents import (
     HandlerPod,
     document_text,
@@ -51,6 +52,8 @@ from edgerv_operator.documents import (
     problems,
 )
 from edgerv_operator.placement import change, choose, destination, tier_of
+from edgerv_operator.pods import PodFacts, PodWatch
+from edgerv_operator.pods import login as pods_login
 from edgerv_operator.status import Event, Survey, invalid, moved, refreshed
 
 log = logging.getLogger("edgerv.operator")
@@ -78,6 +81,9 @@ class Operator:
 
     config: OperatorConfig
     orchestrator: Orchestrator
+    # the handler pods, indexed in their namespace by an operator of its own (startup starts
+    # it; one never started knows no pod)
+    pods: PodWatch = field(default_factory=lambda: PodWatch(""))
     moving: threading.Lock = field(default_factory=threading.Lock)  # one move at a time
     surveying: threading.Lock = field(default_factory=threading.Lock)
     surveyed_at: float = float("-inf")
@@ -104,13 +110,21 @@ def startup(settings: kopf.OperatorSettings, memo: kopf.Memo, **_: Any) -> None:
     except ConfigError as exc:
         raise kopf.PermanentError(f"edgerv operator: {exc}") from None
     settings.persistence.finalizer = "edgerv.io/monitor"
+    # Neither namespaces nor CRDs observed (Kopf's strict mode): the namespaces are the
+    # ones named, the Monitor CRD the one served at startup; no cluster-wide read of
+    # either (helm/README.md, "RBAC").
+    settings.scanning.disabled = True
     # Kopf's own "handler succeeded" lines stay in the log; Events are the ones this
     # operator posts (kopf.event), and Kopf's warnings and errors.
     settings.posting.level = logging.WARNING
     policy = Orchestrator(
         [], PolicyConfig(tiers=config.tiers), config.token, starts=False, tls=config.tls
     )
-    memo["edgerv"] = Operator(config, policy)
+    pods = PodWatch(config.namespace)
+    pods.start()
+    if not pods.wait_listed():
+        log.warning("no pod listed in %s yet: going on with no handler pod known", config.namespace)
+    memo["edgerv"] = Operator(config, policy, pods)
 
 
 STOP_SECONDS = 60.0  # how long a stopping operator waits for its move in progress
@@ -125,6 +139,13 @@ def stopping(memo: kopf.Memo, **_: Any) -> None:
     op = memo.get("edgerv")
     if not isinstance(op, Operator):
         return
+    try:
+        _stop_moving(op)
+    finally:
+        op.pods.stop()
+
+
+def _stop_moving(op: Operator) -> None:
     if not op.moving.acquire(timeout=STOP_SECONDS):
         log.warning("stopping with a move still running after %.0f s", STOP_SECONDS)
         return
@@ -137,60 +158,20 @@ def stopping(memo: kopf.Memo, **_: Any) -> None:
     log.info("stopped: no move of this operator in progress")
 
 
-@kopf.on.login()
-def login(**kwargs: Any) -> kopf.ConnectionInfo | None:
-    """In a pod: its service account; elsewhere: $KUBECONFIG as it is now."""
-    if os.path.exists("/var/run/secrets/kubernetes.io/serviceaccount/token"):
-        return kopf.login_via_client(**kwargs)
-    return kopf.login_with_kubeconfig(**kwargs)
+login = kopf.on.login()(pods_login)  # in a pod: its service account; else $KUBECONFIG
 
 
 @kopf.on.probe(id="handlers")
 def probe(memo: kopf.Memo, **_: Any) -> int:
-    """For the liveness endpoint: the operator is up (how many handlers it last saw)."""
+    """For the liveness endpoint: the operator is up (how many handlers it last saw), and
+    so is its watch of the handler pods (else the probe fails: the pod restarts)."""
     op = memo.get("edgerv")
+    if isinstance(op, Operator) and not op.pods.alive:
+        raise kopf.PermanentError("the watch of the handler pods stopped")
     return len(op.reports) if isinstance(op, Operator) else 0
 
 
-# -- what the cluster has: handler pods and the nodes' tiers (Kopf indexes) ----------------
-
-
-@dataclass(frozen=True)
-class PodFacts:
-    namespace: str
-    name: str
-    node: str
-    host_ip: str
-    ready: bool
-    leaving: bool  # deletionTimestamp set: it is going away
-    incarnation: str  # UID and restart count
-
-
-@kopf.index("", "v1", "pods", labels=selector_labels())
-def handler_pods(
-    name: str,
-    namespace: str | None,
-    uid: str | None,
-    spec: kopf.Spec,
-    status: kopf.Status,
-    meta: kopf.Meta,
-    **_: Any,
-) -> dict[str, PodFacts] | None:
-    node, host_ip = spec.get("nodeName"), status.get("hostIP")
-    if not node or not host_ip or status.get("phase") != "Running":
-        return None
-    conditions = {c.get("type"): c.get("status") for c in status.get("conditions") or []}
-    restarts = sum(int(c.get("restartCount", 0)) for c in status.get("containerStatuses") or [])
-    facts = PodFacts(
-        namespace or "",
-        name,
-        str(node),
-        str(host_ip),
-        conditions.get("Ready") == "True",
-        meta.get("deletionTimestamp") is not None,
-        f"{uid}/{restarts}",
-    )
-    return {name: facts}
+# -- what the cluster has: handler pods (edgerv_operator.pods) and the nodes' tiers ----------
 
 
 @kopf.index("", "v1", "nodes")
@@ -212,18 +193,29 @@ class Handlers:
         return self.ready + self.leaving + self.unready
 
 
+def pod_facts(pods: Mapping[str, Any]) -> list[PodFacts]:
+    """What the pods index holds now. Its operator's thread updates it meanwhile: the keys
+    and each key's values are copied whole (one C call each, under the GIL)."""
+    facts = []
+    for key in list(pods):
+        try:
+            facts += list(pods[key])
+        except KeyError:  # gone meanwhile
+            continue
+    return facts
+
+
 def cluster_handlers(
-    cfg: OperatorConfig, pods: kopf.Index[str, PodFacts], nodes: kopf.Index[str, dict[str, str]]
+    cfg: OperatorConfig, pods: Mapping[str, Any], nodes: kopf.Index[str, dict[str, str]]
 ) -> Handlers:
     found = Handlers([], [], [])
-    for key in pods:
-        for p in pods[key]:
-            if p.namespace != cfg.namespace:
-                continue
-            labels = next(iter(nodes.get(p.node, [])), {})
-            tier = labels.get(cfg.tier_label)
-            h = HandlerPod(p.node, tier, f"{p.host_ip}:{cfg.port}", p.name, p.incarnation)
-            (found.leaving if p.leaving else found.ready if p.ready else found.unready).append(h)
+    for p in pod_facts(pods):
+        if p.namespace != cfg.namespace:
+            continue
+        labels = next(iter(nodes.get(p.node, [])), {})
+        tier = labels.get(cfg.tier_label)
+        h = HandlerPod(p.node, tier, f"{p.host_ip}:{cfg.port}", p.name, p.incarnation)
+        (found.leaving if p.leaving else found.ready if p.ready else found.unready).append(h)
     return found
 
 
@@ -441,14 +433,13 @@ def _apply(
     body: kopf.Body,
     patch: kopf.Patch,
     memo: kopf.Memo,
-    handler_pods: kopf.Index[str, PodFacts],
     node_labels: kopf.Index[str, dict[str, str]],
     redefine: bool,
     old: Mapping[str, Any] | None = None,
 ) -> None:
     op = _operator(memo)
     generation = int(meta.get("generation") or 0)
-    handlers = cluster_handlers(op.config, handler_pods, node_labels)
+    handlers = cluster_handlers(op.config, op.pods.index, node_labels)
     hname = handler_name(namespace, name)
     what = change(old, spec) if old is not None else ("redefine" if redefine else "none")
     try:  # refused here or by the handlers: the spec is wrong, until it changes
@@ -529,7 +520,7 @@ def resumed(
 
 
 def _kopf(kw: Mapping[str, Any]) -> dict[str, Any]:
-    keys = ("meta", "body", "patch", "memo", "handler_pods", "node_labels")
+    keys = ("meta", "body", "patch", "memo", "node_labels")
     return {k: kw[k] for k in keys}
 
 
@@ -543,7 +534,7 @@ def deleted(
     """Remove it from every handler pod there is; one that does not answer is asked
     again until it does or its pod is gone (the finalizer holds the Monitor meanwhile)."""
     op = _operator(memo)
-    handlers = cluster_handlers(op.config, kw["handler_pods"], kw["node_labels"])
+    handlers = cluster_handlers(op.config, op.pods.index, kw["node_labels"])
     hname = handler_name(namespace or "", name)
     unanswered = []
     for pod in handlers.every:
@@ -581,7 +572,7 @@ def refresh(
     if status.get("phase") == "Error" and status.get("observedGeneration") == generation:
         return  # until the spec changes
     op = _operator(memo)
-    handlers = cluster_handlers(op.config, kw["handler_pods"], kw["node_labels"])
+    handlers = cluster_handlers(op.config, op.pods.index, kw["node_labels"])
     survey_and_tend(op, handlers)
     namespace = namespace or ""
     hname = handler_name(namespace, name)

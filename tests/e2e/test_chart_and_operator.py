@@ -450,6 +450,7 @@ def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None
         )
         for got in privileges(cluster, ns, operator):  # (its API token it needs: Kopf's)
             assert got == HARDENED | {"token": True}, got
+        rights_when_namespaces_are_watched(cluster, ns)
         leader, worked, peers = acting()
         assert len(peers) == 2 and len(set(peers.values())) == 2, peers
         assert worked == [leader], (worked, peers)  # the other one waits: it did nothing
@@ -478,6 +479,7 @@ def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None
         assert sorted(records) == ["adopted", "committed", "held"], records
         restarted_mid_handoff(cluster, ns, name)
         rotated_token(cluster, ns)
+        never_refused(cluster, ns)  # all it did, with only the verbs the chart grants
         uninstalled_with_monitors(cluster, ns)
     finally:
         cluster.run("delete", "monitor", "--all", "-n", ns, "--timeout=60s", check=False)
@@ -488,6 +490,72 @@ def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None
             timeout=120,
         )
         cluster.run("delete", "namespace", ns, "--wait=false", check=False)
+
+
+def can_i(cluster: Cluster, account: str, verb: str, what: str, *where: str) -> bool:
+    """`kubectl auth can-i` as a ServiceAccount (namespace/name): the API server's RBAC
+    authorizer's answer (a SubjectAccessReview)."""
+    ns, name = account.split("/")
+    _, out, err = cluster.attempt(
+        "auth", "can-i", verb, what, *where, f"--as=system:serviceaccount:{ns}:{name}"
+    )
+    assert out.strip() in ("yes", "no"), out + err
+    return out.strip() == "yes"
+
+
+def rights(cluster: Cluster, account: str, asked: list[tuple[str, ...]]) -> dict[str, bool]:
+    """Each (verb, resource, flags...) asked: whether the account may."""
+    return {" ".join(q): can_i(cluster, account, *q) for q in asked}
+
+
+def rights_when_namespaces_are_watched(cluster: Cluster, ns: str) -> None:
+    """operator.watchNamespaces set: the operator's ServiceAccount reads the handler pods in
+    the release's namespace only (not in another, not cluster-wide), does what Kopf does with
+    Monitors in the watched namespace only, and reads nothing else of the cluster but the
+    nodes' labels. Each verb is one Kopf uses: no get, update, create or delete of Monitors."""
+    elsewhere = "default"
+    got = rights(
+        cluster,
+        f"{ns}/erv2-operator",
+        [
+            ("list", "pods", "-n", ns), ("watch", "pods", "-n", ns),
+            ("get", "pods", "-n", ns),
+            ("list", "pods", "-n", elsewhere), ("watch", "pods", "-n", elsewhere),
+            ("list", "pods", "--all-namespaces"), ("watch", "pods", "--all-namespaces"),
+            ("list", "monitors.edgerv.io", "-n", ns), ("watch", "monitors.edgerv.io", "-n", ns),
+            ("patch", "monitors.edgerv.io", "-n", ns),
+            ("patch", "monitors.edgerv.io", "-n", ns, "--subresource=status"),
+            ("get", "monitors.edgerv.io", "-n", ns), ("update", "monitors.edgerv.io", "-n", ns),
+            ("delete", "monitors.edgerv.io", "-n", ns),
+            ("list", "monitors.edgerv.io", "-n", elsewhere),
+            ("list", "monitors.edgerv.io", "--all-namespaces"),
+            ("create", "events", "-n", ns), ("create", "events", "-n", elsewhere),
+            ("patch", "kopfpeerings.kopf.dev/erv2-operator", "-n", ns),
+            ("patch", "kopfpeerings.kopf.dev/another", "-n", ns),
+            ("list", "clusterkopfpeerings.kopf.dev"),
+            ("list", "nodes"), ("watch", "nodes"), ("patch", "nodes"),
+            ("list", "namespaces"), ("list", "customresourcedefinitions.apiextensions.k8s.io"),
+            ("get", "secrets", "-n", ns),
+        ],
+    )  # fmt: skip
+    allowed = {q for q, yes in got.items() if yes}
+    assert allowed == {
+        f"list pods -n {ns}", f"watch pods -n {ns}",
+        f"list monitors.edgerv.io -n {ns}", f"watch monitors.edgerv.io -n {ns}",
+        f"patch monitors.edgerv.io -n {ns}",
+        f"patch monitors.edgerv.io -n {ns} --subresource=status",
+        f"create events -n {ns}",
+        f"patch kopfpeerings.kopf.dev/erv2-operator -n {ns}",
+        "list nodes", "watch nodes",
+    }, got  # fmt: skip
+
+
+def never_refused(cluster: Cluster, ns: str) -> None:
+    """The operator's pods logged no refusal by the API server: nothing Kopf or the
+    operator did needed a right the chart does not grant."""
+    logs = cluster.run("logs", "-n", ns, "-l", "app.kubernetes.io/component=operator", "--tail=-1")
+    for refusal in ("Forbidden", "forbidden", "Not enough permissions"):
+        assert refusal not in logs, logs
 
 
 def uninstalled_with_monitors(cluster: Cluster, ns: str) -> None:
