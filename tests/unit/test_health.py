@@ -116,6 +116,7 @@ def test_a_monitors_values() -> None:
         "migration wanted": "no",
         "tier": "edge (pinned)",
         "epoch": "0",
+        "migrations": "0 here, 0 away",
         "topics": "/speed",
         "reactions": "off",
     }

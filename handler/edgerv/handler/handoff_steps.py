@@ -252,6 +252,7 @@ class HandoffSteps:
             if slot.handoff != RELEASED:
                 raise HandoffError(f"the handoff of '{name}' is {slot.handoff or 'over'}")
             self._let_go(slot)
+            slot.moved_out += 1
             return "committed"
 
     def adopt(self, name: str, epoch: int, snap: Snapshot) -> None:
@@ -294,6 +295,7 @@ class HandoffSteps:
                     raise HandoffError(f"{name}: {exc}") from None
             self._resume(restored)
             for slot, _ in restored:
+                slot.moved_in += 1
                 slot.adopted.append(epoch)
                 if len(slot.adopted) > ADOPTIONS_KEPT:
                     slot.forgotten = slot.adopted.pop(0)

@@ -101,6 +101,8 @@ class MonitorReading(NamedTuple):
     epoch: int
     handoff: str | None
     topics: tuple[str, ...]
+    moved_in: int  # handoffs that moved it here, and away from here
+    moved_out: int
     reacts: bool  # spec.onViolation is written
     reactions: int  # done here
     reaction_failures: int
@@ -168,6 +170,8 @@ def read_engine(
                         slot.epoch,
                         None if slot.handoff is None else str(slot.handoff),
                         tuple(slot.compiled.spec.topics),
+                        slot.moved_in,
+                        slot.moved_out,
                         slot.compiled.spec.on_violation is not None,
                         slot.reactions,
                         slot.reaction_failures,
@@ -441,6 +445,7 @@ class Health:
             ("migration wanted", "yes" if m.migration_wanted else "no"),
             ("tier", (m.tier or "lowest") + (" (pinned)" if m.migrate == "pinned" else "")),
             ("epoch", f"{m.epoch}{handoff}"),
+            ("migrations", f"{m.moved_in} here, {m.moved_out} away"),
             ("topics", ", ".join(m.topics)),
             (
                 "reactions",

@@ -48,6 +48,8 @@ class MonitorSlot:
     prehold: int = 0  # H1: events buffered before the hold, not yet compressed (see hold)
     # spec.onViolation, done here: reactions done, failed, and why the newest failed (None:
     # it was done)
+    moved_in: int = 0  # handoffs that moved it here (adopted), since it was defined here
+    moved_out: int = 0  # and away from here (committed)
     reactions: int = 0
     reaction_failures: int = 0
     reaction_problem: str | None = None
