@@ -199,6 +199,7 @@ def test_a_monitor_moved_between_its_violation_and_its_evaluation_reacts_once_th
         assert not [t for t in typed if t[0] == "edge" and t[1] == "violated"]
         assert {e.hardware_id for e in errors} == {"cloud"}
         assert errors[0].message.startswith("violated at step 6")
+        assert {kv.key: kv.value for kv in errors[0].values}["migrations"] == "1 here, 0 away"
     finally:
         stopped = (edge.stop(), cloud.stop())
         assert stopped == (0, 0), edge.stderr + cloud.stderr
