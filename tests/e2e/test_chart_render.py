@@ -67,11 +67,14 @@ VALUE_SETS: dict[str, list[str]] = {
 }
 
 
-# The kinds the chart's CRDs define (files/crds/), and the Prometheus Operator's
-# ServiceMonitor: the custom resources it may render.
+# The chart's CRDs: the Monitor's, templated (files/crds/), and Kopf's peerings, in crds/
+# (installed before the templates, so that the release's peering objects can be made).
+CRD_FILES = sorted([*(CHART / "files" / "crds").glob("*.yaml"), *(CHART / "crds").glob("*.yaml")])
+# The kinds they define, and the Prometheus Operator's ServiceMonitor: the custom
+# resources the chart may render.
 CUSTOM_KINDS = {
     d["spec"]["names"]["kind"]
-    for path in sorted((CHART / "files" / "crds").glob("*.yaml"))
+    for path in CRD_FILES
     for d in yaml.safe_load_all(path.read_text())
     if d
 } | {"ServiceMonitor"}
@@ -340,8 +343,7 @@ def kubeconform(tmp_path_factory: pytest.TempPathFactory) -> Kubeconform:
         / "crds"
         / f"prometheus-operator-v{versions['PROMETHEUS_OPERATOR_VERSION']}"
     )
-    crds = [*sorted((CHART / "files" / "crds").glob("*.yaml")),
-            prometheus / "monitoring.coreos.com_servicemonitors.yaml"]  # fmt: skip
+    crds = [*CRD_FILES, prometheus / "monitoring.coreos.com_servicemonitors.yaml"]
     docs = [d for path in crds for d in yaml.safe_load_all(path.read_text())]
     out = tmp_path_factory.mktemp("crd-schemas")
     custom = k8s_schemas.make_crds(docs, version, out, kubernetes)
