@@ -150,17 +150,18 @@ def _timed(
     """The letters of a monitor with timed atoms: each event's ages, and the clock steps
     between two events (and between the step before the chunk and its first event)."""
     n = len(stamps)
-    lo, hi = int(stamps.min()), int(stamps.max())
+    if bool(np.any(stamps[1:] < stamps[:-1])):
+        return None  # late events: the scalar path
+    lo, hi = int(stamps[0]), int(stamps[-1])  # (in order)
     known_last = [t for t in last if t is not None]
     if (
         lo < -_TIME
         or hi > _TIME
         or any(abs(t) > _TIME for t in known_last)
         or any(a.duration > _TIME for a in monitor.timed)
-        or bool(np.any(stamps[1:] < stamps[:-1]))
         or (now is not None and lo < now)
     ):
-        return None  # late events and far times: the scalar path
+        return None  # far times, or before the clock: the scalar path
     mask = 0
     # per timed signal: the time of its last message after each event (and before the
     # chunk, at index -1 of ``after``), and whether there is one
@@ -172,6 +173,9 @@ def _timed(
         if s in lasts:
             continue
         positions = changes[s][0]
+        if len(positions) == n:  # a message of it at every event (its own topic's field)
+            lasts[s] = (stamps, np.ones(n, bool))
+            continue
         index = np.full(n, -1, np.int64)
         index[positions] = positions
         np.maximum.accumulate(index, out=index)
