@@ -205,3 +205,40 @@ def test_a_monitor_moved_between_its_violation_and_its_evaluation_reacts_once_th
         assert stopped == (0, 0), edge.stderr + cloud.stderr
     # the edge's shutdown drains what it holds: the quiet monitor's events, not speed-cap's
     assert robot.counts() == (1, 1)
+
+
+UNANSWERED = """\
+apiVersion: edgerv.io/v1alpha1
+kind: Monitor
+metadata: {name: nobody-answers}
+spec:
+  assertion: "always (speed < 100)"
+  signals:
+    speed: {topic: /speed, type: std_msgs/msg/Float64}
+  onViolation:
+    call: {service: /nobody, type: std_srvs/srv/Trigger, timeoutMs: 600000}
+"""
+
+
+def test_a_handler_stopping_gives_its_calls_seconds_not_their_timeouts(
+    tmp_path: Path, domain: int
+) -> None:
+    """Violations whose service has no server (a 10-minute timeout each) queue their
+    calls; SIGTERM stops the handler within the few seconds it gives them (CLOSE_SECONDS),
+    exit 0, saying which calls it did not make: not ten minutes a call."""
+    path = tmp_path / "m.yaml"
+    path.write_text(UNANSWERED)
+    h = HandlerProcess(tmp_path, path, domain)
+    try:
+        sent = [{"data": 150.0}] * 5
+        pub = publisher(domain, "/speed", "std_msgs/msg/Float64", sent)
+        assert pub.wait(timeout=30) == 0
+        assert wait_for(lambda: len(violations(h, "nobody-answers")) == 5, timeout=30)
+    finally:
+        started = time.monotonic()
+        code = h.stop(timeout=60)
+        took = time.monotonic() - started
+    assert code == 0, h.stderr
+    assert took < 20, took  # CLOSE_SECONDS (5) and the ordered shutdown, not 600 s a call
+    assert "service call(s) of reactions not made: the handler stopped" in h.stderr
+    assert "nobody-answers -> /nobody" in h.stderr

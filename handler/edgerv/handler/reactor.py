@@ -40,6 +40,10 @@ REACTION_QOS = QoSProfile(
     durability=DurabilityPolicy.VOLATILE,
 )
 QUEUED_CALLS = 1000  # calls waiting for the caller thread; past it, a call is dropped (logged)
+# At shutdown the calls queued are still made, for at most this long in all (the pod's
+# grace period is 30 s by default); those left then are not made (logged, counted).
+CLOSE_SECONDS = 5.0
+POLL_SECONDS = 0.02  # how often a call looks for its server, its answer, the deadline
 
 
 def build_message(cls: Any, fields: Fields) -> Any:
@@ -77,6 +81,7 @@ class Reactor:
         self._clients: dict[tuple[str, str], Any] = {}
         self._messages: dict[Publish, Any] = {}
         self._calls: queue.Queue[tuple[Verdict, Call] | None] = queue.Queue(QUEUED_CALLS)
+        self._deadline: float | None = None  # (monotonic) set by close: calls end by then
         self._spinner = threading.Thread(target=self._spin, name="edgerv-reactor-spin", daemon=True)
         self._caller = threading.Thread(target=self._call_loop, name="edgerv-reactor", daemon=True)
         self._spinner.start()
@@ -172,6 +177,10 @@ class Reactor:
             if item is None:
                 return
             verdict, call = item
+            if self._deadline is not None and time.monotonic() >= self._deadline:
+                if self._abandon([item]):
+                    return  # (it took the close's None from the queue)
+                continue
             try:
                 failure, answer = self._call(call)
             except Exception as exc:  # a type gone, a value out of range, the node closing
@@ -187,16 +196,15 @@ class Reactor:
         """Call the service: (None, what it answered) when it answered, else (what went
         wrong, "")."""
         client = self._client(call)
-        started = time.monotonic()
-        if not client.wait_for_service(timeout_sec=call.timeout):
-            return f"found no server within {call.timeout:g} s", ""
+        until = time.monotonic() + call.timeout
+        if not self._wait(client.service_is_ready, until):
+            return f"found no server within {self._waited(call)}", ""
         answered = threading.Event()
         future = client.call_async(build_message(client.srv_type.Request, call.fields))
         future.add_done_callback(lambda _: answered.set())
-        left = max(0.0, call.timeout - (time.monotonic() - started))
-        if not answered.wait(left):
+        if not self._wait(answered.is_set, until):
             client.remove_pending_request(future)
-            return f"had no answer within {call.timeout:g} s", ""
+            return f"had no answer within {self._waited(call)}", ""
         response = future.result()
         fields = [
             f"{name} {getattr(response, name)!r}"
@@ -206,6 +214,42 @@ class Reactor:
         if getattr(response, "success", True) is False:
             log.warning("service %s answered success False: %s", call.service, fields)
         return None, f": it answered {', '.join(fields)}" if fields else ""
+
+    def _wait(self, done: Callable[[], bool], until: float) -> bool:
+        """Whether ``done()`` holds before ``until`` (monotonic) or the close's deadline."""
+        while not done():
+            now = time.monotonic()
+            end = until if self._deadline is None else min(until, self._deadline)
+            if now >= end:
+                return False
+            time.sleep(min(POLL_SECONDS, end - now))
+        return True
+
+    def _waited(self, call: Call) -> str:
+        if self._deadline is not None and time.monotonic() >= self._deadline:
+            return f"the {CLOSE_SECONDS:g} s the handler gives its calls when it stops"
+        return f"{call.timeout:g} s"
+
+    def _abandon(self, items: list[tuple[Verdict, Call] | None]) -> bool:
+        """Calls not made: the handler stopped (what else waits in the queue too). True
+        when the close's None was among them."""
+        while True:
+            try:
+                items.append(self._calls.get_nowait())
+            except queue.Empty:
+                break
+        left = [i for i in items if i is not None]
+        for verdict, call in left:
+            self._outcome(verdict.monitor, f"{call.service} not called: the handler stopped")
+        if left:
+            log.error(
+                "%d service call(s) of reactions not made: the handler stopped (it gives its "
+                "calls %g s): %s",
+                len(left),
+                CLOSE_SECONDS,
+                ", ".join(sorted({f"{v.monitor} -> {c.service}" for v, c in left})),
+            )
+        return len(left) < len(items)
 
     # -- running -------------------------------------------------------------------------------
 
@@ -220,9 +264,11 @@ class Reactor:
             self.on_outcome(monitor, problem)
 
     def close(self) -> None:
-        """Finish the calls queued (each within its timeout), then stop."""
+        """Make the calls queued, within CLOSE_SECONDS in all (each within its own
+        timeout too); those left then are not made (logged). Then stop."""
+        self._deadline = time.monotonic() + CLOSE_SECONDS
         self._calls.put(None)
-        self._caller.join(timeout=30)
+        self._caller.join(timeout=CLOSE_SECONDS + 5)
         self._executor.shutdown(timeout_sec=1)
         self._spinner.join(timeout=5)
         self.node.destroy_node()
