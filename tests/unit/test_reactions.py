@@ -154,6 +154,17 @@ def test_a_wrong_reaction_is_named_where_it_is_written(reaction: str, expected: 
     assert errors(with_reaction(reaction))[0] == expected
 
 
+def test_a_reaction_on_a_topic_the_monitor_reads_is_refused() -> None:
+    """Its reaction would be its next event: a violation publishing on /speed a value that
+    violates again would react without end."""
+    found = errors(with_reaction("publish: {topic: speed, type: std_msgs/msg/Float64}"))
+    assert found == [
+        "m.yaml:9:22: error: spec.onViolation.publish.topic: /speed is a topic this monitor "
+        "reads: each reaction would be an event of its own, and could violate it again, "
+        "without end"
+    ]
+
+
 def test_every_problem_of_a_reaction_is_told_at_once() -> None:
     found = errors(
         with_reaction(

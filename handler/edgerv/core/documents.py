@@ -616,6 +616,17 @@ def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
         doc.error(spec[key][1], f"spec.{key}", problem)
     placement = _parse_placement(doc, spec["placement"][1]) if "placement" in spec else Placement()
     on_violation = _parse_reaction(doc, spec["onViolation"][1]) if "onViolation" in spec else None
+    if on_violation is not None and on_violation.publish is not None:
+        read = {sig.topic for sig in signals.values()}
+        if on_violation.publish.topic in read:
+            node = _mapping(_mapping(spec["onViolation"][1])["publish"][1])["topic"][1]
+            doc.error(
+                node,
+                "spec.onViolation.publish.topic",
+                f"{on_violation.publish.topic} is a topic this monitor reads: each reaction "
+                "would be an event of its own, and could violate it again, without end",
+                "publish on a topic the monitor does not read (another monitor may read it)",
+            )
     if doc.diagnostics or not isinstance(name, str) or not isinstance(assertion, str):
         return None
     assert isinstance(assertion_node, yaml.ScalarNode)
