@@ -60,6 +60,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ros_env import ros_env
+
 SECONDS = float(os.environ.get("EDGERV_BENCH_INGEST_SECONDS", "4"))
 MAX_TRIALS = int(os.environ.get("EDGERV_BENCH_INGEST_TRIALS", "13"))  # a side
 STOCK_START = 3000.0
@@ -129,14 +131,7 @@ spec:
 
 
 def env() -> dict[str, str]:
-    e = dict(
-        os.environ,
-        ROS_DOMAIN_ID=DOMAIN,
-        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-        PYTHONUNBUFFERED="1",
-        EDGERV_TOKEN="bench",
-    )
-    return e
+    return ros_env(DOMAIN)
 
 
 def publish(n: int, rate: float) -> subprocess.Popen[str]:

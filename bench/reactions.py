@@ -28,6 +28,8 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
+from ros_env import ros_env
+
 RATE = 1000.0
 SECONDS = 10.0
 EVERY = 10  # one message in EVERY violates
@@ -48,13 +50,7 @@ spec:
 
 
 def env() -> dict[str, str]:
-    return dict(
-        os.environ,
-        ROS_DOMAIN_ID=DOMAIN,
-        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-        PYTHONUNBUFFERED="1",
-        EDGERV_TOKEN="bench",
-    )
+    return ros_env(DOMAIN)
 
 
 def percentiles(ms: list[float]) -> tuple[float, float]:

@@ -26,6 +26,8 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
+from ros_env import ros_env
+
 TOPICS = 100
 MONITORS = 10_000
 RATE = 1000.0
@@ -57,13 +59,7 @@ print(n, flush=True)
 
 
 def env() -> dict[str, str]:
-    return dict(
-        os.environ,
-        ROS_DOMAIN_ID=DOMAIN,
-        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-        PYTHONUNBUFFERED="1",
-        EDGERV_TOKEN="bench",
-    )
+    return ros_env(DOMAIN)
 
 
 def monitors(total: int) -> str:

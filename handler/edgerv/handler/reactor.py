@@ -202,7 +202,7 @@ class Reactor:
         answered = threading.Event()
         future = client.call_async(build_message(client.srv_type.Request, call.fields))
         future.add_done_callback(lambda _: answered.set())
-        if not self._wait(answered.is_set, until):
+        if not self._wait(answered, until):
             client.remove_pending_request(future)
             return f"had no answer within {self._waited(call)}", ""
         response = future.result()
@@ -215,14 +215,19 @@ class Reactor:
             log.warning("service %s answered success False: %s", call.service, fields)
         return None, f": it answered {', '.join(fields)}" if fields else ""
 
-    def _wait(self, done: Callable[[], bool], until: float) -> bool:
-        """Whether ``done()`` holds before ``until`` (monotonic) or the close's deadline."""
-        while not done():
+    def _wait(self, done: Callable[[], bool] | threading.Event, until: float) -> bool:
+        """Whether ``done`` (a test, or an event: woken at once when set) holds before
+        ``until`` (monotonic) or the close's deadline."""
+        test = done.is_set if isinstance(done, threading.Event) else done
+        while not test():
             now = time.monotonic()
             end = until if self._deadline is None else min(until, self._deadline)
             if now >= end:
                 return False
-            time.sleep(min(POLL_SECONDS, end - now))
+            if isinstance(done, threading.Event):
+                done.wait(min(POLL_SECONDS, end - now))
+            else:
+                time.sleep(min(POLL_SECONDS, end - now))
         return True
 
     def _waited(self, call: Call) -> str:
