@@ -21,7 +21,15 @@ import yaml
 from edgerv.core.diagnostics import Diagnostic, InputError, Location, did_you_mean
 from edgerv.core.msgtypes import FieldError, ValueKind, field_kind, normalize_type, require_type
 from edgerv.core.placement import Placement
-from edgerv.core.reactions import Call, Fields, Publish, Reaction, request_type, value_fits
+from edgerv.core.reactions import (
+    DEFAULT_CALL_TIMEOUT,
+    Call,
+    Fields,
+    Publish,
+    Reaction,
+    request_type,
+    value_fits,
+)
 
 API_VERSION = "edgerv.io/v1alpha1"
 KIND = "Monitor"
@@ -421,7 +429,20 @@ def _parse_type(
         return None
 
 
-def _parse_reaction(doc: _Doc, node: yaml.Node) -> Reaction | None:
+def _parse_name(
+    doc: _Doc, items: dict[str, tuple[yaml.Node, yaml.Node]], key: str, where: str, what: str
+) -> str | None:
+    """The ROS name (topic or service) at ``items[key]``, absolute; None and an error."""
+    value = _parse_value(doc, items[key][1], f"{where}.{key}", (str,))
+    absolute = topic_name(value) if isinstance(value, str) else None
+    if isinstance(value, str) and absolute is None:
+        doc.error(items[key][1], f"{where}.{key}", f"'{value}' is not a ROS {what} name")
+    return absolute
+
+
+def _parse_reaction(doc: _Doc, node: yaml.Node, read: set[str]) -> Reaction | None:
+    """``spec.onViolation``; ``read``: the topics of the monitor's signals, which its
+    reaction may not publish on."""
     where = "spec.onViolation"
     items = _check_keys(doc, node, where, {"publish", "call"}, set())
     if not items:
@@ -435,18 +456,23 @@ def _parse_reaction(doc: _Doc, node: yaml.Node) -> Reaction | None:
             doc, items["publish"][1], sub, {"topic", "type", "message"}, {"topic", "type"}
         )
         if "topic" in p and "type" in p:
-            topic = _parse_value(doc, p["topic"][1], f"{sub}.topic", (str,))
-            absolute = topic_name(topic) if isinstance(topic, str) else None
-            if isinstance(topic, str) and absolute is None:
-                doc.error(p["topic"][1], f"{sub}.topic", f"'{topic}' is not a ROS topic name")
+            topic = _parse_name(doc, p, "topic", sub, "topic")
+            if topic in read:
+                doc.error(
+                    p["topic"][1],
+                    f"{sub}.topic",
+                    f"{topic} is a topic this monitor reads: each reaction would be an event "
+                    "of its own, and could violate it again, without end",
+                    "publish on a topic the monitor does not read (another monitor may read it)",
+                )
             msg_type = _parse_type(doc, p, sub, service=False)
             fields = (
                 _parse_fields(doc, p["message"][1], f"{sub}.message", msg_type)
                 if "message" in p
                 else ()
             )
-            if absolute is not None and msg_type is not None:
-                publish = Publish(absolute, msg_type, fields)
+            if topic is not None and msg_type is not None:
+                publish = Publish(topic, msg_type, fields)
     if "call" in items:
         sub = f"{where}.call"
         c = _check_keys(
@@ -457,32 +483,27 @@ def _parse_reaction(doc: _Doc, node: yaml.Node) -> Reaction | None:
             {"service", "type"},
         )
         if "service" in c and "type" in c:
-            service = _parse_value(doc, c["service"][1], f"{sub}.service", (str,))
-            absolute = topic_name(service) if isinstance(service, str) else None
-            if isinstance(service, str) and absolute is None:
-                doc.error(
-                    c["service"][1], f"{sub}.service", f"'{service}' is not a ROS service name"
-                )
+            service = _parse_name(doc, c, "service", sub, "service")
             srv_type = _parse_type(doc, c, sub, service=True)
             request = (
                 _parse_fields(doc, c["request"][1], f"{sub}.request", request_type(srv_type))
                 if "request" in c and srv_type is not None
                 else ()
             )
-            timeout = 1000.0
+            timeout = DEFAULT_CALL_TIMEOUT
             if "timeoutMs" in c:
                 value = _parse_value(doc, c["timeoutMs"][1], f"{sub}.timeoutMs", (int, float))
                 if isinstance(value, int | float) and not isinstance(value, bool):
                     if 0 < value <= 600_000 and math.isfinite(value):
-                        timeout = float(value)
+                        timeout = value / 1000
                     else:
                         doc.error(
                             c["timeoutMs"][1],
                             f"{sub}.timeoutMs",
                             "must be above 0 and at most 600000",
                         )
-            if absolute is not None and srv_type is not None:
-                call = Call(absolute, srv_type, request, timeout / 1000)
+            if service is not None and srv_type is not None:
+                call = Call(service, srv_type, request, timeout)
     if publish is None and call is None:
         return None
     return Reaction(publish, call)
@@ -615,18 +636,11 @@ def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
             problem = f"{buffer_capacity} is less than sortThreshold ({sort_threshold})"
         doc.error(spec[key][1], f"spec.{key}", problem)
     placement = _parse_placement(doc, spec["placement"][1]) if "placement" in spec else Placement()
-    on_violation = _parse_reaction(doc, spec["onViolation"][1]) if "onViolation" in spec else None
-    if on_violation is not None and on_violation.publish is not None:
-        read = {sig.topic for sig in signals.values()}
-        if on_violation.publish.topic in read:
-            node = _mapping(_mapping(spec["onViolation"][1])["publish"][1])["topic"][1]
-            doc.error(
-                node,
-                "spec.onViolation.publish.topic",
-                f"{on_violation.publish.topic} is a topic this monitor reads: each reaction "
-                "would be an event of its own, and could violate it again, without end",
-                "publish on a topic the monitor does not read (another monitor may read it)",
-            )
+    on_violation = (
+        _parse_reaction(doc, spec["onViolation"][1], {sig.topic for sig in signals.values()})
+        if "onViolation" in spec
+        else None
+    )
     if doc.diagnostics or not isinstance(name, str) or not isinstance(assertion, str):
         return None
     assert isinstance(assertion_node, yaml.ScalarNode)

@@ -48,6 +48,13 @@ class Reaction:
     publish: Publish | None = None
     call: Call | None = None
 
+    def types(self) -> list[tuple[str, str]]:
+        """(``publish`` or ``call``, the message or service type it uses), each written."""
+        return [
+            *([("publish", self.publish.msg_type)] if self.publish is not None else []),
+            *([("call", self.call.srv_type)] if self.call is not None else []),
+        ]
+
     def describe(self) -> str:
         parts = []
         if self.publish is not None:

@@ -149,21 +149,11 @@ class Engine(HandoffSteps):
                         Diagnostic(sig.location, f"spec.signals.{sig.name}.type: {problem}")
                     )
             reaction = spec.on_violation
-            used = (
-                []
-                if reaction is None
-                else [
-                    (f"spec.onViolation.{part}.type", t)
-                    for part, t in (
-                        ("publish", reaction.publish and reaction.publish.msg_type),
-                        ("call", reaction.call and reaction.call.srv_type),
-                    )
-                    if t
-                ]
-            )
-            for where, msg_type in used:
+            used = [] if reaction is None else reaction.types()
+            for part, msg_type in used:
                 problem = self.type_check(msg_type)
                 if problem:
+                    where = f"spec.onViolation.{part}.type"
                     errors.append(Diagnostic(spec.location, f"{where}: {problem}"))
             if errors:
                 raise InputError(errors)
