@@ -2,7 +2,9 @@
 
 Exit codes: 0 no monitor violated, 1 a monitor was violated, 2 bad input (for
 ``check`` also: no message of any monitored topic read, or with ``--strict`` a
-monitored topic without a message).
+monitored topic without a message), 70 an internal error of edgerv's (any command: one
+line says what failed, ``--debug`` adds the traceback; never 0 or 1, which a CI job
+reads as verdicts). ``migrate`` adds 3 (unsettled).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import gc
 import os
 import sys
 import time
+import traceback
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import NoReturn
@@ -27,6 +30,7 @@ from edgerv.core.trace_set import TraceSet, expand
 from edgerv.report import print_table, to_json
 
 EXIT_OK, EXIT_VIOLATED, EXIT_INPUT = 0, 1, 2
+EXIT_INTERNAL = 70  # sysexits' EX_SOFTWARE: a fault of edgerv's, not of the input or the run
 
 
 class _Parser(argparse.ArgumentParser):
@@ -168,6 +172,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     a tenth of a check of 200,000 messages, and a check uses none of them."""
     parser = _Parser(prog="edgerv", description="Runtime verification for ROS 2 robots.")
     parser.add_argument("--version", action="version", version=f"edgerv {__version__}")
+    parser.add_argument("--debug", action="store_true", help=_DEBUG_HELP)
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     check = sub.add_parser(
         "check",
@@ -195,6 +200,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     add_budget_argument(check)
     check.set_defaults(func=cmd_check)
     if command == "check":
+        _add_debug(sub)
         return parser
 
     from edgerv.handler.main import add_arguments, run
@@ -237,23 +243,54 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     )
     orchestrate.add_arguments(orch)
     orch.set_defaults(func=orchestrate.run)
+    _add_debug(sub)
     return parser
+
+
+_DEBUG_HELP = "on an internal error, print its traceback (exit 70 all the same)"
+
+
+def _add_debug(sub: argparse._SubParsersAction[_Parser]) -> None:
+    """``--debug`` after the command too (``edgerv check --debug ...``); SUPPRESS keeps a
+    subcommand's default from overwriting ``edgerv --debug check``'s."""
+    for command in sub.choices.values():
+        command.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                             help=_DEBUG_HELP)  # fmt: skip
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """The command line (``argv``: its words, else the process's own)."""
     whole_process = argv is None
     argv = sys.argv[1:] if argv is None else list(argv)
-    args = build_parser(argv[0] if argv else None).parse_args(argv)
+    command = next((word for word in argv if not word.startswith("-")), None)
+    args = build_parser(command).parse_args(argv)
     try:
         code: int = args.func(args)
     except KeyboardInterrupt:
         return 130
     except BrokenPipeError:
         return EXIT_OK
+    except Exception as exc:  # a fault of edgerv's: never an exit code of the verdicts
+        code = internal_error(exc, args.debug)
     if whole_process and args.command == "check":
         _exit_now(code)
     return code
+
+
+def internal_error(exc: BaseException, debug: bool) -> int:
+    """Say in one line (the traceback with ``--debug``) that edgerv failed, not the
+    input or the run, and how to report it; :data:`EXIT_INTERNAL`."""
+    if debug:
+        traceback.print_exception(exc, file=sys.stderr)
+    what = str(exc).splitlines()[0][:200] if str(exc) else ""
+    again = "" if debug else "run it again with --debug and "
+    print(
+        f"edgerv: internal error: {type(exc).__name__}{': ' + what if what else ''}\n"
+        f"  a fault of edgerv's, not of your input: {again}report the traceback to edgerv's "
+        "developers with the command and its files (exit 70)",
+        file=sys.stderr,
+    )
+    return EXIT_INTERNAL
 
 
 def _exit_now(code: int) -> NoReturn:

@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 
-from edgerv.cli import main
+from edgerv.cli import EXIT_INTERNAL, main
 from edgerv.core import cdr, cdr_columns, msgtypes
 from edgerv.core.spot_worker import worker
 
@@ -100,10 +100,10 @@ def edgerv(*args: str | Path) -> subprocess.CompletedProcess[str]:
     """``edgerv ARGS`` run here, by edgerv.cli.main, as a new process would run it (the
     message types it knows start as the built-in ones; what it registers, its synthesis
     budget and a logging handler it adds are undone after): its exit code, stdout and
-    stderr, without the 0.3 s of a new interpreter and its imports. An exception that
-    would have been a traceback on stderr is raised to the test. The process itself
-    (os._exit, a crash, a terminal) is :func:`edgerv_process`'s."""
-    argv = [str(a) for a in args]
+    stderr, without the 0.3 s of a new interpreter and its imports. An internal error
+    (exit 70, its traceback by --debug) fails the test. The process itself (os._exit,
+    a crash, a terminal) is :func:`edgerv_process`'s."""
+    argv = ["--debug", *(str(a) for a in args)]
     out, err = io.StringIO(), io.StringIO()
     with (
         _as_a_new_process(),
@@ -118,7 +118,9 @@ def edgerv(*args: str | Path) -> subprocess.CompletedProcess[str]:
             else:  # as the interpreter does with sys.exit("text")
                 print(exc.code, file=sys.stderr)
                 code = 1
-    return subprocess.CompletedProcess(["edgerv", *argv], code, out.getvalue(), err.getvalue())
+    if code == EXIT_INTERNAL:
+        raise AssertionError(f"edgerv failed inside:\n{err.getvalue()}")
+    return subprocess.CompletedProcess(["edgerv", *argv[1:]], code, out.getvalue(), err.getvalue())
 
 
 def _forget_types() -> None:
@@ -414,3 +416,33 @@ def test_a_long_check_on_a_terminal_shows_events_per_second(monitors: Path, tmp_
     assert b"events/s" in shown and b"checking long.jsonl" in shown, shown
     assert b"it has /speed" in shown  # the topics without messages: what the trace has
     assert json.loads(out_path.read_text())["monitors"][0]["name"] == "speed-limit"
+
+
+FAULT = """
+import sys
+import edgerv.cli
+
+def fault(args):
+    raise RecursionError("maximum recursion depth exceeded")
+
+edgerv.cli.cmd_check = fault  # a fault of edgerv's own, as the crashes of issue 34 were
+sys.exit(edgerv.cli.main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize("debug", [[], ["--debug"]])
+def test_an_internal_error_exits_70_in_one_line_never_as_a_verdict(
+    monitors: Path, tmp_path: Path, debug: list[str]
+) -> None:
+    """A fault inside edgerv exits 70 (never 0 or 1, which a CI job reads as verdicts),
+    with one line saying so and how to report it; the traceback with --debug only."""
+    trace = write_jsonl(tmp_path / "t.jsonl", [("/running", 1, {"data": True})])
+    args = ["check", *debug, str(monitors), str(trace)]
+    done = subprocess.run([sys.executable, "-c", FAULT, *args], capture_output=True,
+                          text=True, timeout=120)  # fmt: skip
+    assert done.returncode == 70
+    assert "edgerv: internal error: RecursionError: maximum recursion depth exceeded" in (
+        done.stderr
+    )
+    assert ("Traceback (most recent call last)" in done.stderr) == bool(debug)
+    assert ("run it again with --debug" in done.stderr) != bool(debug)

@@ -43,7 +43,16 @@ from typing import Any, Literal, cast
 
 import spot
 
-from edgerv.core.bounded import BoundedKind, Obligation, as_past
+from edgerv.core.bounded import (
+    BoundedKind,
+    Cut,
+    Delays,
+    Obligation,
+    as_past,
+    cut_formula,
+    first_instant,
+    substitute,
+)
 from edgerv.core.diagnostics import Diagnostic, InputError, did_you_mean
 from edgerv.core.documents import MonitorSpec, Value
 from edgerv.core.msgtypes import ValueKind
@@ -475,34 +484,24 @@ class _Parser:
     def cut_future(self, out: list[_Out]) -> tuple[list[_Out], list[_Cut]]:
         """Take each time-bounded operator and its operands out of ``out``: each stands
         as a proposition ``fut<k>`` until :meth:`pastify_future` rewrites the formula.
-        The rightmost first, so that an operator inside another's operand is seen there."""
+        Innermost first: an operator nested in another's operand is a ``fut<k>`` there."""
         cuts: list[_Cut] = []
-        for i in reversed(range(len(out))):
+        while (found := _innermost_future(out)) is not None:
+            i, lo, hi = found
             o = out[i]
-            if o.role == "future":
-                lo, hi = i, _prefix_operand_end(out, i + 1)
-                spans = [out[i + 1 : hi]]
-            elif o.role == "futbin":
-                lo, hi = _operand_end(out, i, -1) + 1, _operand_end(out, i, +1)
-                spans = [out[lo:i], out[i + 1 : hi]]
-            else:
-                continue
-            inner = next((t for span in spans for t in span if t.text.startswith("fut")), None)
-            if inner is not None:
-                self.fail(o.start, o.end - o.start,
-                          f"a time-bounded operator inside the operand of {o.text}",
-                          "split the assertion into several monitors")  # fmt: skip
+            spans = [out[i + 1 : hi]] if o.role == "future" else [out[lo:i], out[i + 1 : hi]]
             name = f"fut{len(cuts)}"
             cuts.append(_Cut(name, o, spans))
             out = [*out[:lo], _Out(name, out[lo].start, out[hi - 1].end, "atom"), *out[hi:]]
         return out, cuts
 
     def pastify_future(self, formula: Any, cuts: list[_Cut]) -> Any:
-        """The formula with each time-bounded operator's obligations judged by a past
-        formula (edgerv.core.bounded). Each must stand under a top-level ``always``, as
-        ``always (P -> op)``, ``always (op)`` or ``always (!P | op)``, alone or in a
-        conjunction with others. Returns the new formula, or None on an error."""
-        by_name = {c.name: c for c in cuts}
+        """The formula with its time-bounded operators read by past formulas
+        (edgerv.core.bounded): under a top-level ``always``, ``always (P -> op)`` (alone
+        or in a conjunction) as the obligations it opens, reported where a failure
+        becomes certain; any other boolean combination of them, nested in one another,
+        by reading it with a delay of its horizon; outside ``always`` at the run's
+        first instant. Returns the new formula, or None on an error."""
         f = spot.formula
         if formula.kind() == spot.op_And:
             parts = [self.pastify_future(g, cuts) for g in formula]
@@ -510,8 +509,13 @@ class _Parser:
         used = _futures(formula)
         if not used:
             return formula
+        delays = self._delays(cuts)
+        if delays is None:
+            return None
+        if formula.is_boolean():
+            return self._at_first_instant(formula, delays, cuts)
         if formula.kind() != spot.op_G:
-            return self._bad_shape(by_name[used[0]])
+            return self._bad_place(formula, cuts)
         pieces = []
         for part in _conjuncts(formula[0]):
             names = _futures(part)
@@ -519,23 +523,123 @@ class _Parser:
                 pieces.append(self.pastify_future(part, cuts) if names else part)
                 continue
             shape = _antecedent(part, names[0])
-            cut = by_name[names[0]]
-            if len(names) > 1 or shape is None or _futures(shape):
-                return self._bad_shape(cut)
-            piece = self._judged(cut, shape)
-            if piece is None:
-                return None
-            pieces.append(piece)
+            cut = delays.cuts[names[0]]
+            if len(names) == 1 and shape is not None and not delays.names(cut_formula(cut)):
+                pieces.append(self._judged(self._cut_of(cuts, names[0]), shape))
+            elif part.is_boolean():
+                pieces.append(self._delayed(part, delays, cuts))
+            else:
+                return self._bad_place(part, cuts)
         return None if any(x is None for x in pieces) else f.G(f.And(pieces))
 
-    def _bad_shape(self, cut: _Cut) -> None:
-        op = cut.op
-        written = f"R {op.text}[a..b] Q" if op.role == "futbin" else f"{op.text}[a..b] Q"
-        operands = "P, R and Q" if op.role == "futbin" else "P and Q"
+    def _delays(self, cuts: list[_Cut]) -> Delays | None:
+        """The time-bounded operators with their operands as Spot formulas."""
+        table: dict[str, Cut] = {}
+        for cut in cuts:
+            op = cut.op
+            operands = []
+            for span in cut.spans:
+                text = " ".join(o.text for o in span)
+                parsed = spot.parse_infix_psl(text) if text.strip() else None
+                if parsed is None or parsed.format_errors(spot.ostringstream()):
+                    self.fail(op.start, op.end - op.start, f"'{op.text}' needs an operand")
+                    return None
+                if not parsed.f.is_boolean():
+                    self.fail(op.start, op.end - op.start,
+                              f"an untimed future operator inside the operand of {op.text}",
+                              "the operands of a time-bounded operator are atoms, boolean "
+                              "operators, past operators and time-bounded operators")  # fmt: skip
+                    return None
+                operands.append(parsed.f)
+            end = cut.spans[-1][-1].end if cut.spans[-1] else op.end
+            begin = cut.spans[0][0].start if cut.spans[0] else op.start
+            text = self.text[min(begin, op.start) : end]
+            assert op.window is not None  # a cut has its window (else an error before)
+            kind = cast(BoundedKind, op.text)
+            table[cut.name] = Cut(cut.name, kind, op.window, tuple(operands), text)
+        return Delays(table, self._new_past)
+
+    def _new_past(
+        self, kind: PastKind, operands: tuple[Any, ...], window: tuple[int, int], text: str
+    ) -> Any:
+        bit = len(self.atoms) + len(self.past)
+        funcs = tuple(compile_boolean(o) for o in operands)
+        self.past.append(PastOp(kind, bit, funcs, window, text))
+        return spot.formula.ap(f"p{bit}")
+
+    @staticmethod
+    def _cut_of(cuts: list[_Cut], name: str) -> _Cut:
+        return next(c for c in cuts if c.name == name)
+
+    def _until_nested(self, f: Any, delays: Delays, cuts: list[_Cut]) -> bool:
+        """Refuse (at its place) a time-bounded U or W nested in ``f`` (not yet read
+        with a delay); True if there is one."""
+        todo, seen = delays.names(f), set()
+        while todo:
+            name = todo.pop()
+            if name in seen:
+                continue
+            seen.add(name)
+            cut = delays.cuts[name]
+            if cut.kind in ("U", "W"):
+                op = self._cut_of(cuts, name).op
+                self.fail(op.start, op.end - op.start,
+                          f"a time-bounded {op.text} nested in a time-bounded operator, or "
+                          "beside one in a disjunction, is not supported yet",
+                          "time-bounded F and G nest in any way; a time-bounded U or W "
+                          "stands as always (P -> R U[a..b] Q) or at the top")  # fmt: skip
+                return True
+            todo.extend(m for o in cut.operands for m in delays.names(o))
+        return False
+
+    def _delayed(self, part: Any, delays: Delays, cuts: list[_Cut]) -> Any:
+        """``always (part)``'s piece: ``part`` read its horizon late, from the instant
+        the run is that old (no obligation opens before the run)."""
+        if self._until_nested(part, delays, cuts):
+            return None
+        horizon = delays.horizon(part)
+        try:
+            return spot.formula.Implies(delays.started(horizon), delays.at(part, horizon))
+        except PastError as exc:
+            return self._past_error(exc, delays.names(part)[0], cuts)
+
+    def _at_first_instant(self, formula: Any, delays: Delays, cuts: list[_Cut]) -> Any:
+        """A boolean combination of time-bounded operators at the top of the assertion,
+        each read at the run's first instant: as soon as it is certain when its operands
+        hold no other (:func:`bounded.first_instant`), else its horizon late."""
+
+        def read(ap: Any) -> Any:
+            name = ap.ap_name()
+            if name not in delays.cuts:
+                return None
+            cut = delays.cuts[name]
+            if not delays.names(cut_formula(cut)):
+                return first_instant(cut, delays)
+            if self._until_nested(ap, delays, cuts):
+                return spot.formula.tt()
+            h = delays.horizon(ap)
+            ready = delays.started(h)
+            late = spot.formula.And([ready, delays.at(ap, h)])
+            return spot.formula.U(spot.formula.Not(ready), late)
+
+        try:
+            return substitute(formula, read)
+        except PastError as exc:
+            return self._past_error(exc, delays.names(formula)[0], cuts)
+
+    def _past_error(self, exc: PastError, name: str, cuts: list[_Cut]) -> None:
+        op = self._cut_of(cuts, name).op
+        self.fail(op.start, op.end - op.start, str(exc))
+
+    def _bad_place(self, formula: Any, cuts: list[_Cut]) -> None:
+        op = self._cut_of(cuts, _futures(formula)[0]).op
         self.fail(op.start, op.end - op.start,
-                  f"a time-bounded {op.text} is supported as always (P -> {written})",
-                  f"{operands} without future operators, one time-bounded operator a "
-                  "conjunct; or write the deadline with age")  # fmt: skip
+                  f"a time-bounded {op.text} under an untimed future operator (X, F, G, U, "
+                  "W, R, M without a time bound, other than a top-level always) is not "
+                  "supported yet",
+                  "time-bounded operators combine with boolean connectives and each other, "
+                  "at the top of the assertion or under always; see docs/semantics.md, "
+                  "'Time'")  # fmt: skip
 
     def _judged(self, cut: _Cut, shape: Any) -> Any:
         """The past formula judging ``always (shape -> cut)``'s obligations."""
@@ -903,6 +1007,22 @@ def _prefix_operand_end(out: list[_Out], j: int) -> int:
     return min(j + 1, len(out))
 
 
+def _innermost_future(out: list[_Out]) -> tuple[int, int, int] | None:
+    """A time-bounded operator whose operands hold no other: its index and the span
+    ``[lo, hi)`` it and its operands take."""
+    for i in reversed(range(len(out))):
+        role = out[i].role
+        if role == "future":
+            lo, hi = i, _prefix_operand_end(out, i + 1)
+        elif role == "futbin":
+            lo, hi = _operand_end(out, i, -1) + 1, _operand_end(out, i, +1)
+        else:
+            continue
+        if not any(out[k].role in ("future", "futbin") for k in range(lo, hi) if k != i):
+            return i, lo, hi
+    return None
+
+
 def _innermost_past(out: list[_Out]) -> tuple[int, list[tuple[int, int]]] | None:
     """A past operator whose operands hold no other: its index and operand spans."""
     for i in reversed(range(len(out))):
@@ -1105,18 +1225,34 @@ def _samples(kind: ValueKind, constants: list[Value]) -> list[Value]:
     if kind == "string":
         strs = [c for c in constants if isinstance(c, str)]
         return [*strs, "\x00" + "".join(strs)]
-    nums = sorted({float(c) for c in constants if isinstance(c, int | float)})
-    if kind == "int":
+    numbers = [c for c in constants if isinstance(c, int | float) and not isinstance(c, bool)]
+    if kind == "int":  # exact: an integer constant may be beyond a float's range
         points: set[Value] = {0}
-        for c in nums:
-            points |= {math.floor(c) - 1, math.floor(c), math.ceil(c), math.ceil(c) + 1}
+        for c in numbers:
+            if isinstance(c, int):
+                points |= {c - 1, c, c + 1}
+            elif math.isfinite(c):  # an infinite or NaN one compares alike with every int
+                points |= {math.floor(c) - 1, math.floor(c), math.ceil(c), math.ceil(c) + 1}
         return sorted(points)
+    nums = sorted({f for f in map(_nearest_float, numbers) if not math.isnan(f)})
     points_f: set[float] = {0.0, -math.inf, math.inf}
     for a, b in itertools.pairwise(nums):
-        points_f.add((a + b) / 2)
-    for c in nums:
-        points_f |= {c, c - 1.0, c + 1.0}
+        middle = (a + b) / 2
+        if not math.isfinite(middle):  # a + b overflowed, or an infinity is a bound
+            middle = a / 2 + b / 2
+        if math.isfinite(middle):
+            points_f.add(middle)
+    for c in nums:  # each side of it, also where adding 1.0 changes nothing
+        points_f |= {c, c - 1.0, c + 1.0, math.nextafter(c, -math.inf), math.nextafter(c, math.inf)}
     return [*sorted(points_f), math.nan]
+
+
+def _nearest_float(c: int | float) -> float:
+    """``c`` as a float; an integer beyond a float's range as the infinity of its sign."""
+    try:
+        return float(c)
+    except OverflowError:
+        return math.inf if c > 0 else -math.inf
 
 
 def feasible_letters(spec: MonitorSpec, atoms: Sequence[Atom]) -> Any:

@@ -35,12 +35,13 @@ The past forms, with ``once``/``since`` over closed windows of integer nanosecon
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import spot
 
-from edgerv.core.past import PastOp, compile_boolean
+from edgerv.core.past import PastKind, PastOp, compile_boolean
 
 BoundedKind = Literal["F", "G", "U", "W"]
 
@@ -89,3 +90,176 @@ def as_past(ob: Obligation, first_bit: int) -> tuple[Any, list[PastOp]]:
             waiting = f.Or([early, waiting])
         parts.append(f.Not(f.And([f.Not(ob.r), waiting])))
     return f.And(parts), ops
+
+
+# -- any nesting of F and G, at the first instant or under always ----------------------
+
+NewPast = Callable[[PastKind, tuple[Any, ...], tuple[int, int], str], Any]
+
+
+@dataclass(frozen=True)
+class Cut:
+    """A time-bounded operator taken out of the assertion: its proposition ``name``
+    (``fut<k>``) stands for it; ``operands`` are Spot boolean formulas over the
+    placeholders and the names of the operators nested in them (``(Q,)``, ``(R, Q)``)."""
+
+    name: str
+    kind: BoundedKind
+    window: tuple[int, int]
+    operands: tuple[Any, ...]
+    text: str
+
+
+class Delays:
+    """Time-bounded formulas read as past formulas with a delay (Maler, Nickovic and
+    Pnueli): :meth:`at` gives, for a boolean formula ``f`` over placeholders and nested
+    time-bounded operators, a formula over placeholders true at an instant t exactly
+    where ``f`` is true at ``t - delay``, for any delay of at least ``f``'s horizon
+    (how far ahead its truth looks). Each past operator it needs is made by
+    ``new_past`` (which numbers it and returns its proposition), once per operand and
+    window. Walks the formulas with explicit stacks: any depth."""
+
+    def __init__(self, cuts: dict[str, Cut], new_past: NewPast) -> None:
+        self.cuts = cuts
+        self.new_past = new_past
+        self._made: dict[tuple[str, str, tuple[int, int]], Any] = {}
+        self._horizons: dict[str, int] = {}
+
+    def past(self, kind: PastKind, operand: Any, window: tuple[int, int], text: str) -> Any:
+        key = (kind, str(operand), window)
+        if key not in self._made:
+            self._made[key] = self.new_past(kind, (operand,), window, text)
+        return self._made[key]
+
+    def names(self, f: Any) -> list[str]:
+        return sorted(
+            n for n in (ap.ap_name() for ap in spot.atomic_prop_collect(f)) if n in self.cuts
+        )
+
+    def horizon(self, f: Any) -> int:
+        """How far ahead of an instant ``f``'s truth there looks (ns)."""
+        return max((self.cut_horizon(n) for n in self.names(f)), default=0)
+
+    def cut_horizon(self, name: str) -> int:
+        """The horizon of a time-bounded operator: its window's end plus its operands'."""
+        todo = [name]
+        while todo:  # inner ones first, without recursion
+            n = todo[-1]
+            inner = [m for o in self.cuts[n].operands for m in self.names(o)]
+            missing = [m for m in inner if m not in self._horizons]
+            if missing:
+                todo.extend(missing)
+                continue
+            todo.pop()
+            self._horizons[n] = self.cuts[n].window[1] + max(
+                (self._horizons[m] for m in inner), default=0
+            )
+        return self._horizons[name]
+
+    def started(self, age: int) -> Any:
+        """True from the instant the monitor's run is ``age`` old (its first step then)."""
+        if age == 0:
+            return spot.formula.tt()
+        return self.past("once", spot.formula.tt(), (age, MAX_WINDOW), f"the run {age} ns old")
+
+    def at(self, f: Any, delay: int) -> Any:
+        """``f`` read ``delay`` ago (``delay`` >= :meth:`horizon` of ``f``)."""
+        if not self.names(f):
+            return f if delay == 0 else self.past("once", f, (delay, delay), str(f))
+        built: dict[int, Any] = {}
+        stack = [(f, False)]
+        while stack:
+            g, expanded = stack.pop()
+            if g.id() in built:
+                continue
+            if g.kind() == spot.op_ap and g.ap_name() in self.cuts:
+                built[g.id()] = self._cut_at(g.ap_name(), delay)
+            elif not self.names(g):
+                built[g.id()] = g if delay == 0 else self.at(g, delay)
+            elif not expanded:
+                stack.append((g, True))
+                stack.extend((h, False) for h in g)
+            else:
+                built[g.id()] = _same_op(g, [built[h.id()] for h in g])
+        return built[f.id()]
+
+    def _cut_at(self, name: str, delay: int) -> Any:
+        cut = self.cuts[name]
+        (q,) = cut.operands  # F and G (U and W take another way: see Delays' callers)
+        lo, hi = cut.window
+        inner = self.horizon(q)
+        operand = self.at(q, inner)
+        window = (delay - hi - inner, delay - lo - inner)
+        if window == (0, 0):
+            return operand
+        kind: PastKind = "once" if cut.kind == "F" else "historically"
+        return self.past(kind, operand, window, cut.text)
+
+
+def cut_formula(cut: Cut) -> Any:
+    """Its operands in one formula (to look for operators nested in them)."""
+    return spot.formula.And(list(cut.operands))
+
+
+MAX_WINDOW = 2**63 - 1  # ns: a window reaching back to the run's first step
+
+
+def _same_op(g: Any, parts: list[Any]) -> Any:
+    """A boolean node of Spot's like ``g`` over new children ``parts``."""
+    f, k = spot.formula, g.kind()
+    if k == spot.op_Not:
+        return f.Not(parts[0])
+    if k == spot.op_And:
+        return f.And(parts)
+    if k == spot.op_Or:
+        return f.Or(parts)
+    if k == spot.op_Xor:
+        return f.Xor(parts[0], parts[1])
+    if k == spot.op_Implies:
+        return f.Implies(parts[0], parts[1])
+    if k == spot.op_Equiv:
+        return f.Equiv(parts[0], parts[1])
+    raise ValueError(f"'{g}' is not a boolean formula")
+
+
+def substitute(f: Any, replace: Callable[[Any], Any]) -> Any:
+    """``f`` with each atomic proposition ``ap`` for which ``replace(ap)`` is not None
+    replaced by that; the boolean nodes above them rebuilt (an explicit stack: any depth).
+    Only boolean nodes are walked: ``f`` is a boolean formula."""
+    built: dict[int, Any] = {}
+    stack = [(f, False)]
+    while stack:
+        g, expanded = stack.pop()
+        if g.id() in built:
+            continue
+        if g.kind() == spot.op_ap:
+            new = replace(g)
+            built[g.id()] = g if new is None else new
+        elif g.is_boolean() and not any(True for _ in g):
+            built[g.id()] = g  # true, false
+        elif not expanded:
+            stack.append((g, True))
+            stack.extend((h, False) for h in g)
+        else:
+            built[g.id()] = _same_op(g, [built[h.id()] for h in g])
+    return built[f.id()]
+
+
+def first_instant(cut: Cut, delays: Delays) -> Any:
+    """An LTL formula over placeholders true at a run's first step exactly where ``cut``
+    holds at the run's first instant, decided as early as it is certain: a time-bounded
+    operator at the top of an assertion, as STL reads it. Its operands hold no other
+    time-bounded operator (those take :meth:`Delays.at`, read when the run is their
+    horizon old)."""
+    f = spot.formula
+    lo, hi = cut.window
+    opened, deadline = delays.started(lo), delays.started(hi)
+    *r, q = cut.operands
+    if cut.kind == "F":  # Q by the deadline (a Q at the deadline's instant counts)
+        return f.U(f.Not(deadline), f.And([opened, q]))
+    if cut.kind == "G":  # Q from lo to hi, both included: decided 1 ns after hi
+        return f.W(f.Implies(opened, q), delays.started(hi + 1))
+    if cut.kind == "U":  # R until Q, Q within the window
+        return f.U(f.And([r[0], f.Not(deadline)]), f.And([opened, q]))
+    # W: as U, or R all the way through hi
+    return f.W(r[0], f.Or([f.And([opened, q]), delays.started(hi + 1)]))

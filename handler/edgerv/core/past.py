@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any, Literal
 
 import spot
@@ -41,39 +42,90 @@ class PastOp:
     text: str = ""
 
 
+MAX_TABLE_BITS = 16  # an operand reads placeholders p0..p15 at most (synthesis' limit)
+
+
 def compile_boolean(formula: Any) -> BitsFunction:
-    """A Spot boolean formula over placeholders ``p<i>`` as a function of the bits."""
+    """A Spot boolean formula over placeholders ``p<i>`` as a function of the bits: a
+    lookup in its truth table over the bits up to the highest it reads.
+
+    The table is built bottom-up over Spot's tree with an explicit stack, as integers
+    of one bit per letter, so an operand nested thousands deep is no deeper a
+    computation (no recursion, no generated source); raises :class:`PastError` for a
+    formula that is not boolean over placeholders, or reads more than
+    :data:`MAX_TABLE_BITS` of them."""
     if not formula.is_boolean():
         raise PastError(f"'{formula}' is not a boolean formula")
-    source = _python(formula)  # only bit tests and boolean operators, from Spot's tree
-    code = compile(f"lambda b: bool({source})", "<past operand>", "eval")
-    return eval(code, {"__builtins__": {"bool": bool}})  # type: ignore[no-any-return]
+    table = _truth_table(str(formula))
+    mask = len(table) - 1
+    return lambda b: table[b & mask]
 
 
-def _python(f: Any) -> str:
-    k = f.kind()
-    if k == spot.op_tt:
-        return "True"
-    if k == spot.op_ff:
-        return "False"
-    if k == spot.op_ap:
-        name = f.ap_name()
+@lru_cache(maxsize=1024)
+def _truth_table(text: str) -> tuple[bool, ...]:
+    """The truth of the boolean formula ``text`` for each letter ``0 .. 2^n - 1``, n one
+    more than the highest placeholder it reads (monitors with one operand share it)."""
+    formula = spot.formula(text)
+    highest = -1
+    for ap in spot.atomic_prop_collect(formula):
+        name = ap.ap_name()
         if not (name.startswith("p") and name[1:].isdigit()):
             raise PastError(f"unknown proposition '{name}'")
-        return f"(b >> {int(name[1:])} & 1)"
-    parts = [_python(g) for g in f]
+        highest = max(highest, int(name[1:]))
+    if highest >= MAX_TABLE_BITS:
+        raise PastError(
+            f"it reads placeholder p{highest}: at most {MAX_TABLE_BITS} atoms and past or "
+            "time-bounded operators are supported"
+        )
+    size = 1 << (highest + 1)
+    ones = (1 << size) - 1
+    value: dict[int, int] = {}  # a subformula's id: its truth table (bit j: letter j)
+    stack = [(formula, False)]
+    while stack:
+        f, children_done = stack.pop()
+        if f.id() in value:
+            continue
+        kids = list(f)
+        if not children_done and kids:
+            stack.append((f, True))
+            stack.extend((g, False) for g in kids if g.id() not in value)
+            continue
+        value[f.id()] = _combine(f, [value[g.id()] for g in kids], size, ones)
+    table = value[formula.id()]
+    bits = format(table, f"0{size}b")[::-1]  # bit j of the table is letter j
+    return tuple(c == "1" for c in bits)
+
+
+def _combine(f: Any, parts: list[int], size: int, ones: int) -> int:
+    """The truth table of ``f`` from its children's (``parts``) over ``size`` letters."""
+    k = f.kind()
+    if k == spot.op_tt:
+        return ones
+    if k == spot.op_ff:
+        return 0
+    if k == spot.op_ap:
+        i = int(f.ap_name()[1:])
+        period = 1 << (i + 1)  # letters with bit i set: the upper half of each period
+        block = ((1 << (1 << i)) - 1) << (1 << i)
+        return block * (ones // ((1 << period) - 1))
     if k == spot.op_Not:
-        return f"(not {parts[0]})"
+        return ones ^ parts[0]
     if k == spot.op_And:
-        return "(" + " and ".join(parts) + ")"
+        out = ones
+        for part in parts:
+            out &= part
+        return out
     if k == spot.op_Or:
-        return "(" + " or ".join(parts) + ")"
+        out = 0
+        for part in parts:
+            out |= part
+        return out
     if k == spot.op_Xor:
-        return f"(bool({parts[0]}) != bool({parts[1]}))"
+        return parts[0] ^ parts[1]
     if k == spot.op_Implies:
-        return f"((not {parts[0]}) or {parts[1]})"
+        return (ones ^ parts[0]) | parts[1]
     if k == spot.op_Equiv:
-        return f"(bool({parts[0]}) == bool({parts[1]}))"
+        return ones ^ (parts[0] ^ parts[1])
     raise PastError(f"'{f}' is not a boolean formula")
 
 
