@@ -45,6 +45,12 @@ ASSERTIONS = [
     "always (a -> F[2ns..7ns] (x > 6))",
     "always ((x > 5) -> (a U[0ns..6ns] (x < 3)))",
     "always (a -> ((x < 8) W[1ns..5ns] !a))",
+    # nested: read late, their windows (an until's too) partly filled at the cut
+    "always (a -> F[0ns..6ns] ((x > 5) & G[0ns..3ns] (x > 4)))",
+    "always (F[0ns..1ns] (a & x > 5) | F[1ns..2ns] (x < 2))",
+    "always ((x > 7) -> (((a & x > 1) U[1ns..3ns] (x < 3)) | G[0ns..2ns] !a))",
+    "always (a -> ((x > 3) U F[0ns..3ns] (x < 2)))",
+    "always (!a -> ((x > 8) R[0ns..3ns] (a | x > 4)))",
 ]
 
 

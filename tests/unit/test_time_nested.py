@@ -20,9 +20,13 @@ import pytest
 import spot
 
 from helpers import compiled, events, run, verdicts
+from reference import ReferenceMonitor
 
 SIGNALS = {name: "bool" for name in "abc"}
-Formula = tuple[Any, ...]  # ("atom", name) | ("not", f) | ("and"|"or", f, g) | ("F"|"G", lo, hi, f)
+# ("atom", name) | ("not", f) | ("and"|"or", f, g) | ("F"|"G", lo, hi, f)
+# | ("U"|"W"|"R"|"M", lo, hi, f, g)
+Formula = tuple[Any, ...]
+BINARY = ("U", "W", "R", "M")
 
 
 def text(f: Formula) -> str:
@@ -33,6 +37,8 @@ def text(f: Formula) -> str:
         return f"!({text(f[1])})"
     if kind in ("and", "or"):
         return f"({text(f[1])}) {'&' if kind == 'and' else '|'} ({text(f[2])})"
+    if kind in BINARY:
+        return f"({text(f[3])}) {kind}[{f[1]}ns..{f[2]}ns] ({text(f[4])})"
     return f"{kind}[{f[1]}ns..{f[2]}ns] ({text(f[3])})"
 
 
@@ -44,7 +50,7 @@ def horizon(f: Formula) -> int:
         return horizon(f[1])
     if kind in ("and", "or"):
         return max(horizon(f[1]), horizon(f[2]))
-    return int(f[2]) + horizon(f[3])
+    return int(f[2]) + max(horizon(g) for g in f[3:])
 
 
 def timed(f: Formula) -> int:
@@ -56,7 +62,7 @@ def timed(f: Formula) -> int:
         return timed(f[1])
     if kind in ("and", "or"):
         return timed(f[1]) + timed(f[2])
-    return 1 + timed(f[3])
+    return 1 + sum(timed(g) for g in f[3:])
 
 
 def evaluator(rows: list[tuple[str, int, bool]]) -> Callable[[Formula, int], bool]:
@@ -82,7 +88,17 @@ def evaluator(rows: list[tuple[str, int, bool]]) -> Callable[[Formula, int], boo
         if kind == "or":
             return at(f[1], t) or at(f[2], t)
         window = range(t + f[1], t + f[2] + 1)
-        return (any if kind == "F" else all)(at(f[3], u) for u in window)
+        if kind in ("F", "G"):
+            return (any if kind == "F" else all)(at(f[3], u) for u in window)
+        lo, hi, left, right = f[1], f[2], f[3], f[4]
+        if kind in ("R", "M"):  # R is !(!f U !g), M is !(!f W !g)
+            dual = "U" if kind == "R" else "W"
+            return not at((dual, lo, hi, ("not", left), ("not", right)), t)
+        # edgerv's until: g at some t' of the window, f at every instant of [t, t')
+        until = any(at(right, u) and all(at(left, v) for v in range(t, u)) for u in window)
+        if kind == "W":  # or f at every instant of [t, t + hi]
+            return until or all(at(left, v) for v in range(t, t + hi + 1))
+        return until
 
     return at
 
@@ -90,13 +106,16 @@ def evaluator(rows: list[tuple[str, int, bool]]) -> Callable[[Formula, int], boo
 def random_formula(rng: random.Random, depth: int) -> Formula:
     if depth == 0 or rng.random() < 0.2:
         return ("atom", rng.choice("abc"))
-    kind = rng.choice(["not", "and", "or", "F", "G", "F", "G"])
+    kind = rng.choice(["not", "and", "or", "F", "G", "F", "G", *BINARY])
     if kind == "not":
         return ("not", random_formula(rng, depth - 1))
     if kind in ("and", "or"):
         return (kind, random_formula(rng, depth - 1), random_formula(rng, depth - 1))
     lo = rng.randint(0, 3)
-    return (kind, lo, lo + rng.randint(0, 3), random_formula(rng, depth - 1))
+    hi = lo + rng.randint(0, 3)
+    if kind in BINARY:
+        return (kind, lo, hi, random_formula(rng, depth - 1), random_formula(rng, depth - 1))
+    return (kind, lo, hi, random_formula(rng, depth - 1))
 
 
 def random_run(rng: random.Random, end: int) -> list[tuple[str, int, bool]]:
@@ -141,7 +160,7 @@ def nested_bodies(seed: int, count: int) -> list[Formula]:
     return out
 
 
-@pytest.mark.parametrize("body", nested_bodies(7, 60), ids=text)
+@pytest.mark.parametrize("body", nested_bodies(7, 80), ids=text)
 def test_nested_under_always_fail_their_horizon_after_the_first_failure(body: Formula) -> None:
     rng = random.Random(text(body))
     h = horizon(body)
@@ -163,12 +182,12 @@ def top_level(seed: int, count: int) -> list[Formula]:
     out: list[Formula] = []
     while len(out) < count:
         f = random_formula(rng, 3)
-        if f[0] in ("F", "G") and timed(f[3]) >= 1 and horizon(f) <= 8:
+        if f[0] in ("F", "G", *BINARY) and timed(f) >= 2 and horizon(f) <= 8:
             out.append(f)
     return out
 
 
-@pytest.mark.parametrize("formula", top_level(11, 40), ids=text)
+@pytest.mark.parametrize("formula", top_level(11, 50), ids=text)
 def test_nested_at_the_top_are_read_at_the_first_instant(formula: Formula) -> None:
     rng = random.Random(text(formula))
     h = horizon(formula)
@@ -206,10 +225,15 @@ def first_certain(kind: str, lo: int, hi: int, rows: list[tuple[str, int, bool]]
             return "violated", t
         if kind == "W" and t == hi + 1:
             return "satisfied", t
+        if kind in ("R", "M"):  # the dual of U (W) over !a, !b: the verdicts swapped
+            dual = first_certain("U" if kind == "R" else "W", lo, hi,
+                                 [(x, s, not v) for x, s, v in rows], end)  # fmt: skip
+            swap = {"satisfied": "violated", "violated": "satisfied"}
+            return None if dual is None else (swap[dual[0]], dual[1])
     return None
 
 
-@pytest.mark.parametrize("kind", ["F", "G", "U", "W"])
+@pytest.mark.parametrize("kind", ["F", "G", "U", "W", "R", "M"])
 def test_one_operator_at_the_top_is_decided_as_soon_as_it_is_certain(kind: str) -> None:
     rng = random.Random(kind)
     for _ in range(80):
@@ -218,7 +242,7 @@ def test_one_operator_at_the_top_is_decided_as_soon_as_it_is_certain(kind: str) 
         end = rng.randint(0, 14)
         rows = random_run(rng, end)
         bound = f"{kind}[{lo}ns..{hi}ns]"
-        formula = f"a {bound} b" if kind in ("U", "W") else f"{bound} b"
+        formula = f"a {bound} b" if kind in BINARY else f"{bound} b"
         m = compiled(formula, SIGNALS, onVerdict="halt")
         (result,) = run([m], events(rows))
         got = [(v, stamp) for v, _, stamp in verdicts(result)]
@@ -248,3 +272,70 @@ def test_top_level_deadline_is_satisfied_when_its_answer_comes() -> None:
     m = compiled("F[0..1s] b", SIGNALS, onVerdict="halt")
     rows = [("/a", 0, False), ("/b", 0, False), ("/c", 0, False), ("/b", 600 * MS, True)]
     assert [(v, s) for v, _, s in verdicts(run([m], events(rows))[0])] == [("satisfied", 600 * MS)]
+
+
+# -- under untimed temporal operators ----------------------------------------------------
+
+TEMPLATES = {  # over three formulas x, y, z holding time-bounded operators
+    "always (({x}) -> (({y}) U ({z})))": "G(x -> (y U z))",
+    "always (({x}) -> (({y}) W ({z})))": "G(x -> (y W z))",
+    "({x}) U ({z})": "x U z",
+    "F (({x}) & ({y}))": "F(x & y)",
+    "(({x}) W ({y})) | F ({z})": "(x W y) | F z",
+    "always (({x}) -> F ({z}))": "G(x -> F z)",
+}
+
+
+def triples(seed: int, count: int) -> list[tuple[str, Formula, Formula, Formula]]:
+    rng = random.Random(seed)
+    out: list[tuple[str, Formula, Formula, Formula]] = []
+    while len(out) < count:
+        xyz = tuple(random_formula(rng, 2) for _ in range(3))
+        distinct = len({text(f) for f in xyz}) == 3
+        if distinct and all(timed(f) for f in xyz) and sum(horizon(f) for f in xyz) <= 10:
+            out.append((rng.choice(sorted(TEMPLATES)), *xyz))
+    return out
+
+
+@pytest.mark.parametrize(
+    ("template", "x", "y", "z"), triples(5, 40), ids=lambda v: v if isinstance(v, str) else text(v)
+)
+def test_under_untimed_operators_the_letters_are_read_their_horizon_late(
+    template: str, x: Formula, y: Formula, z: Formula
+) -> None:
+    """Untimed operators over time-bounded ones range over the instants at which one of
+    their operands changes (their steps), read H late: the LTL3 verdicts of the
+    independent reference over the operands' truths at those instants, each reported H
+    after its instant. The operands are free propositions to both (a verdict that only
+    their meaning makes certain is not reported early)."""
+    assertion = template.format(x=text(x), y=text(y), z=text(z))
+    reference = ReferenceMonitor(spot.formula(TEMPLATES[template]), ["x", "y", "z"], halt=True)
+    used = [f for name, f in zip("xyz", (x, y, z), strict=True) if "{" + name + "}" in template]
+    h = max(horizon(f) for f in used)
+    rng = random.Random(assertion)
+    m = compiled(assertion, SIGNALS, onVerdict="halt")
+    for _ in range(4):
+        end = rng.randint(h, 24)
+        rows = random_run(rng, end)
+        at = evaluator(rows)
+        instants, letters = [], []
+        for u in range(0, end - h + 1):
+            letter = sum(1 << i for i, f in enumerate((x, y, z)) if at(f, u))
+            if not letters or letter != letters[-1]:
+                instants.append(u)
+                letters.append(letter)
+        expected = [(v, instants[k - 1] + h) for v, k in reference.run(letters)]
+        got = [(v, stamp) for v, _, stamp in verdicts(run([m], events(rows))[0])]
+        assert got == expected, (assertion, rows)
+
+
+def test_an_assertion_about_the_first_instant_is_warned_about_with_reset() -> None:
+    """Reset restarts the automaton, not the run's clock: a second reading of the first
+    instant's window would come at each step after the verdict."""
+    warned = compiled("F[0..1s] b", SIGNALS)  # onVerdict: reset, the default
+    assert [w.message for w in warned.parsed.warnings] == [
+        "this assertion is read at the run's first instant (a time-bounded operator outside "
+        "always): after its verdict, reset reads it again at each step, its window long past"
+    ]
+    assert compiled("F[0..1s] b", SIGNALS, onVerdict="halt").parsed.warnings == ()
+    assert compiled("always (a -> F[0..1s] b)", SIGNALS).parsed.warnings == ()

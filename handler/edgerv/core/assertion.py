@@ -111,7 +111,7 @@ _TEMPORAL_BINOPS = {"U", "W", "R", "M"}
 _SPOT_WORDS = {"G", "F", "X", "U", "W", "R", "M", "xor", "true", "false"}
 _PSL_WORDS = {"always", "never", "eventually", "next", "next_e", "next_a", "until", "before"}
 _PAST_UNARY = {"once", "historically", "prev"}
-_TIMED_UNTIL = {"U": "U", "until!": "U", "W": "W", "until": "W"}  # with a time bound
+_TIMED_UNTIL = {"U": "U", "until!": "U", "W": "W", "until": "W", "R": "R", "M": "M"}  # timed
 _TAKES_BRACKET = {"G", "F", "X", "next", "next!", "next_e", "next_e!", "next_a", "next_a!",
                   "once", "historically", "since"}  # fmt: skip
 _NUMBER = re.compile(r"(\d+\.?\d*(?:[eE][+-]?\d+)?|\.\d+(?:[eE][+-]?\d+)?)")
@@ -333,6 +333,7 @@ class _Parser:
         self.atoms: list[Atom] = []
         self.atom_index: dict[tuple[Any, ...], int] = {}
         self.past: list[PastOp] = []
+        self.anchored = False  # a time-bounded operator read at the run's first instant
 
     def fail(self, start: int, length: int, message: str, hint: str | None = None) -> None:
         loc = self.spec.locate_assertion(start, length)
@@ -476,9 +477,10 @@ class _Parser:
         self.fail(
             start,
             length,
-            "a time bound here (on R, M or a SERE) is not supported yet",
-            "write a deadline with F[a..b], G[a..b] or U[a..b] under always, or with age: "
-            "always (go -> (age(go) < 500ms until done)); see docs/semantics.md, 'Time'",
+            "a time bound here (on a SERE) is not supported yet",
+            "time bounds go on F, G, U, W, R and M (F[0..500ms] f, a U[0..1s] b), or write "
+            "the deadline with age: always (go -> (age(go) < 500ms until done)); see "
+            "docs/semantics.md, 'Time'",
         )
 
     def cut_future(self, out: list[_Out]) -> tuple[list[_Out], list[_Cut]]:
@@ -515,7 +517,7 @@ class _Parser:
         if formula.is_boolean():
             return self._at_first_instant(formula, delays, cuts)
         if formula.kind() != spot.op_G:
-            return self._bad_place(formula, cuts)
+            return self._late(formula, delays, cuts)
         pieces = []
         for part in _conjuncts(formula[0]):
             names = _futures(part)
@@ -524,12 +526,11 @@ class _Parser:
                 continue
             shape = _antecedent(part, names[0])
             cut = delays.cuts[names[0]]
-            if len(names) == 1 and shape is not None and not delays.names(cut_formula(cut)):
+            simple = not delays.names(cut_formula(cut)) and cut.kind in ("F", "G", "U", "W")
+            if len(names) == 1 and shape is not None and simple:
                 pieces.append(self._judged(self._cut_of(cuts, names[0]), shape))
-            elif part.is_boolean():
-                pieces.append(self._delayed(part, delays, cuts))
             else:
-                return self._bad_place(part, cuts)
+                pieces.append(self._delayed(part, delays, cuts))
         return None if any(x is None for x in pieces) else f.G(f.And(pieces))
 
     def _delays(self, cuts: list[_Cut]) -> Delays | None:
@@ -560,46 +561,31 @@ class _Parser:
         return Delays(table, self._new_past)
 
     def _new_past(
-        self, kind: PastKind, operands: tuple[Any, ...], window: tuple[int, int], text: str
+        self,
+        kind: PastKind,
+        operands: tuple[Any, ...],
+        window: tuple[int, int],
+        text: str,
+        delay: int,
     ) -> Any:
         bit = len(self.atoms) + len(self.past)
         funcs = tuple(compile_boolean(o) for o in operands)
-        self.past.append(PastOp(kind, bit, funcs, window, text))
+        self.past.append(PastOp(kind, bit, funcs, window, text, delay))
         return spot.formula.ap(f"p{bit}")
 
     @staticmethod
     def _cut_of(cuts: list[_Cut], name: str) -> _Cut:
         return next(c for c in cuts if c.name == name)
 
-    def _until_nested(self, f: Any, delays: Delays, cuts: list[_Cut]) -> bool:
-        """Refuse (at its place) a time-bounded U or W nested in ``f`` (not yet read
-        with a delay); True if there is one."""
-        todo, seen = delays.names(f), set()
-        while todo:
-            name = todo.pop()
-            if name in seen:
-                continue
-            seen.add(name)
-            cut = delays.cuts[name]
-            if cut.kind in ("U", "W"):
-                op = self._cut_of(cuts, name).op
-                self.fail(op.start, op.end - op.start,
-                          f"a time-bounded {op.text} nested in a time-bounded operator, or "
-                          "beside one in a disjunction, is not supported yet",
-                          "time-bounded F and G nest in any way; a time-bounded U or W "
-                          "stands as always (P -> R U[a..b] Q) or at the top")  # fmt: skip
-                return True
-            todo.extend(m for o in cut.operands for m in delays.names(o))
-        return False
-
     def _delayed(self, part: Any, delays: Delays, cuts: list[_Cut]) -> Any:
         """``always (part)``'s piece: ``part`` read its horizon late, from the instant
         the run is that old (no obligation opens before the run)."""
-        if self._until_nested(part, delays, cuts):
+        if not part.is_boolean() and not self._steps_free(part, cuts):
             return None
         horizon = delays.horizon(part)
         try:
-            return spot.formula.Implies(delays.started(horizon), delays.at(part, horizon))
+            read = delays.at(part, horizon) if part.is_boolean() else delays.ltl(part, horizon)
+            return spot.formula.Implies(delays.started(horizon), read)
         except PastError as exc:
             return self._past_error(exc, delays.names(part)[0], cuts)
 
@@ -615,31 +601,49 @@ class _Parser:
             cut = delays.cuts[name]
             if not delays.names(cut_formula(cut)):
                 return first_instant(cut, delays)
-            if self._until_nested(ap, delays, cuts):
-                return spot.formula.tt()
             h = delays.horizon(ap)
             ready = delays.started(h)
             late = spot.formula.And([ready, delays.at(ap, h)])
             return spot.formula.U(spot.formula.Not(ready), late)
 
+        self.anchored = True
         try:
             return substitute(formula, read)
         except PastError as exc:
             return self._past_error(exc, delays.names(formula)[0], cuts)
 
+    def _steps_free(self, formula: Any, cuts: list[_Cut]) -> bool:
+        """Untimed operators over time-bounded ones range over the instants their
+        operands change at, read late: X, a step count (F[1..3]) or a SERE, which count
+        steps, have no such reading. Refused at the time-bounded operator; False then."""
+        if formula.is_syntactic_stutter_invariant():
+            return True
+        op = self._cut_of(cuts, _futures(formula)[0]).op
+        self.fail(op.start, op.end - op.start,
+                  f"a time-bounded {op.text} beside X, a step count or a SERE, which count "
+                  "steps: not supported",
+                  "bound the step in time instead: X f as F[0..100ms] f, or split the "
+                  "assertion into several monitors")  # fmt: skip
+        return False
+
     def _past_error(self, exc: PastError, name: str, cuts: list[_Cut]) -> None:
         op = self._cut_of(cuts, name).op
         self.fail(op.start, op.end - op.start, str(exc))
 
-    def _bad_place(self, formula: Any, cuts: list[_Cut]) -> None:
-        op = self._cut_of(cuts, _futures(formula)[0]).op
-        self.fail(op.start, op.end - op.start,
-                  f"a time-bounded {op.text} under an untimed future operator (X, F, G, U, "
-                  "W, R, M without a time bound, other than a top-level always) is not "
-                  "supported yet",
-                  "time-bounded operators combine with boolean connectives and each other, "
-                  "at the top of the assertion or under always; see docs/semantics.md, "
-                  "'Time'")  # fmt: skip
+    def _late(self, formula: Any, delays: Delays, cuts: list[_Cut]) -> Any:
+        """An assertion whose untimed temporal operators hold time-bounded ones, not
+        under a top-level always: its letters read its horizon H late, from the instant
+        the run is H old (so its first step is the run's first instant, read late)."""
+        if not self._steps_free(formula, cuts):
+            return None
+        self.anchored = True
+        horizon = delays.horizon(formula)
+        try:
+            ready = delays.started(horizon)
+            late = spot.formula.And([ready, delays.ltl(formula, horizon)])
+            return spot.formula.U(spot.formula.Not(ready), late)
+        except PastError as exc:
+            return self._past_error(exc, delays.names(formula)[0], cuts)
 
     def _judged(self, cut: _Cut, shape: Any) -> Any:
         """The past formula judging ``always (shape -> cut)``'s obligations."""
@@ -1177,6 +1181,17 @@ def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
     atoms = tuple(p.atoms)
     constraint = feasible_letters(spec, atoms)
     warnings = _vacuity_warnings(spec, formula, constraint)  # past placeholders range free
+    if p.anchored and spec.on_verdict == "reset":
+        warnings.append(
+            Diagnostic(
+                spec.locate_assertion(0, len(spec.assertion.rstrip())),
+                "this assertion is read at the run's first instant (a time-bounded operator "
+                "outside always): after its verdict, reset reads it again at each step, "
+                "its window long past",
+                "warning",
+                "write onVerdict: halt for its one verdict, or put it under always",
+            )
+        )
     return ParsedAssertion(spec, formula, atoms, text, constraint, tuple(warnings), tuple(p.past))
 
 

@@ -43,7 +43,7 @@ import spot
 
 from edgerv.core.past import PastKind, PastOp, compile_boolean
 
-BoundedKind = Literal["F", "G", "U", "W"]
+BoundedKind = Literal["F", "G", "U", "W", "R", "M"]
 
 
 @dataclass(frozen=True)
@@ -94,7 +94,7 @@ def as_past(ob: Obligation, first_bit: int) -> tuple[Any, list[PastOp]]:
 
 # -- any nesting of F and G, at the first instant or under always ----------------------
 
-NewPast = Callable[[PastKind, tuple[Any, ...], tuple[int, int], str], Any]
+NewPast = Callable[[PastKind, tuple[Any, ...], tuple[int, int], str, int], Any]
 
 
 @dataclass(frozen=True)
@@ -122,13 +122,25 @@ class Delays:
     def __init__(self, cuts: dict[str, Cut], new_past: NewPast) -> None:
         self.cuts = cuts
         self.new_past = new_past
-        self._made: dict[tuple[str, str, tuple[int, int]], Any] = {}
+        self._made: dict[tuple[str, str, tuple[int, int], int], Any] = {}
         self._horizons: dict[str, int] = {}
 
-    def past(self, kind: PastKind, operand: Any, window: tuple[int, int], text: str) -> Any:
-        key = (kind, str(operand), window)
+    def past(
+        self,
+        kind: PastKind,
+        operand: Any,
+        window: tuple[int, int],
+        text: str,
+        *,
+        other: Any = None,
+        delay: int = 0,
+    ) -> Any:
+        """The proposition of ``kind[window] operand`` (``operand U other`` read
+        ``delay`` ago for "until"), made once."""
+        operands = (operand,) if other is None else (operand, other)
+        key = (kind, " ; ".join(map(str, operands)), window, delay)
         if key not in self._made:
-            self._made[key] = self.new_past(kind, (operand,), window, text)
+            self._made[key] = self.new_past(kind, operands, window, text, delay)
         return self._made[key]
 
     def names(self, f: Any) -> list[str]:
@@ -185,15 +197,44 @@ class Delays:
 
     def _cut_at(self, name: str, delay: int) -> Any:
         cut = self.cuts[name]
-        (q,) = cut.operands  # F and G (U and W take another way: see Delays' callers)
         lo, hi = cut.window
-        inner = self.horizon(q)
-        operand = self.at(q, inner)
-        window = (delay - hi - inner, delay - lo - inner)
-        if window == (0, 0):
-            return operand
-        kind: PastKind = "once" if cut.kind == "F" else "historically"
-        return self.past(kind, operand, window, cut.text)
+        inner = max(self.horizon(o) for o in cut.operands)
+        *r, q = (self.at(o, inner) for o in cut.operands)
+        late = delay - inner  # how long ago the operator's own instant is, read `inner` late
+        window = (late - hi, late - lo)
+        if cut.kind in ("F", "G"):
+            if window == (0, 0):
+                return q
+            kind: PastKind = "once" if cut.kind == "F" else "historically"
+            return self.past(kind, q, window, cut.text)
+        f = spot.formula
+        if cut.kind in ("R", "M"):  # R is !(!r U !q), M is !(!r W !q)
+            r, q = [f.Not(r[0])], f.Not(q)
+        until = self.past("until", r[0], (lo, hi), cut.text, other=q, delay=late)
+        if cut.kind in ("W", "M"):  # or r at every instant of [t, t + hi]
+            until = f.Or([until, self.past("historically", r[0], (late - hi, late), cut.text)])
+        return f.Not(until) if cut.kind in ("R", "M") else until
+
+    def ltl(self, f: Any, delay: int) -> Any:
+        """``f``, with untimed temporal operators over time-bounded ones, over letters
+        read ``delay`` late: each boolean subformula under its temporal operators read
+        so (:meth:`at`), the operators kept. True at a step at t where ``f`` is true
+        read at t - delay, its untimed operators ranging over the steps from there."""
+        built: dict[int, Any] = {}
+        stack = [(f, False)]
+        while stack:
+            g, expanded = stack.pop()
+            if g.id() in built:
+                continue
+            if g.is_boolean():
+                constant = g.kind() in (spot.op_tt, spot.op_ff)
+                built[g.id()] = g if constant else self.at(g, delay)
+            elif not expanded:
+                stack.append((g, True))
+                stack.extend((h, False) for h in g)
+            else:
+                built[g.id()] = g.map(lambda h: built[h.id()])
+        return built[f.id()]
 
 
 def cut_formula(cut: Cut) -> Any:
@@ -255,6 +296,10 @@ def first_instant(cut: Cut, delays: Delays) -> Any:
     lo, hi = cut.window
     opened, deadline = delays.started(lo), delays.started(hi)
     *r, q = cut.operands
+    if cut.kind in ("R", "M"):  # R is !(!r U !q), M is !(!r W !q)
+        dual: BoundedKind = "U" if cut.kind == "R" else "W"
+        negated = tuple(f.Not(o) for o in cut.operands)
+        return f.Not(first_instant(Cut(cut.name, dual, cut.window, negated, cut.text), delays))
     if cut.kind == "F":  # Q by the deadline (a Q at the deadline's instant counts)
         return f.U(f.Not(deadline), f.And([opened, q]))
     if cut.kind == "G":  # Q from lo to hi, both included: decided 1 ns after hi

@@ -21,7 +21,7 @@ from typing import Any, Literal
 
 import spot
 
-PastKind = Literal["prev", "once", "historically", "since"]
+PastKind = Literal["prev", "once", "historically", "since", "until"]
 BitsFunction = Callable[[int], bool]
 
 
@@ -40,6 +40,7 @@ class PastOp:
     operands: tuple[BitsFunction, ...]
     window: tuple[int, int] | None = None
     text: str = ""
+    delay: int = 0  # "until" only: it reads ``f U[lo..hi] g`` this long ago
 
 
 MAX_TABLE_BITS = 16  # an operand reads placeholders p0..p15 at most (synthesis' limit)
@@ -194,6 +195,55 @@ class _SinceRuns:
         return self.runs.next_change(now, lo, hi) if self.live else None
 
 
+@dataclass
+class _UntilRuns:
+    """``f U[lo..hi] g`` read ``delay`` ago (a time-bounded until read late, as
+    edgerv.core.bounded makes it; ``delay`` >= hi): at t, with s = t - delay, g holds at
+    some instant t' of ``[s + lo, s + hi]`` and f at every instant of ``[s, t')``. From
+    the runs of f and of g up to t; an ongoing run holds on (no new step)."""
+
+    f: _Runs = field(default_factory=_Runs)
+    g: _Runs = field(default_factory=_Runs)
+
+    def step(self, now: int, f: bool, g: bool) -> None:
+        self.f.step(now, f)
+        self.g.step(now, g)
+
+    def prune(self, now: int, delay: int) -> None:
+        self.f.prune(now, delay)  # a run that ended by s no longer matters
+        self.g.prune(now, delay)
+
+    def holds(self, now: int, lo: int, hi: int, delay: int) -> bool:
+        s = now - delay
+        last: int | None = s  # the first instant from s on at which f fails (None: never)
+        for start, end in self.f.runs:
+            if start <= s and (end is None or end > s):  # type: ignore[operator]
+                last = end
+                break
+        first, until = s + lo, s + hi if last is None else min(s + hi, last)
+        if first > until:
+            return False
+        return any(
+            start <= until and (end is None or end > first)  # type: ignore[operator]
+            for start, end in self.g.runs
+        )
+
+    def next_change(self, now: int, lo: int, hi: int, delay: int) -> int | None:
+        """An instant after ``now`` at or before the first one at which :meth:`holds`
+        may change: where s, s + lo or s + hi meets a run's bound, or passes it."""
+        best = None
+        for runs in (self.f.runs, self.g.runs):
+            for start, end in runs:
+                for edge in (start, end):
+                    if edge is None:
+                        continue
+                    for offset in (delay, delay - lo, delay - hi):
+                        for at in (edge + offset, edge + offset + 1):
+                            if at > now and (best is None or at < best):
+                                best = at
+        return best
+
+
 class Past:
     """The derived placeholders of one monitor and their state. Not thread-safe."""
 
@@ -207,6 +257,8 @@ class Past:
 
     @staticmethod
     def _initial(op: PastOp) -> Any:
+        if op.kind == "until":
+            return _UntilRuns()
         if op.window is not None:
             return _SinceRuns() if op.kind == "since" else _Runs()
         return [op.kind == "historically"]  # once, since, prev: False; historically: True
@@ -216,7 +268,12 @@ class Past:
         placeholders set, inner ones first (an outer one reads their new bits)."""
         for op, state in zip(self.ops, self.state, strict=True):
             f = op.operands[0](bits)
-            if op.window is not None and op.kind == "since":
+            if op.kind == "until":
+                assert op.window is not None
+                state.step(now, f, op.operands[1](bits))
+                state.prune(now, op.delay)
+                value = state.holds(now, *op.window, op.delay)
+            elif op.window is not None and op.kind == "since":
                 state.step(now, f, op.operands[1](bits))
                 value = state.holds(now, *op.window)
             elif op.window is not None:
@@ -263,7 +320,9 @@ class Past:
         for op, state in zip(self.ops, self.state, strict=True):
             if op.window is None:
                 continue
-            if op.kind != "since":
+            if op.kind == "until":
+                state.prune(now, op.delay)
+            elif op.kind != "since":
                 state.prune(now, op.window[1])
             elif state.live:
                 state.runs.prune(now, op.window[1])
@@ -275,7 +334,10 @@ class Past:
         for op, state in zip(self.ops, self.state, strict=True):
             if op.window is not None:
                 lo, hi = op.window
-                if op.kind == "since":
+                if op.kind == "until":
+                    state.prune(now, op.delay)
+                    value = state.holds(now, lo, hi, op.delay)
+                elif op.kind == "since":
                     value = state.holds(now, lo, hi)
                 else:
                     state.prune(now, hi)
@@ -289,17 +351,23 @@ class Past:
         with no new step; None if none can."""
         best = None
         for op, state in zip(self.ops, self.state, strict=True):
-            if op.window is not None:
+            if op.window is None:
+                continue
+            if op.kind == "until":
+                at = state.next_change(now, *op.window, op.delay)
+            else:
                 at = state.next_change(now, *op.window)
-                if at is not None and (best is None or at < best):
-                    best = at
+            if at is not None and (best is None or at < best):
+                best = at
         return best
 
     def save(self) -> Any:
         """The state, as plain JSON values (a handoff snapshot carries it)."""
         out: list[Any] = []
         for s in self.state:
-            if isinstance(s, _SinceRuns):
+            if isinstance(s, _UntilRuns):
+                out.append({"f": s.f.runs, "g": s.g.runs})
+            elif isinstance(s, _SinceRuns):
                 out.append({"runs": s.runs.runs, "live": s.live, "g": s.g})
             else:
                 out.append(s.runs if isinstance(s, _Runs) else s)
@@ -311,7 +379,11 @@ class Past:
             raise ValueError("the past operators' state does not fit")
         state: list[Any] = []
         for op, s in zip(self.ops, ops, strict=True):
-            if op.window is not None and op.kind == "since":
+            if op.kind == "until":
+                if not isinstance(s, dict):
+                    raise ValueError("a time-bounded until's state does not fit")
+                state.append(_UntilRuns(_Runs(_runs(s.get("f"))), _Runs(_runs(s.get("g")))))
+            elif op.window is not None and op.kind == "since":
                 if not isinstance(s, dict) or not all(
                     isinstance(s.get(k), bool) for k in ("live", "g")
                 ):
