@@ -19,6 +19,7 @@ from typing import Any
 import pytest
 import spot
 
+from edgerv.core.pipeline import MonitorRuntime
 from helpers import compiled, events, run, verdicts
 from reference import ReferenceMonitor
 
@@ -339,3 +340,42 @@ def test_an_assertion_about_the_first_instant_is_warned_about_with_reset() -> No
     ]
     assert compiled("F[0..1s] b", SIGNALS, onVerdict="halt").parsed.warnings == ()
     assert compiled("always (a -> F[0..1s] b)", SIGNALS).parsed.warnings == ()
+
+
+def failing(seed: int, count: int) -> list[tuple[Formula, list[tuple[str, int, bool]]]]:
+    """Nested bodies, each with a run of 60 ns on which it fails (by the definitions)."""
+    rng = random.Random(seed)
+    out = []
+    for body in nested_bodies(seed, 4 * count):
+        rows = random_run(rng, 60)
+        at = evaluator(rows)
+        if any(not at(body, t) for t in range(0, 60 - horizon(body))) and len(out) < count:
+            out.append((body, rows))
+    return out
+
+
+@pytest.mark.parametrize(
+    ("body", "rows"),
+    failing(13, 20),
+    ids=lambda v: text(v) if isinstance(v[0], str) else "run",
+)
+def test_live_clock_steps_give_what_a_recorded_run_gives(
+    body: Formula, rows: list[tuple[str, int, bool]]
+) -> None:
+    """The handler's way (events one by one, the clock advanced at instants of its own
+    between them, evaluated each time) gives the steps and verdicts of a check."""
+    rng = random.Random(text(body))
+    m = compiled(f"always ({text(body)})", SIGNALS)
+    (offline,) = run([m], events(rows))
+    assert verdicts(offline)  # something to compare
+    live, got = MonitorRuntime(m), []
+    index = {name: i for i, name in enumerate(m.signal_names)}
+    for seq, (topic, stamp, value) in enumerate(rows):
+        if seq and rng.random() < 0.5 and stamp > 0:
+            live.advance(rng.randint(rows[seq - 1][1], stamp - 1))
+            got += live.evaluate()
+        live.offer(stamp, seq, [(index[topic[1:]], value)])
+        got += live.evaluate()
+    live.advance(rows[-1][1])
+    got += live.evaluate()
+    assert [(v.verdict, v.step, v.stamp) for v in got] == verdicts(offline)

@@ -273,3 +273,62 @@ def test_an_obligation_past_the_end_of_the_run_stays_pending() -> None:
     # once the run shows 1500 ms, the failure is certain there
     (result,) = run([compiled(deadline, SIGNALS)], events([*trace, ("/x", 1600 * MS, 2.0)]))
     assert verdicts(result) == [("violated", 4, 1500 * MS)]
+
+
+# -- nested: F and G in any boolean combination, read their horizon late -----------------
+
+
+def _top_and(stl: str) -> bool:
+    """Is RTAMT formula ``(x and y)`` a conjunction at its top?"""
+    depth = 0
+    for i, ch in enumerate(stl):
+        depth += {"(": 1, ")": -1}.get(ch, 0)
+        if depth == 1 and stl.startswith(" and ", i):
+            return True
+    return False
+
+
+def random_nested(rng: random.Random, depth: int) -> tuple[str, str, int]:
+    """(edgerv, RTAMT, horizon) of a random formula nesting time-bounded F and G over
+    boolean formulas of ``ATOMS`` (past operators among them)."""
+    if depth == 0 or rng.random() < 0.25:
+        e, r = random_boolean(rng, ATOMS, 1)
+        return e, r, 0
+    kind = rng.choice(["F", "G", "F", "G", "not", "and", "or"])
+    e1, r1, h1 = random_nested(rng, depth - 1)
+    if kind == "not":
+        return f"(!{e1})", f"(not {r1})", h1
+    if kind in ("and", "or"):
+        e2, r2, h2 = random_nested(rng, depth - 1)
+        word = "and" if kind == "and" else "or"
+        return f"({e1} {'&' if kind == 'and' else '|'} {e2})", f"({r1} {word} {r2})", max(h1, h2)
+    a = rng.choice([0, 0, 5, 10]) * MS + rng.choice([0, 0, 1])
+    b = a + rng.choice([0, 5, 20, 40]) * MS + rng.choice([0, 0, 1])
+    stl = "eventually" if kind == "F" else "always"
+    return f"({kind}[{a}ns..{b}ns] {e1})", f"({stl}[{a}:{b}] {r1})", b + h1
+
+
+@pytest.mark.parametrize("seed", range(60))
+def test_nested_bounded_verdicts_match_rtamt(seed: int) -> None:
+    """``always (f)``, f nesting F and G, read its horizon H late: with reset edgerv is
+    violated at exactly the steps u at which RTAMT's f is false at u - H (none before the
+    run is H old), and each instant at which that changes is one of edgerv's steps."""
+    rng = random.Random(seed)
+    formula, stl, h = random_nested(rng, 3)
+    # two time-bounded operators at least, not in a conjunction at the top: one alone, or
+    # a conjunct of always, takes the obligations' way (earlier; checked above)
+    while formula.count("ns..") < 2 or stl.startswith("(") and _top_and(stl):
+        formula, stl, h = random_nested(rng, 3)
+    spec = rtamt_spec(stl)
+    m = compiled(f"always ({formula})", SIGNALS)
+    for _ in range(3):
+        run_ = random_run(rng, rng.choice([20, 30, 40]))
+        end = run_[-1][1] + rng.choice([0, 30, 80]) * MS
+        t0 = run_[0][1]
+        whole = Rtamt(spec, run_).changes()
+        steps = [(t, v == "violated") for t, v in edgerv_reset(m, run_, end)]
+        expected = [(u, u - h >= t0 and not truth_at(whole, u - h)) for u, _ in steps]
+        assert steps == expected, (formula, run_, end)
+        moves = [t + h for t, _ in whole[1:]] + ([] if whole[0][1] else [t0 + h])
+        missed = sorted({u for u in moves if t0 < u <= end} - {u for u, _ in steps})
+        assert not missed, (formula, run_, end, missed)
