@@ -317,7 +317,7 @@ def test_nested_bounded_verdicts_match_rtamt(seed: int) -> None:
     formula, stl, h = random_nested(rng, 3)
     # two time-bounded operators at least, not in a conjunction at the top: one alone, or
     # a conjunct of always, takes the obligations' way (earlier; checked above)
-    while formula.count("ns..") < 2 or stl.startswith("(") and _top_and(stl):
+    while formula.count("ns..") < 2 or _top_and(stl):
         formula, stl, h = random_nested(rng, 3)
     spec = rtamt_spec(stl)
     m = compiled(f"always ({formula})", SIGNALS)
