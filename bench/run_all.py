@@ -19,6 +19,7 @@ MODULES = [
     "check_bag",
     "check_jsonl",
     "timed_check",
+    "nested_check",
     "migrate",
     "reactions",
 ]
