@@ -26,8 +26,10 @@ from reference import ReferenceMonitor
 SIGNALS = {name: "bool" for name in "abc"}
 # ("atom", name) | ("not", f) | ("and"|"or", f, g) | ("F"|"G", lo, hi, f)
 # | ("U"|"W"|"R"|"M", lo, hi, f, g)
+# | ("once"|"historically", lo, hi, f) | ("since", lo, hi, f, g): past, timed
 Formula = tuple[Any, ...]
 BINARY = ("U", "W", "R", "M")
+PAST = ("once", "historically", "since")
 
 
 def text(f: Formula) -> str:
@@ -38,9 +40,14 @@ def text(f: Formula) -> str:
         return f"!({text(f[1])})"
     if kind in ("and", "or"):
         return f"({text(f[1])}) {'&' if kind == 'and' else '|'} ({text(f[2])})"
-    if kind in BINARY:
+    if kind in (*BINARY, "since"):
         return f"({text(f[3])}) {kind}[{f[1]}ns..{f[2]}ns] ({text(f[4])})"
     return f"{kind}[{f[1]}ns..{f[2]}ns] ({text(f[3])})"
+
+
+def size(f: Formula) -> int:
+    """Its operators and atoms: small enough ones stay within the 16 placeholders."""
+    return 1 + sum(size(g) for g in f[1:] if isinstance(g, tuple))
 
 
 def horizon(f: Formula) -> int:
@@ -51,7 +58,8 @@ def horizon(f: Formula) -> int:
         return horizon(f[1])
     if kind in ("and", "or"):
         return max(horizon(f[1]), horizon(f[2]))
-    return int(f[2]) + max(horizon(g) for g in f[3:])
+    ahead = 0 if kind in PAST else int(f[2])  # a past operator looks back only
+    return ahead + max(horizon(g) for g in f[3:])
 
 
 def timed(f: Formula) -> int:
@@ -63,7 +71,7 @@ def timed(f: Formula) -> int:
         return timed(f[1])
     if kind in ("and", "or"):
         return timed(f[1]) + timed(f[2])
-    return 1 + sum(timed(g) for g in f[3:])
+    return (0 if kind in PAST else 1) + sum(timed(g) for g in f[3:])
 
 
 def evaluator(rows: list[tuple[str, int, bool]]) -> Callable[[Formula, int], bool]:
@@ -88,6 +96,17 @@ def evaluator(rows: list[tuple[str, int, bool]]) -> Callable[[Formula, int], boo
             return at(f[1], t) and at(f[2], t)
         if kind == "or":
             return at(f[1], t) or at(f[2], t)
+        if kind in PAST:  # over the instants of the run (it starts at 0)
+            back = range(max(t - f[2], 0), t - f[1] + 1)
+            if kind == "once":
+                return any(at(f[3], u) for u in back)
+            if kind == "historically":
+                return all(at(f[3], u) for u in back)
+            # g at an instant s, f at every instant of (s, t], time dense: s in [u, u + 1)
+            # for a nanosecond u where g holds; (s, t] takes u's value too unless s = t
+            return any(
+                at(f[4], u) and (u == t or all(at(f[3], v) for v in range(u, t + 1))) for u in back
+            )
         window = range(t + f[1], t + f[2] + 1)
         if kind in ("F", "G"):
             return (any if kind == "F" else all)(at(f[3], u) for u in window)
@@ -107,14 +126,14 @@ def evaluator(rows: list[tuple[str, int, bool]]) -> Callable[[Formula, int], boo
 def random_formula(rng: random.Random, depth: int) -> Formula:
     if depth == 0 or rng.random() < 0.2:
         return ("atom", rng.choice("abc"))
-    kind = rng.choice(["not", "and", "or", "F", "G", "F", "G", *BINARY])
+    kind = rng.choice(["not", "and", "or", "F", "G", "F", "G", *BINARY, *PAST])
     if kind == "not":
         return ("not", random_formula(rng, depth - 1))
     if kind in ("and", "or"):
         return (kind, random_formula(rng, depth - 1), random_formula(rng, depth - 1))
     lo = rng.randint(0, 3)
     hi = lo + rng.randint(0, 3)
-    if kind in BINARY:
+    if kind in (*BINARY, "since"):
         return (kind, lo, hi, random_formula(rng, depth - 1), random_formula(rng, depth - 1))
     return (kind, lo, hi, random_formula(rng, depth - 1))
 
@@ -156,7 +175,7 @@ def nested_bodies(seed: int, count: int) -> list[Formula]:
     out: list[Formula] = []
     while len(out) < count:
         f: Formula = ("or", random_formula(rng, 3), random_formula(rng, 3))
-        if timed(f) >= 2 and horizon(f) <= 8 and not valid(f):
+        if timed(f) >= 2 and horizon(f) <= 8 and size(f) <= 11 and not valid(f):
             out.append(f)
     return out
 
@@ -183,7 +202,7 @@ def top_level(seed: int, count: int) -> list[Formula]:
     out: list[Formula] = []
     while len(out) < count:
         f = random_formula(rng, 3)
-        if f[0] in ("F", "G", *BINARY) and timed(f) >= 2 and horizon(f) <= 8:
+        if f[0] in ("F", "G", *BINARY) and timed(f) >= 2 and horizon(f) <= 8 and size(f) <= 11:
             out.append(f)
     return out
 
@@ -292,7 +311,7 @@ def triples(seed: int, count: int) -> list[tuple[str, Formula, Formula, Formula]
     out: list[tuple[str, Formula, Formula, Formula]] = []
     while len(out) < count:
         xyz = tuple(random_formula(rng, 2) for _ in range(3))
-        distinct = len({text(f) for f in xyz}) == 3
+        distinct = len({text(f) for f in xyz}) == 3 and sum(map(size, xyz)) <= 12
         if distinct and all(timed(f) for f in xyz) and sum(horizon(f) for f in xyz) <= 10:
             out.append((rng.choice(sorted(TEMPLATES)), *xyz))
     return out

@@ -44,8 +44,10 @@ from typing import Any, Literal, cast
 import spot
 
 from edgerv.core.bounded import (
+    MAX_WINDOW,
     BoundedKind,
     Cut,
+    CutKind,
     Delays,
     Obligation,
     as_past,
@@ -437,6 +439,10 @@ class _Parser:
                 return out
             i, spans = found
             op = out[i]
+            if any(out[k].role in _LATE_ROLES for a, b in spans for k in range(a, b)):
+                # over a time-bounded operator: read late with it (see pastify_future)
+                op.role = "pastcut" if op.role == "past" else "pastcutbin"
+                continue
             start, end = spans[0][0] if op.role == "pbin" else i, spans[-1][1]
             operands = []
             for a, b in spans:
@@ -491,7 +497,8 @@ class _Parser:
         while (found := _innermost_future(out)) is not None:
             i, lo, hi = found
             o = out[i]
-            spans = [out[i + 1 : hi]] if o.role == "future" else [out[lo:i], out[i + 1 : hi]]
+            prefix = o.role in ("future", "pastcut")
+            spans = [out[i + 1 : hi]] if prefix else [out[lo:i], out[i + 1 : hi]]
             name = f"fut{len(cuts)}"
             cuts.append(_Cut(name, o, spans))
             out = [*out[:lo], _Out(name, out[lo].start, out[hi - 1].end, "atom"), *out[hi:]]
@@ -555,9 +562,15 @@ class _Parser:
             end = cut.spans[-1][-1].end if cut.spans[-1] else op.end
             begin = cut.spans[0][0].start if cut.spans[0] else op.start
             text = self.text[min(begin, op.start) : end]
-            assert op.window is not None  # a cut has its window (else an error before)
-            kind = cast(BoundedKind, op.text)
-            table[cut.name] = Cut(cut.name, kind, op.window, tuple(operands), text)
+            if op.text == "prev":
+                self.fail(op.start, op.end - op.start,
+                          "prev over a time-bounded operator: not supported (prev counts "
+                          "steps, which a late reading does not keep)",
+                          "write once[a..b] for a time before now")  # fmt: skip
+                return None
+            kind = cast(CutKind, op.text)
+            window = op.window if op.window is not None else (0, MAX_WINDOW)  # untimed past
+            table[cut.name] = Cut(cut.name, kind, window, tuple(operands), text)
         return Delays(table, self._new_past)
 
     def _new_past(
@@ -999,7 +1012,7 @@ def _is_past(o: _Out) -> bool:
 def _prefix_operand_end(out: list[_Out], j: int) -> int:
     """One past the operand starting at out[j] of a prefix operator: the unary operators
     before it, then a bracketed group or one token."""
-    while j < len(out) and out[j].role in ("unary", "past", "future"):
+    while j < len(out) and out[j].role in ("unary", "past", "future", "pastcut"):
         j += 1
     if j < len(out) and out[j].role == "open":
         depth = 0
@@ -1016,15 +1029,19 @@ def _innermost_future(out: list[_Out]) -> tuple[int, int, int] | None:
     ``[lo, hi)`` it and its operands take."""
     for i in reversed(range(len(out))):
         role = out[i].role
-        if role == "future":
+        if role in ("future", "pastcut"):
             lo, hi = i, _prefix_operand_end(out, i + 1)
-        elif role == "futbin":
+        elif role in ("futbin", "pastcutbin"):
             lo, hi = _operand_end(out, i, -1) + 1, _operand_end(out, i, +1)
         else:
             continue
-        if not any(out[k].role in ("future", "futbin") for k in range(lo, hi) if k != i):
+        if not any(out[k].role in _LATE_ROLES for k in range(lo, hi) if k != i):
             return i, lo, hi
     return None
+
+
+# A time-bounded operator, and a past one over one (read late with it: a cut too)
+_LATE_ROLES = ("future", "futbin", "pastcut", "pastcutbin")
 
 
 def _innermost_past(out: list[_Out]) -> tuple[int, list[tuple[int, int]]] | None:
@@ -1065,7 +1082,8 @@ def _operand_end(out: list[_Out], i: int, step: int) -> int:
                 break
             depth -= 1
         elif depth == 0 and (
-            role in ("bbin", "pbin") or (step < 0 and role in ("tbin", "futbin", "loose"))
+            role in ("bbin", "pbin", "pastcutbin")
+            or (step < 0 and role in ("tbin", "futbin", "loose"))
         ):
             break
         j += step

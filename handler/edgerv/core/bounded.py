@@ -94,6 +94,8 @@ def as_past(ob: Obligation, first_bit: int) -> tuple[Any, list[PastOp]]:
 
 # -- any nesting of F and G, at the first instant or under always ----------------------
 
+# a time-bounded operator, or a past operator over one (read late with it)
+CutKind = Literal["F", "G", "U", "W", "R", "M", "once", "historically", "since"]
 NewPast = Callable[[PastKind, tuple[Any, ...], tuple[int, int], str, int], Any]
 
 
@@ -104,8 +106,8 @@ class Cut:
     placeholders and the names of the operators nested in them (``(Q,)``, ``(R, Q)``)."""
 
     name: str
-    kind: BoundedKind
-    window: tuple[int, int]
+    kind: CutKind
+    window: tuple[int, int]  # an untimed past operator's: [0, MAX_WINDOW]
     operands: tuple[Any, ...]
     text: str
 
@@ -163,9 +165,9 @@ class Delays:
                 todo.extend(missing)
                 continue
             todo.pop()
-            self._horizons[n] = self.cuts[n].window[1] + max(
-                (self._horizons[m] for m in inner), default=0
-            )
+            cut = self.cuts[n]
+            ahead = cut.window[1] if cut.kind in FUTURE else 0  # a past one looks back only
+            self._horizons[n] = ahead + max((self._horizons[m] for m in inner), default=0)
         return self._horizons[name]
 
     def started(self, age: int) -> Any:
@@ -201,6 +203,8 @@ class Delays:
         inner = max(self.horizon(o) for o in cut.operands)
         *r, q = (self.at(o, inner) for o in cut.operands)
         late = delay - inner  # how long ago the operator's own instant is, read `inner` late
+        if cut.kind not in FUTURE:
+            return self._past_at(cut, inner, late, [*r, q])
         window = (late - hi, late - lo)
         if cut.kind in ("F", "G"):
             if window == (0, 0):
@@ -214,6 +218,23 @@ class Delays:
         if cut.kind in ("W", "M"):  # or r at every instant of [t, t + hi]
             until = f.Or([until, self.past("historically", r[0], (late - hi, late), cut.text)])
         return f.Not(until) if cut.kind in ("R", "M") else until
+
+    def _past_at(self, cut: Cut, inner: int, late: int, operands: list[Any]) -> Any:
+        """A past operator over operands read ``inner`` late, read ``late`` more. Instants
+        before the run (its operands read late there say nothing) do not count: no
+        witness for once and since, no failure for historically."""
+        f = spot.formula
+        lo, hi = cut.window
+        real = self.started(inner)
+        if cut.kind == "since":
+            left, right = operands
+            since = self.past("since", left, (lo, hi), cut.text, other=f.And([real, right]))
+            return since if late == 0 else self.past("once", since, (late, late), cut.text)
+        (q,) = operands
+        window = (lo + late, min(hi + late, MAX_WINDOW))
+        if cut.kind == "once":
+            return self.past("once", f.And([real, q]), window, cut.text)
+        return self.past("historically", f.Or([f.Not(real), q]), window, cut.text)
 
     def ltl(self, f: Any, delay: int) -> Any:
         """``f``, with untimed temporal operators over time-bounded ones, over letters
@@ -235,6 +256,9 @@ class Delays:
             else:
                 built[g.id()] = g.map(lambda h: built[h.id()])
         return built[f.id()]
+
+
+FUTURE = ("F", "G", "U", "W", "R", "M")
 
 
 def cut_formula(cut: Cut) -> Any:

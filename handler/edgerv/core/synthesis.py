@@ -184,7 +184,9 @@ def synthesize(formula: Any, constraint: Any, bits: int) -> MonitorTable:
     """The LTL3 monitor table of ``formula`` over ``bits`` placeholders under ``constraint``."""
     if bits > MAX_PLACEHOLDERS:
         raise SynthesisError(
-            f"the assertion has {bits} distinct atoms; at most {MAX_PLACEHOLDERS} are supported"
+            f"the assertion needs {bits} placeholders (its distinct atoms, then its past "
+            "operators and time-bounded ones as they are read: docs/semantics.md, Limits); at "
+            f"most {MAX_PLACEHOLDERS} are supported: split it into several monitors"
         )
     try:
         return worker.call(_synthesize_cached, str(formula), str(constraint), bits)
