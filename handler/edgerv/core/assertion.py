@@ -1090,6 +1090,17 @@ def _operand_end(out: list[_Out], i: int, step: int) -> int:
     return j
 
 
+MAX_REWRITTEN = 10_000  # tokens, once PSL's keywords are rewritten
+
+
+class _Grown(Exception):
+    """PSL keywords that repeat an operand, nested so that the text grows past
+    :data:`MAX_REWRITTEN` (each ``until_`` on the left doubles it)."""
+
+    def __init__(self, keyword: _Out) -> None:
+        self.keyword = keyword
+
+
 def _rewrite_psl_binary(out: list[_Out]) -> list[_Out]:
     """Rewrite until_/before* into Spot operators, rightmost first (they are right-associative)."""
     while True:
@@ -1098,6 +1109,8 @@ def _rewrite_psl_binary(out: list[_Out]) -> list[_Out]:
             return out
         i = idx[-1]
         kw = out[i]
+        if len(out) > MAX_REWRITTEN:
+            raise _Grown(kw)
         lo = _operand_end(out, i, -1) + 1
         hi = _operand_end(out, i, +1)
         left, right = out[lo:i], out[i + 1 : hi]
@@ -1164,17 +1177,63 @@ def _spot_errors(text: str, offsets: list[tuple[int, _Out]]) -> list[tuple[_Out,
     return found
 
 
+MAX_NESTING = 1_000  # brackets in brackets
+MAX_OPERATORS = 4_000  # operators in all: a chain of them (! ! a, a U b U c) nests too
+
+
+def _check_size(tokens: Sequence[Token], fail: Callable[[int, int, str, str | None], None]) -> None:
+    """Refuse, at its place, an assertion nested or chained deeper than Spot's recursion
+    can take (its process dies, or this one, from 10,000 levels on)."""
+    depth = operators = 0
+    for t in tokens:
+        if t.kind == "op" and t.text in "({":
+            depth += 1
+            if depth > MAX_NESTING:
+                fail(t.start, 1, f"brackets nested more than {MAX_NESTING:,} deep",
+                     "split the assertion into several monitors")  # fmt: skip
+                return
+        elif t.kind == "op" and t.text in ")}":
+            depth -= 1
+        elif t.kind == "op" or (t.kind == "ident" and t.text in _OPERATOR_WORDS):
+            operators += 1
+            if operators > MAX_OPERATORS:
+                fail(t.start, t.end - t.start,
+                     f"more than {MAX_OPERATORS:,} operators in one assertion",
+                     "split the assertion into several monitors")  # fmt: skip
+                return
+
+
+_OPERATOR_WORDS = {*_SPOT_WORDS, *_PSL_WORDS, *_PAST_UNARY, "since", "until!", "until_",
+                   "until!_", "before!", "before_", "before!_", "next!", "next_e!",
+                   "next_a!", "eventually!"}  # fmt: skip
+
+
 def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
     """Replace atoms by placeholders and parse the formula with Spot; raise InputError."""
     p = _Parser(spec)
     tokens = tokenize(spec.assertion, p.fail)
+    _check_size(tokens, p.fail)
+    if p.diagnostics:
+        raise InputError(p.diagnostics)
     out = p.translate(tokens)
     if p.diagnostics:
         raise InputError(p.diagnostics)
     out = p.derive_past(out)
     if p.diagnostics:
         raise InputError(p.diagnostics)
-    out, cuts = p.cut_future(_wrap_loose(_rewrite_psl_binary(out)))
+    try:
+        rewritten = _rewrite_psl_binary(out)
+    except _Grown as grown:
+        kw = grown.keyword
+        p.fail(
+            kw.start,
+            kw.end - kw.start,
+            f"'{kw.text}' repeats its left operand: nested so, the assertion grows past "
+            f"{MAX_REWRITTEN:,} tokens",
+            "write it with W and U (a until_ b is a W (a & b)), or split the assertion",
+        )
+        raise InputError(p.diagnostics) from None
+    out, cuts = p.cut_future(_wrap_loose(rewritten))
     if p.diagnostics:
         raise InputError(p.diagnostics)
     pieces, offsets, pos = [], [], 0

@@ -55,6 +55,19 @@ class BudgetExceeded(Exception):
     )
 
 
+class SpotDied(BudgetExceeded):
+    """Spot's child process died building the automaton (a formula too deep for its
+    recursion, or memory): the monitor is refused, as one over budget is."""
+
+    def __str__(self) -> str:
+        return (
+            "Spot's process died building this monitor's automaton: the assertion is too "
+            "deep or too large for it"
+        )
+
+    hint = "split the assertion into several monitors, each less deeply nested"
+
+
 def _serve(conn: Connection, parents: Connection) -> None:
     """The child: answer calls until the pipe closes (the parent's end, inherited, is
     closed here: else the child would hold it open and never see the parent go)."""
@@ -133,7 +146,10 @@ class SpotWorker:
             conn.send((fn, args))
             if not conn.poll(self.budget):
                 raise BudgetExceeded(self.budget)
-            ok, value = conn.recv()
+            try:
+                ok, value = conn.recv()
+            except (EOFError, OSError):  # the child is gone: no answer will come
+                raise SpotDied(self.budget) from None
         except BaseException:  # over budget, interrupted (a timer, Ctrl-C), the child died
             self.stop()  # its answer, if it ever comes, must not be taken for the next call
             raise
