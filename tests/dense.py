@@ -1,0 +1,192 @@
+"""The dense-time reference for time-bounded and past formulas over boolean signals:
+formulas as tuples, their text in the assertion language, their horizon, and their truth
+at each nanosecond straight from the definitions (docs/semantics.md, sections 6 and 7;
+signals hold their values between messages), two-valued over a whole run or three-valued
+(Kleene: None where the run so far does not decide). Shared by the tests of nesting and
+of when verdicts are reported (tests/unit/test_time_nested.py, test_verdict_delay.py).
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Callable
+from functools import cache
+from typing import Any
+
+import spot
+
+SIGNALS = {name: "bool" for name in "abc"}
+# ("atom", name) | ("not", f) | ("and"|"or", f, g) | ("F"|"G", lo, hi, f)
+# | ("U"|"W"|"R"|"M", lo, hi, f, g)
+# | ("once"|"historically", lo, hi, f) | ("since", lo, hi, f, g): past, timed
+Formula = tuple[Any, ...]
+BINARY = ("U", "W", "R", "M")
+PAST = ("once", "historically", "since")
+
+
+def text(f: Formula) -> str:
+    kind = f[0]
+    if kind == "atom":
+        return str(f[1])
+    if kind == "not":
+        return f"!({text(f[1])})"
+    if kind in ("and", "or"):
+        return f"({text(f[1])}) {'&' if kind == 'and' else '|'} ({text(f[2])})"
+    if kind in (*BINARY, "since"):
+        return f"({text(f[3])}) {kind}[{f[1]}ns..{f[2]}ns] ({text(f[4])})"
+    return f"{kind}[{f[1]}ns..{f[2]}ns] ({text(f[3])})"
+
+
+def size(f: Formula) -> int:
+    """Its operators and atoms: small enough ones stay within the 16 placeholders."""
+    return 1 + sum(size(g) for g in f[1:] if isinstance(g, tuple))
+
+
+def horizon(f: Formula) -> int:
+    kind = f[0]
+    if kind == "atom":
+        return 0
+    if kind == "not":
+        return horizon(f[1])
+    if kind in ("and", "or"):
+        return max(horizon(f[1]), horizon(f[2]))
+    ahead = 0 if kind in PAST else int(f[2])  # a past operator looks back only
+    return ahead + max(horizon(g) for g in f[3:])
+
+
+def timed(f: Formula) -> int:
+    """How many time-bounded operators ``f`` holds."""
+    kind = f[0]
+    if kind == "atom":
+        return 0
+    if kind == "not":
+        return timed(f[1])
+    if kind in ("and", "or"):
+        return timed(f[1]) + timed(f[2])
+    return (0 if kind in PAST else 1) + sum(timed(g) for g in f[3:])
+
+
+def evaluator(rows: list[tuple[str, int, bool]]) -> Callable[[Formula, int], bool]:
+    """The truth of a formula at an instant, from the definitions, over the run ``rows``
+    (one message a stamp; a value holds from its message until the next)."""
+    at = kleene(rows, None)
+    return lambda f, t: bool(at(f, t))
+
+
+def kleene(rows: list[tuple[str, int, bool]], known: int | None
+           ) -> Callable[[Formula, int], bool | None]:  # fmt: skip
+    """Three-valued truth: a signal's value at an instant after ``known`` is unknown
+    (None), and so is what it decides; None for ``known`` knows the whole run."""
+
+    def value(name: str, t: int) -> bool | None:
+        if known is not None and t > known:
+            return None
+        last = False
+        for topic, stamp, v in rows:
+            if topic == f"/{name}" and stamp <= t:
+                last = v
+        return last
+
+    def some(values: Any) -> bool | None:
+        out: bool | None = False
+        for v in values:
+            if v is True:
+                return True
+            if v is None:
+                out = None
+        return out
+
+    def every(values: Any) -> bool | None:
+        out: bool | None = True
+        for v in values:
+            if v is False:
+                return False
+            if v is None:
+                out = None
+        return out
+
+    def neg(v: bool | None) -> bool | None:
+        return None if v is None else not v
+
+    @cache
+    def at(f: Formula, t: int) -> bool | None:
+        kind = f[0]
+        if kind == "atom":
+            return value(f[1], t)
+        if kind == "not":
+            return neg(at(f[1], t))
+        if kind == "and":
+            return every(at(g, t) for g in f[1:])
+        if kind == "or":
+            return some(at(g, t) for g in f[1:])
+        if kind in PAST:  # over the instants of the run (it starts at 0)
+            back = range(max(t - f[2], 0), t - f[1] + 1)
+            if kind == "once":
+                return some(at(f[3], u) for u in back)
+            if kind == "historically":
+                return every(at(f[3], u) for u in back)
+            # g at an instant s, f at every instant of (s, t], time dense: s in [u, u + 1)
+            # for a nanosecond u where g holds; (s, t] takes u's value too unless s = t
+            return some(
+                every([at(f[4], u), *(() if u == t else (at(f[3], v) for v in range(u, t + 1)))])
+                for u in back
+            )
+        window = range(t + f[1], t + f[2] + 1)
+        if kind in ("F", "G"):
+            return (some if kind == "F" else every)(at(f[3], u) for u in window)
+        lo, hi, left, right = f[1], f[2], f[3], f[4]
+        if kind in ("R", "M"):  # R is !(!f U !g), M is !(!f W !g)
+            dual = "U" if kind == "R" else "W"
+            return neg(at((dual, lo, hi, ("not", left), ("not", right)), t))
+        # edgerv's until: g at some t' of the window, f at every instant of [t, t')
+        until = some(every([at(right, u), *(at(left, v) for v in range(t, u))]) for u in window)
+        if kind == "W":  # or f at every instant of [t, t + hi]
+            return some([until, every(at(left, v) for v in range(t, t + hi + 1))])
+        return until
+
+    return at
+
+
+def random_formula(rng: random.Random, depth: int) -> Formula:
+    if depth == 0 or rng.random() < 0.2:
+        return ("atom", rng.choice("abc"))
+    kind = rng.choice(["not", "and", "or", "F", "G", "F", "G", *BINARY, *PAST])
+    if kind == "not":
+        return ("not", random_formula(rng, depth - 1))
+    if kind in ("and", "or"):
+        return (kind, random_formula(rng, depth - 1), random_formula(rng, depth - 1))
+    lo = rng.randint(0, 3)
+    hi = lo + rng.randint(0, 3)
+    if kind in (*BINARY, "since"):
+        return (kind, lo, hi, random_formula(rng, depth - 1), random_formula(rng, depth - 1))
+    return (kind, lo, hi, random_formula(rng, depth - 1))
+
+
+def random_run(rng: random.Random, end: int) -> list[tuple[str, int, bool]]:
+    """Every signal at 0 (the run's first instant), then a change now and then, one
+    message a stamp."""
+    rows = [("/a", 0, rng.random() < 0.5), ("/b", 0, rng.random() < 0.5)]
+    rows.append(("/c", 0, rng.random() < 0.5))
+    rows += [(f"/{rng.choice('abc')}", t, rng.random() < 0.5) for t in range(1, end)
+             if rng.random() < 0.4]  # fmt: skip
+    if end > 0:  # the run's time reaches ``end``: a message there
+        rows.append((f"/{rng.choice('abc')}", end, rng.random() < 0.5))
+    return rows
+
+
+def propositional(f: Formula, names: dict[str, str]) -> str:
+    """``f`` with each time-bounded subformula a proposition of its own (by its text)."""
+    kind = f[0]
+    if kind == "atom":
+        return str(f[1])
+    if kind == "not":
+        return f"!({propositional(f[1], names)})"
+    if kind in ("and", "or"):
+        op = "&" if kind == "and" else "|"
+        return f"({propositional(f[1], names)}) {op} ({propositional(f[2], names)})"
+    return names.setdefault(text(f), f"t{len(names)}")
+
+
+def valid(f: Formula) -> bool:
+    """True whatever its propositions: a monitor of it is satisfied at its first step."""
+    return bool(spot.are_equivalent(spot.formula(propositional(f, {})), spot.formula.tt()))
