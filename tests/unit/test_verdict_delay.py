@@ -21,7 +21,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from dense import (  # noqa: E402
+from dense import (
     SIGNALS,
     Formula,
     evaluator,
@@ -33,7 +33,7 @@ from dense import (  # noqa: E402
     text,
     timed,
 )
-from helpers import compiled, events, run, verdicts  # noqa: E402
+from helpers import compiled, events, run, verdicts
 
 Case = tuple[str, Formula, list[tuple[str, int, bool]]]
 
@@ -67,9 +67,9 @@ def cases(seed: int, count: int) -> list[Case]:
         where = "top" if f[0] in ("F", "G", "U", "W", "R", "M") and rng.random() < 0.4 else (
             "always")  # fmt: skip
         at = evaluator(rows)
-        if where == "always" and any(not at(f, t) for t in range(0, 24 - horizon(f) + 1)):
-            out.append((where, f, rows))
-        elif where == "top" and horizon(f) <= 24:
+        if (where == "always" and any(not at(f, t) for t in range(0, 24 - horizon(f) + 1))) or (
+            where == "top" and horizon(f) <= 24
+        ):
             out.append((where, f, rows))
     return out
 
