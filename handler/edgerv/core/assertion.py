@@ -671,7 +671,11 @@ class _Parser:
         *r, q = [spot.parse_infix_psl(" ".join(o.text for o in span)).f for span in cut.spans]
         kind = cast(BoundedKind, op.text)
         ob = Obligation(kind, op.window, shape, q, r[0] if r else None, text)
-        piece, ops = as_past(ob, len(self.atoms) + len(self.past))
+        try:
+            piece, ops = as_past(ob, len(self.atoms) + len(self.past))
+        except PastError as exc:  # too many placeholders
+            self.fail(op.start, op.end - op.start, str(exc))
+            return None
         self.past.extend(ops)
         return piece
 
