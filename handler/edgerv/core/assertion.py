@@ -336,6 +336,7 @@ class _Parser:
         self.atom_index: dict[tuple[Any, ...], int] = {}
         self.past: list[PastOp] = []
         self.anchored = False  # a time-bounded operator read at the run's first instant
+        self.spot_clean = False  # the whole parses in Spot: parts may be parsed here
 
     def fail(self, start: int, length: int, message: str, hint: str | None = None) -> None:
         loc = self.spec.locate_assertion(start, length)
@@ -457,11 +458,51 @@ class _Parser:
             out = [*out[:start], _Out(f"p{bit}", out[start].start, out[end - 1].end, "atom"),
                    *out[end:]]  # fmt: skip
 
+    def check_syntax(self, out: list[_Out]) -> None:
+        """Does the formula as translated parse in Spot (each past operator read as Spot's
+        operator of its shape: ``once`` as F, ``since`` as U)? Asked of Spot's worker:
+        :attr:`spot_clean` says. Its errors are reported later, where they were."""
+        stand_in = {"prev": "X", "once": "F", "historically": "G"}
+        pieces, offsets, pos = [], [], 0
+        for o in out:
+            text = o.text
+            if o.role in ("past",):
+                text = stand_in[o.text]
+            elif o.role == "pbin":
+                text = "U"
+            offsets.append((pos, o))
+            pieces.append(text)
+            pos += len(text) + 1
+        text = " ".join(pieces)
+        if not text.strip():
+            return  # said later: the assertion is empty
+        try:
+            self.spot_clean = not worker.call(syntax_errors, text)
+        except BudgetExceeded as exc:
+            message = str(exc)
+            if type(exc) is BudgetExceeded:  # not the automaton: the parse itself
+                message = f"Spot's parser took more than {exc.seconds:g} s on this assertion"
+            self.fail(0, max(1, len(self.text.rstrip())), message,
+                      "check its syntax (Spot's error recovery ran away), or split it")  # fmt: skip
+
+    def part(self, text: str) -> Any:
+        """The Spot formula of a part of the assertion (an operand), or None if it does
+        not parse. In this process where the whole parsed cleanly; else in Spot's worker
+        (bad input is where Spot's error recovery can run away)."""
+        if not text.strip():
+            return None
+        if not self.spot_clean:
+            try:
+                printed = worker.call(_clean_parse, text)
+            except BudgetExceeded:
+                return None
+            return None if printed is None else spot.formula(printed)
+        parsed = spot.parse_infix_psl(text)
+        return None if parsed.format_errors(spot.ostringstream()) else parsed.f
+
     def _past_operand(self, op: _Out, tokens: list[_Out]) -> Any:
-        text = " ".join(o.text for o in tokens)
-        parsed = spot.parse_infix_psl(text) if text.strip() else None
-        stream = spot.ostringstream()
-        if parsed is None or parsed.format_errors(stream) or not parsed.f.is_boolean():
+        parsed = self.part(" ".join(o.text for o in tokens))
+        if parsed is None or not parsed.is_boolean():
             self.fail(
                 op.start,
                 op.end - op.start,
@@ -474,7 +515,7 @@ class _Parser:
             )
             return None
         try:
-            return compile_boolean(parsed.f)
+            return compile_boolean(parsed)
         except PastError as exc:
             self.fail(op.start, op.end - op.start, str(exc))
             return None
@@ -547,18 +588,17 @@ class _Parser:
             op = cut.op
             operands = []
             for span in cut.spans:
-                text = " ".join(o.text for o in span)
-                parsed = spot.parse_infix_psl(text) if text.strip() else None
-                if parsed is None or parsed.format_errors(spot.ostringstream()):
+                parsed = self.part(" ".join(o.text for o in span))
+                if parsed is None:
                     self.fail(op.start, op.end - op.start, f"'{op.text}' needs an operand")
                     return None
-                if not parsed.f.is_boolean():
+                if not parsed.is_boolean():
                     self.fail(op.start, op.end - op.start,
                               f"an untimed future operator inside the operand of {op.text}",
                               "the operands of a time-bounded operator are atoms, boolean "
                               "operators, past operators and time-bounded operators")  # fmt: skip
                     return None
-                operands.append(parsed.f)
+                operands.append(parsed)
             end = cut.spans[-1][-1].end if cut.spans[-1] else op.end
             begin = cut.spans[0][0].start if cut.spans[0] else op.start
             text = self.text[min(begin, op.start) : end]
@@ -668,7 +708,7 @@ class _Parser:
         end = cut.spans[-1][-1].end if cut.spans[-1] else op.end
         begin = cut.spans[0][0].start if cut.spans[0] else op.start
         text = self.text[min(begin, op.start) : end]
-        *r, q = [spot.parse_infix_psl(" ".join(o.text for o in span)).f for span in cut.spans]
+        *r, q = [self.part(" ".join(o.text for o in span)) for span in cut.spans]
         kind = cast(BoundedKind, op.text)
         ob = Obligation(kind, op.window, shape, q, r[0] if r else None, text)
         try:
@@ -1158,14 +1198,28 @@ def _group_end(out: list[_Out], i: int) -> int:
     return len(out)
 
 
+def syntax_errors(text: str) -> str:
+    """Spot's error listing for ``text`` ("" if it parses). Spot's worker runs it
+    (:func:`_spot_errors`): its parser's error recovery can take seconds and gigabytes
+    on a few characters (``F F F []``), which the worker's budget and memory bound."""
+    stream = spot.ostringstream()
+    spot.parse_infix_psl(text).format_errors(stream)
+    return str(stream.str())
+
+
+def _clean_parse(text: str) -> str | None:
+    """Spot's printing of ``text``'s formula, None if it does not parse (in the worker)."""
+    parsed = spot.parse_infix_psl(text)
+    return None if parsed.format_errors(spot.ostringstream()) else str(parsed.f)
+
+
 def _spot_errors(text: str, offsets: list[tuple[int, _Out]]) -> list[tuple[_Out, str]]:
     """Parse Spot's error listing and map each caret back to an output token."""
-    parsed = spot.parse_infix_psl(text)
-    stream = spot.ostringstream()
-    if not parsed.format_errors(stream):
+    listing = worker.call(syntax_errors, text)
+    if not listing:
         return []
     found: list[tuple[_Out, str]] = []
-    blocks = [b for b in stream.str().split("\n\n") if b.strip()]
+    blocks = [b for b in listing.split("\n\n") if b.strip()]
     for block in blocks:
         lines = block.split("\n")
         caret = next((ln for ln in lines if ln.strip().startswith("^")), None)
@@ -1222,6 +1276,9 @@ def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
     out = p.translate(tokens)
     if p.diagnostics:
         raise InputError(p.diagnostics)
+    p.check_syntax(out)  # before anything parses a part of it in this process
+    if p.diagnostics:
+        raise InputError(p.diagnostics)
     out = p.derive_past(out)
     if p.diagnostics:
         raise InputError(p.diagnostics)
@@ -1249,7 +1306,12 @@ def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
     if not text.strip():
         p.fail(0, max(1, len(spec.assertion)), "the assertion is empty")
         raise InputError(p.diagnostics)
-    for tok, message in _spot_errors(text, offsets):
+    try:
+        errors = _spot_errors(text, offsets)
+    except BudgetExceeded as exc:
+        p.fail(0, max(1, len(spec.assertion.rstrip())), str(exc), exc.hint)
+        raise InputError(p.diagnostics) from None
+    for tok, message in errors:
         p.fail(tok.start, max(1, tok.end - tok.start), message)
     if p.diagnostics:
         raise InputError(p.diagnostics)

@@ -20,8 +20,10 @@ this process, unbounded.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import multiprocessing
+import resource
 import signal
 import threading
 from collections import OrderedDict
@@ -68,6 +70,19 @@ class SpotDied(BudgetExceeded):
     hint = "split the assertion into several monitors, each less deeply nested"
 
 
+class SpotOutOfMemory(BudgetExceeded):
+    """Spot asked for more than :data:`MEMORY` in its child process (its parser's error
+    recovery takes gigabytes on a few characters: ``F F F []``)."""
+
+    def __str__(self) -> str:
+        return f"Spot needed more than {MEMORY >> 30} GiB for this assertion"
+
+    hint = "check the assertion's syntax, or split it into several monitors"
+
+
+MEMORY = 2 << 30  # bytes of address space Spot's child process may take beyond its own
+
+
 def _serve(conn: Connection, parents: Connection) -> None:
     """The child: answer calls until the pipe closes (the parent's end, inherited, is
     closed here: else the child would hold it open and never see the parent go)."""
@@ -79,6 +94,7 @@ def _serve(conn: Connection, parents: Connection) -> None:
     signal.set_wakeup_fd(-1)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    _limit_memory()
     while True:
         try:
             fn, args = conn.recv()
@@ -91,6 +107,18 @@ def _serve(conn: Connection, parents: Connection) -> None:
                 conn.send((False, exc))
             except Exception:  # an exception that does not pickle: its text
                 conn.send((False, RuntimeError(f"{type(exc).__name__}: {exc}")))
+
+
+def _limit_memory() -> None:
+    """The child's address space: what it has at the fork plus :data:`MEMORY` (a bigger
+    request raises MemoryError there, sent back like any exception)."""
+    with contextlib.suppress(OSError, ValueError):
+        with open("/proc/self/statm") as f:
+            pages = int(f.read().split()[0])
+        limit = pages * resource.getpagesize() + MEMORY
+        _, hard = resource.getrlimit(resource.RLIMIT_AS)
+        if hard == resource.RLIM_INFINITY or hard > limit:
+            resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
 
 
 def add_budget_argument(parser: argparse.ArgumentParser) -> None:
@@ -154,6 +182,9 @@ class SpotWorker:
             self.stop()  # its answer, if it ever comes, must not be taken for the next call
             raise
         if not ok:
+            if isinstance(value, MemoryError):
+                self.stop()  # a process that ran out may be in any state: a new one next
+                raise SpotOutOfMemory(self.budget)
             raise value
         return value  # type: ignore[no-any-return]
 
