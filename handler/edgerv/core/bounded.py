@@ -31,6 +31,15 @@ The past forms, with ``once``/``since`` over closed windows of integer nanosecon
   up to u: opened less than a ago (its window has not begun), or opened at some
   t = s - a with no Q from s = t + a to u. U is F's form and this one (Q must come);
   W is this one alone.
+
+Every other nesting (:class:`Delays`): a formula of time-bounded operators, boolean
+connectives and past operators over them is read its horizon H late (Maler, Nickovic and
+Pnueli's rewriting of bounded future into past): true at t where the formula is true at
+t - H, each operator a past one with its window shifted by the delay (U, W, R and M by
+``until``, edgerv.core.past's placeholder that reads ``f U[a..b] g`` late from the runs
+of f and g). Under ``always`` it is read from the instant the run is H old; at the top,
+one operator over atoms is read at the run's first instant as soon as it is certain
+(:func:`first_instant`), a nested one when the run is H old.
 """
 
 from __future__ import annotations
@@ -92,7 +101,7 @@ def as_past(ob: Obligation, first_bit: int) -> tuple[Any, list[PastOp]]:
     return f.And(parts), ops
 
 
-# -- any nesting of F and G, at the first instant or under always ----------------------
+# -- any nesting, read late: time-bounded operators, past ones over them ----------------
 
 # a time-bounded operator, or a past operator over one (read late with it)
 CutKind = Literal["F", "G", "U", "W", "R", "M", "once", "historically", "since"]
@@ -101,9 +110,10 @@ NewPast = Callable[[PastKind, tuple[Any, ...], tuple[int, int], str, int], Any]
 
 @dataclass(frozen=True)
 class Cut:
-    """A time-bounded operator taken out of the assertion: its proposition ``name``
-    (``fut<k>``) stands for it; ``operands`` are Spot boolean formulas over the
-    placeholders and the names of the operators nested in them (``(Q,)``, ``(R, Q)``)."""
+    """A time-bounded operator, or a past operator over one, taken out of the assertion:
+    its proposition ``name`` (``fut<k>``) stands for it; ``operands`` are Spot boolean
+    formulas over the placeholders and the names of the operators nested in them
+    (``(Q,)``, ``(R, Q)``)."""
 
     name: str
     kind: CutKind
@@ -318,17 +328,17 @@ def first_instant(cut: Cut, delays: Delays) -> Any:
     horizon old)."""
     f = spot.formula
     lo, hi = cut.window
-    opened, deadline = delays.started(lo), delays.started(hi)
     *r, q = cut.operands
     if cut.kind in ("R", "M"):  # R is !(!r U !q), M is !(!r W !q)
         dual: BoundedKind = "U" if cut.kind == "R" else "W"
         negated = tuple(f.Not(o) for o in cut.operands)
         return f.Not(first_instant(Cut(cut.name, dual, cut.window, negated, cut.text), delays))
+    opened = delays.started(lo)
     if cut.kind == "F":  # Q by the deadline (a Q at the deadline's instant counts)
-        return f.U(f.Not(deadline), f.And([opened, q]))
+        return f.U(f.Not(delays.started(hi)), f.And([opened, q]))
     if cut.kind == "G":  # Q from lo to hi, both included: decided 1 ns after hi
         return f.W(f.Implies(opened, q), delays.started(hi + 1))
     if cut.kind == "U":  # R until Q, Q within the window
-        return f.U(f.And([r[0], f.Not(deadline)]), f.And([opened, q]))
+        return f.U(f.And([r[0], f.Not(delays.started(hi))]), f.And([opened, q]))
     # W: as U, or R all the way through hi
     return f.W(r[0], f.Or([f.And([opened, q]), delays.started(hi + 1)]))
