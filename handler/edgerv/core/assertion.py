@@ -437,6 +437,12 @@ class _Parser:
         while True:
             found = _innermost_past(out)
             if found is None:
+                stuck = next((o for o in out if _is_past(o)), None)
+                if stuck is not None:  # each one's operands hold another: no reading
+                    self.fail(stuck.start, stuck.end - stuck.start,
+                              f"'{stuck.text}' has no operand that can be read here",
+                              "put the operands in parentheses, e.g. once (a & b), "
+                              "(a) since (b)")  # fmt: skip
                 return out
             i, spans = found
             op = out[i]
