@@ -57,7 +57,7 @@ test: lint
 FUZZ_SECONDS ?= 60
 FUZZ_EXAMPLES ?= 1000
 fuzz: install
-	@status=0; for target in cdr bundle; do \
+	@status=0; for target in cdr bundle assertion; do \
 	  mkdir -p .fuzz/$$target tests/fuzz/crashes/$$target; \
 	  echo "fuzzing $$target for $(FUZZ_SECONDS) s"; \
 	  $(BIN)/python tests/fuzz/fuzz_$$target.py .fuzz/$$target tests/fuzz/corpus/$$target \

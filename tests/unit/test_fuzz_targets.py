@@ -19,9 +19,9 @@ import pytest
 from helpers import bounded
 
 FUZZ = Path(__file__).resolve().parents[1] / "fuzz"
-TARGETS = ["cdr", "bundle"]
+TARGETS = ["cdr", "bundle", "assertion"]
 RUNS = 2000
-DICTS = {"bundle": [f"-dict={FUZZ / 'bundle.dict'}"]}
+DICTS = {name: [f"-dict={FUZZ / name}.dict"] for name in ("bundle", "assertion")}
 
 
 def target(name: str) -> ModuleType:
@@ -60,8 +60,9 @@ def test_every_input_a_fuzzer_crashed_on_stays_fixed(path: Path) -> None:
 
 @pytest.mark.parametrize("name", TARGETS)
 def test_the_seeds_are_real_inputs(name: str) -> None:
-    """Each seed reads without error: after a change of a message definition or of the wire
-    form, a stale seed would leave the fuzzer to start from nothing (make_corpus.py)."""
+    """Each seed reads without error: after a change of a message definition, of the wire
+    form or of the assertion language, a stale seed would leave the fuzzer to start from
+    nothing (make_corpus.py; the assertions are written by hand: each compiles)."""
     from edgerv.core.handoff import bundle, decode, unbundle
 
     module = target(name)
@@ -73,6 +74,8 @@ def test_the_seeds_are_real_inputs(name: str) -> None:
             data = path.read_bytes()
             if name == "cdr":
                 module._readers[data[0]](data[1:])
+            elif name == "assertion":
+                assert module.compiles(data.decode()), data
             else:
                 mode, rest = data[0], data[2:]
                 frames = (
