@@ -51,9 +51,10 @@ test: lint
 	$(BIN)/pytest -q tests/integration tests/e2e
 
 # Fuzzing, longer than `make test` does: each coverage-guided target of tests/fuzz (atheris:
-# the CDR readers, the snapshot bundle) for FUZZ_SECONDS from its seed corpus (new inputs are
-# kept in .fuzz/), then the property tests with FUZZ_EXAMPLES random examples each. A crash or
-# a hang is written to tests/fuzz/crashes/<target>/: check it in (the unit tier replays it).
+# the CDR readers, the snapshot bundle, the assertion parser) for FUZZ_SECONDS from its seed
+# corpus (new inputs are kept in .fuzz/), then the property tests (hostile input, the
+# assertion grammar) with FUZZ_EXAMPLES random examples each. A crash or a hang is written
+# to tests/fuzz/crashes/<target>/: check it in (the unit tier replays it).
 FUZZ_SECONDS ?= 60
 FUZZ_EXAMPLES ?= 1000
 fuzz: install
@@ -66,7 +67,7 @@ fuzz: install
 	    -artifact_prefix=tests/fuzz/crashes/$$target/ || status=1; \
 	done; \
 	EDGERV_PROPERTY_EXAMPLES=$(FUZZ_EXAMPLES) $(BIN)/pytest -q tests/unit/test_hostile_properties.py \
-	  || status=1; \
+	  tests/unit/test_assertion_grammar.py || status=1; \
 	exit $$status
 
 # The project's test cluster (tests/cluster): Kubernetes built from sources, two nodes.

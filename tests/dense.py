@@ -190,3 +190,19 @@ def propositional(f: Formula, names: dict[str, str]) -> str:
 def valid(f: Formula) -> bool:
     """True whatever its propositions: a monitor of it is satisfied at its first step."""
     return bool(spot.are_equivalent(spot.formula(propositional(f, {})), spot.formula.tt()))
+
+
+def formulas(
+    seed: int,
+    count: int,
+    keep: Callable[[Formula], bool],
+    make: Callable[[random.Random], Formula] = lambda rng: random_formula(rng, 3),
+) -> list[Formula]:
+    """``count`` random formulas (``make``) that ``keep`` accepts, from ``seed``."""
+    rng = random.Random(seed)
+    out: list[Formula] = []
+    while len(out) < count:
+        f = make(rng)
+        if keep(f):
+            out.append(f)
+    return out

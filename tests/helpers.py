@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import threading
 import time
@@ -146,3 +147,25 @@ def robot_feed(engines: Sequence[Any]) -> Iterator[None]:
     finally:
         stop.set()
         feeder.join()
+
+
+PROPERTY_EXAMPLES = int(os.environ.get("EDGERV_PROPERTY_EXAMPLES", "0"))
+
+
+def props(examples: int) -> Any:
+    """Hypothesis settings of the property tests: ``examples`` derandomized examples (CI),
+    or ``$EDGERV_PROPERTY_EXAMPLES`` random ones (``make fuzz``)."""
+    from hypothesis import HealthCheck, settings
+
+    return settings(
+        max_examples=PROPERTY_EXAMPLES or examples,
+        deadline=None,
+        derandomize=not PROPERTY_EXAMPLES,
+        database=None,
+        print_blob=True,
+        suppress_health_check=[
+            HealthCheck.too_slow,
+            HealthCheck.data_too_large,
+            HealthCheck.filter_too_much,
+        ],
+    )

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -36,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from hypothesis import HealthCheck, example, given, settings
+from hypothesis import example, given
 from hypothesis import strategies as st
 from hypothesis.control import currently_in_test_context, event
 
@@ -45,26 +44,9 @@ from edgerv.core.diagnostics import InputError, Location
 from edgerv.core.documents import MonitorSpec, Value
 from edgerv.core.monitor import CompiledMonitor, compile_monitor
 from edgerv.core.spot_worker import worker
-from helpers import bounded, events, run, spec_of
+from helpers import bounded, events, props, run, spec_of
 
-_EXAMPLES = int(os.environ.get("EDGERV_PROPERTY_EXAMPLES", "0"))
 BUDGET = 3.0  # seconds of Spot per monitor: past it the monitor is refused (an InputError)
-
-
-def props(examples: int) -> settings:
-    """``examples`` derandomized examples (CI), or ``$EDGERV_PROPERTY_EXAMPLES`` random ones."""
-    return settings(
-        max_examples=_EXAMPLES or examples,
-        deadline=None,
-        derandomize=not _EXAMPLES,
-        database=None,
-        print_blob=True,
-        suppress_health_check=[
-            HealthCheck.too_slow,
-            HealthCheck.data_too_large,
-            HealthCheck.filter_too_much,
-        ],
-    )
 
 
 @pytest.fixture(autouse=True, scope="module")

@@ -28,7 +28,6 @@ import contextlib
 import http.client
 import json
 import math
-import os
 import struct
 import sys
 import tempfile
@@ -41,7 +40,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from hypothesis import HealthCheck, event, example, given, settings
+from hypothesis import event, example, given
 from hypothesis import strategies as st
 from prometheus_client import CollectorRegistry
 
@@ -63,30 +62,12 @@ from edgerv.core.traces import Trace
 from edgerv.handler import api as api_module
 from edgerv.handler.api import ControlApi
 from edgerv.handler.engine import Engine
-from helpers import Hang, bounded, compiled, spec_of
+from helpers import Hang, bounded, compiled, props, spec_of
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fuzz"))
 import fuzz_bundle  # tests/fuzz: the events and the run a restored monitor takes
 
 # -- running examples ------------------------------------------------------------------------------
-
-_EXAMPLES = int(os.environ.get("EDGERV_PROPERTY_EXAMPLES", "0"))
-
-
-def props(examples: int) -> settings:
-    """``examples`` derandomized examples (CI), or ``$EDGERV_PROPERTY_EXAMPLES`` random ones."""
-    return settings(
-        max_examples=_EXAMPLES or examples,
-        deadline=None,
-        derandomize=not _EXAMPLES,
-        database=None,
-        print_blob=True,
-        suppress_health_check=[
-            HealthCheck.too_slow,
-            HealthCheck.data_too_large,
-            HealthCheck.filter_too_much,
-        ],
-    )
 
 
 def assert_located(exc: InputError, path: str, lines: int) -> None:

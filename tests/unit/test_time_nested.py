@@ -21,6 +21,7 @@ from dense import (
     SIGNALS,
     Formula,
     evaluator,
+    formulas,
     horizon,
     random_formula,
     random_run,
@@ -37,13 +38,14 @@ from reference import ReferenceMonitor
 def nested_bodies(seed: int, count: int) -> list[Formula]:
     """Disjunctions holding two or more time-bounded operators, some nested: none of
     them in the shape ``P -> op`` that obligations take (test_time.py has those)."""
-    rng = random.Random(seed)
-    out: list[Formula] = []
-    while len(out) < count:
-        f: Formula = ("or", random_formula(rng, 3), random_formula(rng, 3))
-        if timed(f) >= 2 and horizon(f) <= 8 and size(f) <= 11 and not valid(f):
-            out.append(f)
-    return out
+
+    def disjunction(rng: random.Random) -> Formula:
+        return ("or", random_formula(rng, 3), random_formula(rng, 3))
+
+    def keep(f: Formula) -> bool:
+        return timed(f) >= 2 and horizon(f) <= 8 and size(f) <= 11 and not valid(f)
+
+    return formulas(seed, count, keep, disjunction)
 
 
 @pytest.mark.parametrize("body", nested_bodies(7, 80), ids=text)
@@ -64,13 +66,12 @@ def test_nested_under_always_fail_their_horizon_after_the_first_failure(body: Fo
 
 def top_level(seed: int, count: int) -> list[Formula]:
     """A time-bounded operator at the top holding another in its operand."""
-    rng = random.Random(seed)
-    out: list[Formula] = []
-    while len(out) < count:
-        f = random_formula(rng, 3)
-        if f[0] in ("F", "G", *BINARY) and timed(f) >= 2 and horizon(f) <= 8 and size(f) <= 11:
-            out.append(f)
-    return out
+
+    def keep(f: Formula) -> bool:
+        top = f[0] in ("F", "G", *BINARY)
+        return top and timed(f) >= 2 and horizon(f) <= 8 and size(f) <= 11
+
+    return formulas(seed, count, keep)
 
 
 @pytest.mark.parametrize("formula", top_level(11, 50), ids=text)

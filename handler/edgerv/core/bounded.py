@@ -188,24 +188,15 @@ class Delays:
 
     def at(self, f: Any, delay: int) -> Any:
         """``f`` read ``delay`` ago (``delay`` >= :meth:`horizon` of ``f``)."""
-        if not self.names(f):
-            return f if delay == 0 else self.past("once", f, (delay, delay), str(f))
-        built: dict[int, Any] = {}
-        stack = [(f, False)]
-        while stack:
-            g, expanded = stack.pop()
-            if g.id() in built:
-                continue
+
+        def leaf(g: Any) -> Any:
             if g.kind() == spot.op_ap and g.ap_name() in self.cuts:
-                built[g.id()] = self._cut_at(g.ap_name(), delay)
-            elif not self.names(g):
-                built[g.id()] = g if delay == 0 else self.at(g, delay)
-            elif not expanded:
-                stack.append((g, True))
-                stack.extend((h, False) for h in g)
-            else:
-                built[g.id()] = _same_op(g, [built[h.id()] for h in g])
-        return built[f.id()]
+                return self._cut_at(g.ap_name(), delay)
+            if not self.names(g):  # read whole, one placeholder for all of it
+                return g if delay == 0 else self.past("once", g, (delay, delay), str(g))
+            return None
+
+        return rebuild(f, leaf)
 
     def _cut_at(self, name: str, delay: int) -> Any:
         cut = self.cuts[name]
@@ -251,21 +242,13 @@ class Delays:
         read ``delay`` late: each boolean subformula under its temporal operators read
         so (:meth:`at`), the operators kept. True at a step at t where ``f`` is true
         read at t - delay, its untimed operators ranging over the steps from there."""
-        built: dict[int, Any] = {}
-        stack = [(f, False)]
-        while stack:
-            g, expanded = stack.pop()
-            if g.id() in built:
-                continue
-            if g.is_boolean():
-                constant = g.kind() in (spot.op_tt, spot.op_ff)
-                built[g.id()] = g if constant else self.at(g, delay)
-            elif not expanded:
-                stack.append((g, True))
-                stack.extend((h, False) for h in g)
-            else:
-                built[g.id()] = g.map(lambda h: built[h.id()])
-        return built[f.id()]
+
+        def leaf(g: Any) -> Any:
+            if not g.is_boolean():
+                return None
+            return g if g.kind() in (spot.op_tt, spot.op_ff) else self.at(g, delay)
+
+        return rebuild(f, leaf)
 
 
 FUTURE = ("F", "G", "U", "W", "R", "M")
@@ -279,45 +262,32 @@ def cut_formula(cut: Cut) -> Any:
 MAX_WINDOW = 2**63 - 1  # ns: a window reaching back to the run's first step
 
 
-def _same_op(g: Any, parts: list[Any]) -> Any:
-    """A boolean node of Spot's like ``g`` over new children ``parts``."""
-    f, k = spot.formula, g.kind()
-    if k == spot.op_Not:
-        return f.Not(parts[0])
-    if k == spot.op_And:
-        return f.And(parts)
-    if k == spot.op_Or:
-        return f.Or(parts)
-    if k == spot.op_Xor:
-        return f.Xor(parts[0], parts[1])
-    if k == spot.op_Implies:
-        return f.Implies(parts[0], parts[1])
-    if k == spot.op_Equiv:
-        return f.Equiv(parts[0], parts[1])
-    raise ValueError(f"'{g}' is not a boolean formula")
-
-
-def substitute(f: Any, replace: Callable[[Any], Any]) -> Any:
-    """``f`` with each atomic proposition ``ap`` for which ``replace(ap)`` is not None
-    replaced by that; the boolean nodes above them rebuilt (an explicit stack: any depth).
-    Only boolean nodes are walked: ``f`` is a boolean formula."""
+def rebuild(f: Any, leaf: Callable[[Any], Any]) -> Any:
+    """``f`` with each subformula g for which ``leaf(g)`` is not None replaced by that,
+    the nodes above rebuilt; a node without children that ``leaf`` keeps stays. Walks
+    Spot's tree with an explicit stack (any depth), each shared subformula once."""
     built: dict[int, Any] = {}
     stack = [(f, False)]
     while stack:
         g, expanded = stack.pop()
         if g.id() in built:
             continue
-        if g.kind() == spot.op_ap:
-            new = replace(g)
+        if expanded:
+            built[g.id()] = g.map(lambda h: built[h.id()])
+            continue
+        new = leaf(g)
+        if new is not None or g.size() == 0:
             built[g.id()] = g if new is None else new
-        elif g.is_boolean() and not any(True for _ in g):
-            built[g.id()] = g  # true, false
-        elif not expanded:
-            stack.append((g, True))
-            stack.extend((h, False) for h in g)
-        else:
-            built[g.id()] = _same_op(g, [built[h.id()] for h in g])
+            continue
+        stack.append((g, True))
+        stack.extend((h, False) for h in g)
     return built[f.id()]
+
+
+def substitute(f: Any, replace: Callable[[Any], Any]) -> Any:
+    """``f`` with each atomic proposition ``ap`` for which ``replace(ap)`` is not None
+    replaced by that."""
+    return rebuild(f, lambda g: replace(g) if g.kind() == spot.op_ap else None)
 
 
 def first_instant(cut: Cut, delays: Delays) -> Any:
