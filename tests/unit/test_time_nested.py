@@ -30,6 +30,7 @@ from dense import (
     timed,
     valid,
 )
+from edgerv.core.diagnostics import InputError
 from edgerv.core.pipeline import MonitorRuntime
 from helpers import compiled, events, run, verdicts
 from reference import ReferenceMonitor
@@ -265,3 +266,18 @@ def test_live_clock_steps_give_what_a_recorded_run_gives(
     live.advance(rows[-1][1])
     got += live.evaluate()
     assert [(v.verdict, v.step, v.stamp) for v in got] == verdicts(offline)
+
+
+@pytest.mark.parametrize(
+    "text", ["F[0..1ns] " * 1500 + "b", "always (" + "once (" * 200 + "F[0..1s] b" + ")" * 201]
+)
+def test_time_bounded_operators_nested_past_the_limit_are_refused_at_their_place(
+    text: str,
+) -> None:
+    """Each nested one is a call deeper in reading it late (a RecursionError from 1,000
+    on, found with F[0..1ns] nested 1,500 deep): more than 64 in one assertion, far past
+    the 16 placeholders they would take, are refused at the 65th."""
+    with pytest.raises(InputError) as info:
+        compiled(text, SIGNALS)
+    (error,) = info.value.errors
+    assert "more than 64 time-bounded operators" in error.message

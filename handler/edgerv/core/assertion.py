@@ -337,6 +337,7 @@ class _Parser:
         self.past: list[PastOp] = []
         self.anchored = False  # a time-bounded operator read at the run's first instant
         self.spot_clean = False  # the whole parses in Spot: parts may be parsed here
+        self._delays_made: Delays | Literal[False] | None = None  # False: refused
 
     def fail(self, start: int, length: int, message: str, hint: str | None = None) -> None:
         loc = self.spec.locate_assertion(start, length)
@@ -588,7 +589,20 @@ class _Parser:
         return None if any(x is None for x in pieces) else f.G(f.And(pieces))
 
     def _delays(self, cuts: list[_Cut]) -> Delays | None:
-        """The time-bounded operators with their operands as Spot formulas."""
+        """The time-bounded operators with their operands as Spot formulas (made once a
+        parse: the parts of one assertion share their placeholders)."""
+        if self._delays_made is None:
+            self._delays_made = self._make_delays(cuts)
+        return self._delays_made or None
+
+    def _make_delays(self, cuts: list[_Cut]) -> Delays | Literal[False]:
+        if len(cuts) > MAX_CUTS:  # each takes a placeholder or more: far past the limit
+            op = cuts[MAX_CUTS].op
+            self.fail(op.start, op.end - op.start,
+                      f"more than {MAX_CUTS} time-bounded operators (and past operators "
+                      "over them) in one assertion",
+                      "split the assertion into several monitors")  # fmt: skip
+            return False
         table: dict[str, Cut] = {}
         for cut in cuts:
             op = cut.op
@@ -597,13 +611,13 @@ class _Parser:
                 parsed = self.part(" ".join(o.text for o in span))
                 if parsed is None:
                     self.fail(op.start, op.end - op.start, f"'{op.text}' needs an operand")
-                    return None
+                    return False
                 if not parsed.is_boolean():
                     self.fail(op.start, op.end - op.start,
                               f"an untimed future operator inside the operand of {op.text}",
                               "the operands of a time-bounded operator are atoms, boolean "
                               "operators, past operators and time-bounded operators")  # fmt: skip
-                    return None
+                    return False
                 operands.append(parsed)
             end = cut.spans[-1][-1].end if cut.spans[-1] else op.end
             begin = cut.spans[0][0].start if cut.spans[0] else op.start
@@ -613,7 +627,7 @@ class _Parser:
                           "prev over a time-bounded operator: not supported (prev counts "
                           "steps, which a late reading does not keep)",
                           "write once[a..b] for a time before now")  # fmt: skip
-                return None
+                return False
             kind = cast(CutKind, op.text)
             window = op.window if op.window is not None else (0, MAX_WINDOW)  # untimed past
             table[cut.name] = Cut(cut.name, kind, window, tuple(operands), text)
@@ -1242,6 +1256,7 @@ def _spot_errors(text: str, offsets: list[tuple[int, _Out]]) -> list[tuple[_Out,
 
 
 MAX_NESTING = 1_000  # brackets in brackets
+MAX_CUTS = 64  # time-bounded operators, and past ones over them: Delays nests a call each
 MAX_OPERATORS = 4_000  # operators in all: a chain of them (! ! a, a U b U c) nests too
 
 
