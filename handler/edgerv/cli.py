@@ -24,8 +24,8 @@ from edgerv import __version__
 from edgerv.core.checker import CheckRun, MonitorResult, check_types
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import load_monitors
+from edgerv.core.language.spot_worker import add_budget_argument, worker
 from edgerv.core.monitor import CompiledMonitor, compile_monitors
-from edgerv.core.spot_worker import add_budget_argument, worker
 from edgerv.core.trace_set import TraceSet, expand
 from edgerv.report import print_table, to_json
 

@@ -2,7 +2,7 @@
 
 A Monitor's assertion comes from a file or a ``POST /v1/monitors``: any text can
 arrive. Compiling it (``edgerv.core.monitor.compile_monitor``: the parser of
-``edgerv.core.assertion``, the past and time-bounded operators, Spot's synthesis
+``edgerv.core.language.assertion``, the past and time-bounded operators, Spot's synthesis
 under its budget) must return a monitor, or raise ``InputError`` whose every
 diagnostic is located inside the assertion; never another exception, and quickly.
 An input is the assertion's text (UTF-8, undecodable bytes replaced), over a fixed
@@ -112,12 +112,11 @@ def fuzz_one_input(data: bytes) -> None:
 def main() -> None:
     import atheris
 
-    from edgerv.core.spot_worker import worker
+    from edgerv.core.language.spot_worker import worker
 
     worker.budget = BUDGET  # (this process only: a replay in the unit tier keeps its own)
     with atheris.instrument_imports(include=["edgerv"]):
-        for module in ("edgerv.core.assertion", "edgerv.core.past", "edgerv.core.bounded",
-                       "edgerv.core.monitor", "edgerv.core.synthesis"):  # fmt: skip
+        for module in ("edgerv.core.language", "edgerv.core.monitor"):
             importlib.import_module(module)
         load()
     atheris.Setup(sys.argv, fuzz_one_input)

@@ -129,7 +129,7 @@ def main() -> None:
     import atheris
 
     with atheris.instrument_imports(include=["edgerv"]):
-        for module in ("edgerv.core.handoff", "edgerv.core.pipeline", "edgerv.core.past"):
+        for module in ("edgerv.core.handoff", "edgerv.core.pipeline", "edgerv.core.language.past"):
             importlib.import_module(module)
         load()
     atheris.Setup(sys.argv, fuzz_one_input)

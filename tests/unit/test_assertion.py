@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 import spot
 
-from edgerv.core.assertion import parse_assertion
 from edgerv.core.diagnostics import InputError
+from edgerv.core.language.assertion import parse_assertion
 from helpers import spec_of
 
 SIGNALS = {"a": "bool", "b": "bool", "c": "bool", "speed": "float", "n": "int", "mode": "string"}

@@ -39,11 +39,11 @@ from hypothesis import example, given
 from hypothesis import strategies as st
 from hypothesis.control import currently_in_test_context, event
 
-from edgerv.core.assertion import duration_ns
 from edgerv.core.diagnostics import InputError, Location
 from edgerv.core.documents import MonitorSpec, Value
+from edgerv.core.language.assertion import duration_ns
+from edgerv.core.language.spot_worker import worker
 from edgerv.core.monitor import CompiledMonitor, compile_monitor
-from edgerv.core.spot_worker import worker
 from helpers import bounded, events, props, run, spec_of
 
 BUDGET = 3.0  # seconds of Spot per monitor: past it the monitor is refused (an InputError)
@@ -581,7 +581,7 @@ def test_time_bounded_obligations_compile_or_are_refused_at_their_place(
     case: tuple[Env, list[str]],
 ) -> None:
     """The shapes time-bounded operators are taken in, without damage (most reach
-    edgerv.core.bounded), and a few events through each monitor that compiles."""
+    edgerv.core.language.bounded), and a few events through each monitor that compiles."""
     env, tokens = case
     with bounded(30):
         monitor = check(" ".join(tokens), env)

@@ -22,7 +22,7 @@ import pytest
 
 from edgerv.cli import EXIT_INTERNAL, main
 from edgerv.core import cdr, cdr_columns, msgtypes
-from edgerv.core.spot_worker import worker
+from edgerv.core.language.spot_worker import worker
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "speed-limit.yaml"

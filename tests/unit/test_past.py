@@ -18,8 +18,8 @@ from typing import Any
 
 import pytest
 
-from edgerv.core.assertion import parse_assertion
 from edgerv.core.diagnostics import InputError
+from edgerv.core.language.assertion import parse_assertion
 from edgerv.core.pipeline import MonitorRuntime
 from helpers import compiled, events, run, spec_of, truth_at, verdicts
 

@@ -11,8 +11,8 @@ import time
 import pytest
 
 from edgerv.core.diagnostics import InputError
-from edgerv.core.spot_worker import BudgetExceeded, SpotWorker, worker
-from edgerv.core.synthesis import _synthesize_cached
+from edgerv.core.language.spot_worker import BudgetExceeded, SpotWorker, worker
+from edgerv.core.language.synthesis import _synthesize_cached
 from helpers import compiled
 
 SIGNALS = {"a": "bool", "b": "bool"}
@@ -68,7 +68,7 @@ def test_a_monitor_over_budget_is_refused_at_its_assertion() -> None:
 
 EXITS = r"""
 import asyncio, os, signal, sys
-from edgerv.core.spot_worker import worker
+from edgerv.core.language.spot_worker import worker
 
 async def main() -> None:
     stop = asyncio.Event()

@@ -21,8 +21,8 @@ import pytest
 import spot
 from test_cli import edgerv
 
-from edgerv.core.assertion import parse_assertion
 from edgerv.core.diagnostics import InputError
+from edgerv.core.language.assertion import parse_assertion
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import MonitorRuntime
 from helpers import compiled, events, run, spec_of, verdicts

@@ -7,7 +7,9 @@ from dataclasses import dataclass
 from operator import eq, ge, gt, le, lt
 from typing import Any
 
-from edgerv.core.assertion import (
+from edgerv.core.diagnostics import Diagnostic, InputError
+from edgerv.core.documents import MonitorSpec
+from edgerv.core.language.assertion import (
     CMP_FUNCS,  # the comparisons compile_atom makes: a batch applies the same ones
     Atom,
     ParsedAssertion,
@@ -15,10 +17,8 @@ from edgerv.core.assertion import (
     compile_atom_columns,
     parse_assertion,
 )
-from edgerv.core.diagnostics import Diagnostic, InputError
-from edgerv.core.documents import MonitorSpec
-from edgerv.core.past import PastOp
-from edgerv.core.synthesis import MonitorTable, SynthesisError, synthesize
+from edgerv.core.language.past import PastOp
+from edgerv.core.language.synthesis import MonitorTable, SynthesisError, synthesize
 
 
 @dataclass(frozen=True)

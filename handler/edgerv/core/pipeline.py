@@ -25,9 +25,9 @@ from operator import add, and_, is_not, itemgetter, lt, ne, sub
 from typing import Any, Literal, NamedTuple
 
 from edgerv.core.documents import QosSpec
+from edgerv.core.language.past import Past
 from edgerv.core.monitor import AGE_CMP, EDGES, AtomRead, CompiledMonitor, TimedAtom
 from edgerv.core.msgtypes import ABSENT, ValueKind, make_getter, optional_steps, path_keys
-from edgerv.core.past import Past
 from edgerv.core.snapshot import HandoffError, Snapshot, deciding_steps, runs_of
 
 VerdictKind = Literal["violated", "satisfied"]

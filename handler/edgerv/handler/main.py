@@ -29,7 +29,7 @@ from pathlib import Path
 from edgerv.core.deadline import MakespanWindow, parse_deadline
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
 from edgerv.core.documents import MonitorSpec, read_monitors
-from edgerv.core.spot_worker import add_budget_argument, worker
+from edgerv.core.language.spot_worker import add_budget_argument, worker
 from edgerv.handler.engine import Engine, VerdictSink
 from edgerv.handler.health import DiagnosticsConfig, Health
 from edgerv.handler.limits import Limits

@@ -5,7 +5,7 @@ past formula that is false exactly at the instants at which some obligation's fa
 is certain and shown there: its deadline passed with no Q, or (for ``until``) R broke
 before Q came. Spot then builds an automaton for ``always`` of that formula over the
 placeholders, and the pipeline computes the past operators step by step
-(edgerv.core.past), clock steps included, so verdicts come at the instant a failure
+(edgerv.core.language.past), clock steps included, so verdicts come at the instant a failure
 became certain, live and offline alike.
 
 Each obligation opened at an instant t where P holds (signals hold their values
@@ -36,7 +36,7 @@ Every other nesting (:class:`Delays`): a formula of time-bounded operators, bool
 connectives and past operators over them is read its horizon H late (Maler, Nickovic and
 Pnueli's rewriting of bounded future into past): true at t where the formula is true at
 t - H, each operator a past one with its window shifted by the delay (U, W, R and M by
-``until``, edgerv.core.past's placeholder that reads ``f U[a..b] g`` late from the runs
+``until``, edgerv.core.language.past's placeholder that reads ``f U[a..b] g`` late from the runs
 of f and g). Under ``always`` it is read from the instant the run is H old; at the top,
 one operator over atoms is read at the run's first instant as soon as it is certain
 (:func:`first_instant`), a nested one when the run is H old.
@@ -50,7 +50,7 @@ from typing import Any, Literal
 
 import spot
 
-from edgerv.core.past import PastKind, PastOp, compile_boolean
+from edgerv.core.language.past import PastKind, PastOp, compile_boolean
 
 BoundedKind = Literal["F", "G", "U", "W", "R", "M"]
 

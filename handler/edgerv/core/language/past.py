@@ -198,7 +198,7 @@ class _SinceRuns:
 @dataclass
 class _UntilRuns:
     """``f U[lo..hi] g`` read ``delay`` ago (a time-bounded until read late, as
-    edgerv.core.bounded makes it; ``delay`` >= hi): at t, with s = t - delay, g holds at
+    edgerv.core.language.bounded makes it; ``delay`` >= hi): at t, with s = t - delay, g holds at
     some instant t' of ``[s + lo, s + hi]`` and f at every instant of ``[s, t')``. From
     the runs of f and of g up to t; an ongoing run holds on (no new step)."""
 

@@ -26,7 +26,7 @@ from typing import Any
 import spot
 from spot import buddy
 
-from edgerv.core.spot_worker import BudgetExceeded, worker
+from edgerv.core.language.spot_worker import BudgetExceeded, worker
 
 MAX_PLACEHOLDERS = 16
 MAX_TABLE_ENTRIES = 1 << 22

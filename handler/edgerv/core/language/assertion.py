@@ -43,7 +43,9 @@ from typing import Any, Literal, cast
 
 import spot
 
-from edgerv.core.bounded import (
+from edgerv.core.diagnostics import Diagnostic, InputError, did_you_mean
+from edgerv.core.documents import MonitorSpec, Value
+from edgerv.core.language.bounded import (
     MAX_WINDOW,
     BoundedKind,
     Cut,
@@ -55,11 +57,9 @@ from edgerv.core.bounded import (
     first_instant,
     substitute,
 )
-from edgerv.core.diagnostics import Diagnostic, InputError, did_you_mean
-from edgerv.core.documents import MonitorSpec, Value
+from edgerv.core.language.past import PastError, PastKind, PastOp, compile_boolean
+from edgerv.core.language.spot_worker import BudgetExceeded, worker
 from edgerv.core.msgtypes import ValueKind
-from edgerv.core.past import PastError, PastKind, PastOp, compile_boolean
-from edgerv.core.spot_worker import BudgetExceeded, worker
 
 CmpOp = Literal["<", "<=", ">", ">=", "==", "!="]
 
@@ -434,7 +434,7 @@ class _Parser:
 
     def derive_past(self, out: list[_Out]) -> list[_Out]:
         """Replace each past operator and its operands by a placeholder of its own, inner
-        ones first (module edgerv.core.past computes them)."""
+        ones first (module edgerv.core.language.past computes them)."""
         while True:
             found = _innermost_past(out)
             if found is None:
@@ -554,7 +554,7 @@ class _Parser:
 
     def pastify_future(self, formula: Any, cuts: list[_Cut]) -> Any:
         """The formula with its time-bounded operators read by past formulas
-        (edgerv.core.bounded): under a top-level ``always``, ``always (P -> op)`` (alone
+        (edgerv.core.language.bounded): under a top-level ``always``, ``always (P -> op)`` (alone
         or in a conjunction) as the obligations it opens, reported where a failure
         becomes certain; any other boolean combination of them, nested in one another,
         by reading it with a delay of its horizon; outside ``always`` at the run's
