@@ -41,7 +41,7 @@ from hypothesis.control import currently_in_test_context, event
 
 from edgerv.core.diagnostics import InputError, Location
 from edgerv.core.documents import MonitorSpec, Value
-from edgerv.core.language.assertion import duration_ns
+from edgerv.core.language.lexer import duration_ns
 from edgerv.core.language.spot_worker import worker
 from edgerv.core.monitor import CompiledMonitor, compile_monitor
 from helpers import bounded, events, props, run, spec_of

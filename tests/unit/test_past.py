@@ -17,6 +17,7 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
+import spot
 
 from edgerv.core.diagnostics import InputError
 from edgerv.core.language.assertion import parse_assertion
@@ -54,12 +55,14 @@ def test_bad_past_operators_are_reported_at_their_place(assertion: str, expected
 
 
 def test_past_operators_become_placeholders_inner_first() -> None:
-    m = compiled("always (once a -> b since (a & !b))", BOOLS)
+    """Numbered after the atoms, left to right, each after the ones in its operands."""
+    m = compiled("always (once a -> b since (a & !historically b))", BOOLS)
     assert [(p.kind, p.bit, p.text) for p in m.past] == [
-        ("since", 2, "b since (a & !b)"),
-        ("once", 3, "once a"),
+        ("once", 2, "once a"),
+        ("historically", 3, "historically b"),
+        ("since", 4, "b since (a & !historically b)"),
     ]
-    assert m.parsed.spot_text.replace(" ", "") == "G((p3->p2))"
+    assert m.parsed.formula == spot.formula("G(p2 -> p4)")
 
 
 def test_historically_over_a_window_reads_the_value_held_into_it() -> None:

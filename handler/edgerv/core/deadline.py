@@ -24,7 +24,7 @@ from typing import TypedDict
 
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
 from edgerv.core.documents import topic_name
-from edgerv.core.language.assertion import UNITS, duration_ns
+from edgerv.core.language.lexer import UNITS, duration_ns
 
 WINDOW_NS = 2_000_000_000  # the makespans of the last 2 s of publish time
 MAX_ENTRIES = 100_000  # at most this many makespans in the window (the oldest go first)

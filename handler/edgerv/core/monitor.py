@@ -9,13 +9,12 @@ from typing import Any
 
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import MonitorSpec
-from edgerv.core.language.assertion import (
+from edgerv.core.language.assertion import ParsedAssertion, parse_assertion
+from edgerv.core.language.atoms import (
     CMP_FUNCS,  # the comparisons compile_atom makes: a batch applies the same ones
     Atom,
-    ParsedAssertion,
     compile_atom,
     compile_atom_columns,
-    parse_assertion,
 )
 from edgerv.core.language.past import PastOp
 from edgerv.core.language.synthesis import MonitorTable, SynthesisError, synthesize
