@@ -39,6 +39,7 @@ from edgerv.core.language.tree import (
 )
 
 MAX_CUTS = 64  # time-bounded operators, and past ones over them: Delays nests a call each
+MAX_UNFOLDED = 20_000  # nodes of the formula as a tree, shared operands counted each time
 
 f = spot.formula
 _STRONG_X = spot.formula("X[!] p").kind()  # Spot's Python names no op_strong_X
@@ -93,7 +94,15 @@ class Lowering:
         """Spot's formula for the tree, or None after an error (reported)."""
         made: dict[int, Any] = {}
         late: set[int] = set()  # nodes that hold a cut
-        for node in postorder(root):
+        size: dict[int, int] = {}  # each node's operators and leaves, its shared ones counted
+        for node in postorder(root):  # as often as they occur (as Spot prints and reads it)
+            size[id(node)] = min(1 + sum(size[id(c)] for c in node.children), MAX_UNFOLDED + 1)
+            if size[id(node)] > MAX_UNFOLDED:
+                self.error(node, f"the assertion unfolds to more than {MAX_UNFOLDED:,} "
+                           "operators and atoms here (until_ and until!_ repeat their left "
+                           "operand)", "write it with W and U (a until_ b is a W (a & b)), "
+                           "or split the assertion into several monitors")  # fmt: skip
+                return None
             kids = [made[id(c)] for c in node.children]
             if isinstance(node, Timed) or any(id(c) in late for c in node.children):
                 late.add(id(node))
