@@ -2,8 +2,10 @@
 formulas as tuples, their text in the assertion language, their horizon, and their truth
 at each nanosecond straight from the definitions (docs/semantics.md, sections 6 and 7;
 signals hold their values between messages), two-valued over a whole run or three-valued
-(Kleene: None where the run so far does not decide). Shared by the tests of nesting and
-of when verdicts are reported (tests/unit/test_time_nested.py, test_verdict_delay.py).
+(Kleene: None where the run so far does not decide); for past formulas with ``prev``,
+which counts steps, the truth at each step a monitor takes (:func:`past_steps`). Shared
+by the tests of nesting and of when verdicts are reported (tests/unit/test_time_nested.py,
+test_verdict_delay.py, test_past_nested_reelay.py).
 """
 
 from __future__ import annotations
@@ -16,25 +18,28 @@ from typing import Any
 import spot
 
 SIGNALS = {name: "bool" for name in "abc"}
-# ("atom", name) | ("not", f) | ("and"|"or", f, g) | ("F"|"G", lo, hi, f)
+# ("atom", name) | ("not"|"prev", f) | ("and"|"or"|"implies", f, g) | ("F"|"G", lo, hi, f)
 # | ("U"|"W"|"R"|"M", lo, hi, f, g)
-# | ("once"|"historically", lo, hi, f) | ("since", lo, hi, f, g): past, timed
+# | ("once"|"historically", lo, hi, f) | ("since", lo, hi, f, g): past, timed; untimed
+# with (lo, hi) = (0, None). prev (the step before) only in past_steps.
 Formula = tuple[Any, ...]
 BINARY = ("U", "W", "R", "M")
 PAST = ("once", "historically", "since")
+CONNECTIVES = {"and": "&", "or": "|", "implies": "->"}
 
 
 def text(f: Formula) -> str:
     kind = f[0]
     if kind == "atom":
         return str(f[1])
-    if kind == "not":
-        return f"!({text(f[1])})"
-    if kind in ("and", "or"):
-        return f"({text(f[1])}) {'&' if kind == 'and' else '|'} ({text(f[2])})"
+    if kind in ("not", "prev"):
+        return f"{'!' if kind == 'not' else 'prev '}({text(f[1])})"
+    if kind in CONNECTIVES:
+        return f"({text(f[1])}) {CONNECTIVES[kind]} ({text(f[2])})"
+    bound = "" if f[2] is None else f"[{f[1]}ns..{f[2]}ns]"
     if kind in (*BINARY, "since"):
-        return f"({text(f[3])}) {kind}[{f[1]}ns..{f[2]}ns] ({text(f[4])})"
-    return f"{kind}[{f[1]}ns..{f[2]}ns] ({text(f[3])})"
+        return f"({text(f[3])}) {kind}{bound} ({text(f[4])})"
+    return f"{kind}{bound} ({text(f[3])})"
 
 
 def size(f: Formula) -> int:
@@ -46,9 +51,9 @@ def horizon(f: Formula) -> int:
     kind = f[0]
     if kind == "atom":
         return 0
-    if kind == "not":
+    if kind in ("not", "prev"):
         return horizon(f[1])
-    if kind in ("and", "or"):
+    if kind in CONNECTIVES:
         return max(horizon(f[1]), horizon(f[2]))
     ahead = 0 if kind in PAST else int(f[2])  # a past operator looks back only
     return ahead + max(horizon(g) for g in f[3:])
@@ -59,9 +64,9 @@ def timed(f: Formula) -> int:
     kind = f[0]
     if kind == "atom":
         return 0
-    if kind == "not":
+    if kind in ("not", "prev"):
         return timed(f[1])
-    if kind in ("and", "or"):
+    if kind in CONNECTIVES:
         return timed(f[1]) + timed(f[2])
     return (0 if kind in PAST else 1) + sum(timed(g) for g in f[3:])
 
@@ -119,12 +124,21 @@ def kleene(rows: list[tuple[str, int, bool]], known: int | None
             return every(at(g, t) for g in f[1:])
         if kind == "or":
             return some(at(g, t) for g in f[1:])
+        if kind == "implies":
+            return some([neg(at(f[1], t)), at(f[2], t)])
+        if kind == "prev":
+            raise ValueError("prev counts steps: past_steps evaluates it")
         if kind in PAST:  # over the instants of the run (it starts at 0)
-            back = range(max(t - f[2], 0), t - f[1] + 1)
+            back = range(0 if f[2] is None else max(t - f[2], 0), t - f[1] + 1)
             if kind == "once":
                 return some(at(f[3], u) for u in back)
             if kind == "historically":
                 return every(at(f[3], u) for u in back)
+            if f[2] is None:  # untimed, over the steps: g at one, f at every one after it
+                # (the steps are the instants where something changes: f from u + 1 on)
+                return some(
+                    every([at(f[4], u), *(at(f[3], v) for v in range(u + 1, t + 1))]) for u in back
+                )
             # g at an instant s, f at every instant of (s, t], time dense: s in [u, u + 1)
             # for a nanosecond u where g holds; (s, t] takes u's value too unless s = t
             return some(
@@ -181,8 +195,8 @@ def propositional(f: Formula, names: dict[str, str]) -> str:
         return str(f[1])
     if kind == "not":
         return f"!({propositional(f[1], names)})"
-    if kind in ("and", "or"):
-        op = "&" if kind == "and" else "|"
+    if kind in CONNECTIVES:
+        op = CONNECTIVES[kind]
         return f"({propositional(f[1], names)}) {op} ({propositional(f[2], names)})"
     return names.setdefault(text(f), f"t{len(names)}")
 
@@ -205,4 +219,80 @@ def formulas(
         f = make(rng)
         if keep(f):
             out.append(f)
+    return out
+
+
+def past_steps(f: Formula, rows: list[tuple[str, int, bool]], end: int) -> list[tuple[int, bool]]:
+    """The truth of the past formula ``f`` at each step a monitor takes over ``rows`` (one
+    message a stamp, each a step; signals false until their first message), up to ``end``,
+    by brute force over every nanosecond from the first message (docs/semantics.md, "Past"):
+    ``prev g`` is g at the step before (false at the first); untimed ``once``,
+    ``historically`` and ``since`` range over the steps; timed ones over the instants from
+    the first step on, each step's values held until the next. An instant without a
+    message is a (clock) step where a timed operator's truth changes with every operand
+    held since the last step; there everything is evaluated anew, ``prev`` included."""
+    messages = {stamp: (topic[1:], value) for topic, stamp, value in rows}
+    t0 = rows[0][1]
+    held: dict[str, bool] = {}
+    table: dict[Formula, list[bool]] = {}  # each subformula's truth at t0, t0 + 1, ...
+
+    def evaluate(t: int, step: bool) -> dict[Formula, bool]:
+        now: dict[Formula, bool] = {}
+
+        def before(g: Formula, default: bool) -> bool:  # g's truth at the last step
+            return table[g][t - 1 - t0] if t > t0 else default
+
+        def ev(g: Formula) -> bool:
+            if g in now:
+                return now[g]
+            kind, kids = g[0], [ev(h) for h in g[1:] if isinstance(h, tuple)]  # all of them
+
+            def at(h: Formula, u: int) -> bool:
+                return now[h] if u == t else table[h][u - t0]
+
+            if kind == "atom":
+                v = held.get(g[1], False)
+            elif kind == "not":
+                v = not kids[0]
+            elif kind in CONNECTIVES:
+                x, y = kids
+                v = {"and": x and y, "or": x or y, "implies": not x or y}[kind]
+            elif kind == "prev":  # held between steps
+                v = before(g[1] if step else g, False)
+            elif g[2] is None:  # untimed: over the steps (now, or the step before)
+                if kind == "once":
+                    v = kids[0] or before(g, False)
+                elif kind == "historically":
+                    v = kids[0] and before(g, True)
+                else:
+                    v = kids[1] or (kids[0] and before(g, False))
+            else:  # timed: over the instants of [t - hi, t - lo] from t0 on
+                back = range(max(t - g[2], t0), t - g[1] + 1)
+                if kind == "once":
+                    v = any(at(g[3], u) for u in back)
+                elif kind == "historically":
+                    v = all(at(g[3], u) for u in back)
+                else:  # g at an instant of [u, u + 1), f at every one after it (as kleene)
+                    v = any(
+                        at(g[4], u) and (u == t or all(at(g[3], w) for w in range(u, t + 1)))
+                        for u in back
+                    )
+            now[g] = v
+            return v
+
+        ev(f)
+        return now
+
+    out: list[tuple[int, bool]] = []
+    for t in range(t0, end + 1):
+        if t in messages:
+            held[messages[t][0]] = messages[t][1]
+        elif t > t0 and all(table[g][-1] == v for g, v in evaluate(t, step=False).items()):
+            for column in table.values():  # no step: everything holds
+                column.append(column[-1])
+            continue
+        now = evaluate(t, step=True)
+        for g, v in now.items():
+            table.setdefault(g, []).append(v)
+        out.append((t, now[f]))
     return out

@@ -17,6 +17,7 @@ from edgerv.core.checker import CheckRun, MonitorResult
 from edgerv.core.diagnostics import Location
 from edgerv.core.documents import MonitorSpec, load_monitors_text
 from edgerv.core.monitor import CompiledMonitor, compile_monitor
+from edgerv.core.pipeline import MonitorRuntime
 from edgerv.core.traces import TraceEvent
 
 TYPES = {
@@ -80,6 +81,24 @@ def truth_at(changes: list[tuple[int, bool]], t: int) -> bool:
             break
         value = v
     return value
+
+
+def step_truths(
+    formula: str, signals: dict[str, Any], rows: Sequence[tuple[str, int, Any]], end: int
+) -> list[tuple[int, bool]]:
+    """(stamp, truth) of a formula without future operators at each step a monitor of
+    ``always (formula)`` takes over the (topic, stamp, value) rows, one event each, its
+    clock advanced to ``end`` (with reset, ``always`` is violated at each step where the
+    formula is false)."""
+    m = compiled(f"always ({formula})", signals)
+    rt = MonitorRuntime(m)
+    index = {name: i for i, name in enumerate(m.signal_names)}
+    for seq, (topic, stamp, value) in enumerate(rows):
+        rt.offer(stamp, seq, [(index[topic[1:]], value)])
+    rt.advance(end)
+    stamps = list(rt.stamps)
+    violated = {v.step for v in rt.evaluate() if v.verdict == "violated"}
+    return [(t, i + 1 not in violated) for i, t in enumerate(stamps)]
 
 
 def verdicts(result: MonitorResult) -> list[tuple[str, int, int]]:

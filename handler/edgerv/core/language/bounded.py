@@ -105,7 +105,7 @@ def as_past(ob: Obligation, first_bit: int) -> tuple[Any, list[PastOp]]:
 
 # a time-bounded operator, or a past operator over one (read late with it)
 CutKind = Literal["F", "G", "U", "W", "R", "M", "once", "historically", "since"]
-NewPast = Callable[[PastKind, tuple[Any, ...], tuple[int, int], str, int], Any]
+NewPast = Callable[[PastKind, tuple[Any, ...], tuple[int, int] | None, str, int], Any]
 
 
 @dataclass(frozen=True)
@@ -134,14 +134,14 @@ class Delays:
     def __init__(self, cuts: dict[str, Cut], new_past: NewPast) -> None:
         self.cuts = cuts
         self.new_past = new_past
-        self._made: dict[tuple[str, str, tuple[int, int], int], Any] = {}
+        self._made: dict[tuple[str, str, tuple[int, int] | None, int], Any] = {}
         self._horizons: dict[str, int] = {}
 
     def past(
         self,
         kind: PastKind,
         operand: Any,
-        window: tuple[int, int],
+        window: tuple[int, int] | None,
         text: str,
         *,
         other: Any = None,
@@ -227,9 +227,10 @@ class Delays:
         f = spot.formula
         lo, hi = cut.window
         real = self.started(inner)
-        if cut.kind == "since":
+        if cut.kind == "since":  # untimed: over steps, so a junction is a witness
             left, right = operands
-            since = self.past("since", left, (lo, hi), cut.text, other=f.And([real, right]))
+            window = None if cut.window == UNTIMED else cut.window
+            since = self.past("since", left, window, cut.text, other=f.And([real, right]))
             return since if late == 0 else self.past("once", since, (late, late), cut.text)
         (q,) = operands
         window = (lo + late, min(hi + late, MAX_WINDOW))
@@ -260,6 +261,7 @@ def cut_formula(cut: Cut) -> Any:
 
 
 MAX_WINDOW = 2**63 - 1  # ns: a window reaching back to the run's first step
+UNTIMED = (0, MAX_WINDOW)  # an untimed past operator's window, as a cut
 
 
 def rebuild(f: Any, leaf: Callable[[Any], Any]) -> Any:

@@ -16,7 +16,7 @@ from typing import Any
 
 import spot
 
-from edgerv.core.language.bounded import MAX_WINDOW, Cut, CutKind
+from edgerv.core.language.bounded import UNTIMED, Cut, CutKind
 from edgerv.core.language.lexer import Fail
 from edgerv.core.language.past import PastError, PastKind, PastOp, compile_boolean
 from edgerv.core.language.tree import (
@@ -150,7 +150,7 @@ class Lowering:
                                "counts steps, which a late reading does not keep)",
                                "write once[a..b] for a time before now")  # fmt: skip
                     return None
-                return self._cut(node, node.op, node.window or (0, MAX_WINDOW), kids)
+                return self._cut(node, node.op, node.window or UNTIMED, kids)
             return self._past(node, kids)
         raise AssertionError(f"a node the lowering does not know: {node!r}")
 

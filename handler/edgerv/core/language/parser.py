@@ -26,9 +26,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Literal
 
+from edgerv.core.language import brackets
 from edgerv.core.language.atoms import Atom, Operand
 from edgerv.core.language.comparisons import AtomReader
-from edgerv.core.language.lexer import CMP_TOKENS, NUMBER, TIMED_BOUND, Fail, Token, duration_ns
+from edgerv.core.language.lexer import CMP_TOKENS, Fail, Token
 from edgerv.core.language.tree import (
     UNBOUNDED,
     Binary,
@@ -53,7 +54,6 @@ from edgerv.core.language.tree import (
 )
 
 Mode = Literal["ltl", "sere"]
-MAX_REPEAT = 254  # Spot's largest step count or repetition
 
 LOOSE, UNARY, NEXT, REPEAT, NOT, TIGHT = 0, 90, 100, 110, 120, 130  # prefix and postfix
 
@@ -80,10 +80,6 @@ _PSL_BINARY = {"until_", "until!_", "before", "before!", "before_", "before!_"}
 _STEP_WORDS = {"G", "F", "X", "next", "next!", "next_e", "next_e!", "next_a", "next_a!"}
 _PAST_WORDS = {"once", "historically", "prev", "since"}
 _COMPACT = re.compile(r"([GFX]+)([A-Za-z_]\w*)?")  # Spot's GFp: G F p
-_STEP_RANGE = re.compile(
-    r"\[\s*(\d*)\s*(?:(\.\.|:|,|\bto\b)\s*(\d+|\$|inf)?\s*)?(!)?\s*\]"
-)  # [n], [n..m], [n:], [n..$], [!], [n!]
-_REPEAT = re.compile(r"\[\s*(\*|:\*|\+|:\+|=|->)\s*(.*?)\s*\]", re.S)
 _NAMES = {
     "U": "until operator", "W": "weak until operator", "R": "release operator",
     "M": "strong release operator", "until": "until operator", "until!": "until operator",
@@ -151,7 +147,11 @@ class Parser:
         return next((op.mode for op in reversed(self.ops) if op.kind == "group"), "ltl")
 
     def _syntax(self, t: Token, message: str, hint: str | None = None) -> None:
-        self.fail(t.start, max(1, t.end - t.start), message, hint)
+        self._stop(t.start, max(1, t.end - t.start), message, hint)
+
+    def _stop(self, start: int, length: int, message: str, hint: str | None = None) -> None:
+        """A syntax error: reported, and the rest is not read."""
+        self.fail(start, length, message, hint)
         self.stopped = True
 
     def _unexpected(self, t: Token, after_formula: bool) -> None:
@@ -228,13 +228,15 @@ class Parser:
         if t.text.replace(" ", "") == "[]":
             self._temporal_prefix(t, UNARY, lambda v, s: Steps(s, _at(t), "G", v[0]))
             return i + 1, True
-        if self._mode() == "sere" and (rep := self._repeat(t)) is not None:
+        rep = brackets.repeat(t, self._stop) if self._mode() == "sere" else None
+        if rep is False:  # reported
+            return i + 1, False
+        if rep is not None and rep[0] == "[*":  # a lone [*] or [+] repeats true
             op, lo, hi = rep
-            if op == "[*":  # a lone [*] or [+] repeats true
-                self.vals.append(Repeat(_at(t), _at(t), op, None, lo, hi))
-                return i + 1, False
-        if TIMED_BOUND.search(t.text):
-            self._timed_sere(t)
+            self.vals.append(Repeat(_at(t), _at(t), op, None, lo, hi))
+            return i + 1, False
+        if brackets.is_time_bound(t):
+            brackets.time_bound_on_a_sere(t, self._stop)
         else:
             self._unexpected(t, after_formula=False)
         return i + 1, False
@@ -348,10 +350,9 @@ class Parser:
         window = None
         used = 1
         if bracket is not None and w != "prev":
-            window = self._window(bracket)
+            window = brackets.window(bracket, self._stop)
             used = 2
             if window is None:
-                self.stopped = True
                 return i + used, True
         at = (t.start, bracket.end if used == 2 and bracket else t.end)
         name = w
@@ -371,14 +372,13 @@ class Parser:
             "X" if w in ("X", "next", "next!") else "F" if w in ("F", "next_e", "next_e!")
             else "G"
         )  # fmt: skip
-        if bracket is not None and TIMED_BOUND.search(bracket.text):
+        if bracket is not None and brackets.is_time_bound(bracket):
             if op == "X":
                 self._syntax(t, f"'{w}' counts steps: it takes no duration",
                              "for a time bound use F[0..500ms] f or G[0..2s] f")  # fmt: skip
                 return i + used, True
-            window = self._window(bracket)
+            window = brackets.window(bracket, self._stop)
             if window is None:
-                self.stopped = True
                 return i + used, True
             timed = op
 
@@ -393,9 +393,8 @@ class Parser:
         lo = hi = None
         strong = False
         if bracket is not None:
-            steps = self._steps(bracket, op)
+            steps = brackets.steps(bracket, op, self._stop)
             if steps is None:
-                self.stopped = True
                 return i + used, True
             lo, hi, strong = steps
 
@@ -416,11 +415,13 @@ class Parser:
             self._postfix(t, "[*", 0, UNBOUNDED)
             return i + 1, False
         if t.kind == "bracket":
-            rep = self._repeat(t) if mode == "sere" else None
+            rep = brackets.repeat(t, self._stop) if mode == "sere" else None
+            if rep is False:  # reported
+                return i + 1, False
             if rep is not None:
                 self._postfix(t, *rep)
-            elif TIMED_BOUND.search(t.text):
-                self._timed_sere(t)
+            elif brackets.is_time_bound(t):
+                brackets.time_bound_on_a_sere(t, self._stop)
             else:
                 self._unexpected(t, after_formula=True)
             return i + 1, False
@@ -458,9 +459,8 @@ class Parser:
                          "put the temporal operator outside the braces")  # fmt: skip
             return i + used, True
         if w == "since":
-            window = self._window(bracket) if bracket is not None else None
+            window = brackets.window(bracket, self._stop) if bracket is not None else None
             if bracket is not None and window is None:
-                self.stopped = True
                 return i + used, True
 
             def since(v: list[Node], s: Span) -> Node:
@@ -469,15 +469,14 @@ class Parser:
             self._binary(t, _UNTIL_PREC, True, since)
             return i + used, True
         if bracket is not None:
-            if w not in _UNTIL_WORDS or not TIMED_BOUND.search(bracket.text):
+            if w not in _UNTIL_WORDS or not brackets.is_time_bound(bracket):
                 self._syntax(bracket, f"'{w}' takes a time bound, not steps"
                              if w in _UNTIL_WORDS else f"'{w}' takes no bound",
                              f"give the bounds units, e.g. a {w}[0..500ms] b"
                              if w in _UNTIL_WORDS else None)  # fmt: skip
                 return i + used, True
-            window = self._window(bracket)
+            window = brackets.window(bracket, self._stop)
             if window is None:
-                self.stopped = True
                 return i + used, True
             top = _UNTIL_WORDS[w]
 
@@ -545,8 +544,8 @@ class Parser:
         if t is not None and t.text == "!" and t.kind == "op":
             self.vals.append(Closure((open_.start, t.end), _at(close), sere, True))
             return i + 1, False
-        if t is not None and t.kind == "bracket" and TIMED_BOUND.search(t.text):
-            self._timed_sere(t)
+        if t is not None and t.kind == "bracket" and brackets.is_time_bound(t):
+            brackets.time_bound_on_a_sere(t, self._stop)
             return i + 1, False
         self.vals.append(Closure((open_.start, close.end), _at(close), sere, False))
         return i, False
@@ -598,102 +597,6 @@ class Parser:
                       f"add '{close}' where the group ends")  # fmt: skip
             return False
         return True
-
-    def _window(self, bracket: Token) -> tuple[int, int] | None:
-        """A time bound ``[a..b]`` or ``[a:b]``: durations (a bare 0 is zero), in ns."""
-        text = bracket.text
-        inner = text[1:-1]
-        parts = inner.split("..") if ".." in inner else inner.split(":")
-        bounds: list[int] = []
-        for part in (p.strip() for p in parts):
-            ns = 0 if part == "0" else duration_ns(part)
-            if ns is None:
-                break
-            bounds.append(ns)
-        if len(parts) != 2 or len(bounds) != 2:
-            unitless = all(NUMBER.fullmatch(p.strip()) for p in parts)
-            self.fail(bracket.start, len(text),
-                      "a past operator's interval counts time, not steps" if unitless
-                      else f"bad interval {text}: two durations, each with its unit",
-                      "e.g. once[0..2s] f, historically[100ms:1s] f")  # fmt: skip
-            return None
-        if bounds[0] > bounds[1]:
-            self.fail(bracket.start, len(text), f"the interval {text} ends before it starts")
-            return None
-        return bounds[0], bounds[1]
-
-    def _steps(self, bracket: Token, op: str) -> tuple[int, int, bool] | None:
-        """A step range: ``X[n]``, ``X[!]``, ``F[i..j]``, ``G[i..]`` (lo, hi, strong)."""
-        m = _STEP_RANGE.fullmatch(bracket.text)
-        hint = f"e.g. {op}[2] f" if op == "X" else f"e.g. {op}[1..3] f, {op}[2..] f"
-        if m is None:
-            self._syntax(bracket, f"bad step range {bracket.text} for {op}", hint)
-            return None
-        lo_s, sep, hi_s, bang = m.groups()
-        if op == "X":
-            if sep or (not lo_s and not bang):
-                self._syntax(bracket, f"{op} takes one step count: {op}[n] or {op}[!]", hint)
-                return None
-            n = self._count(bracket, lo_s or "1")
-            return None if n is None else (n, n, bool(bang))
-        if not lo_s or not sep:
-            self._syntax(bracket, f"{op}[..] takes two bounds", hint)
-            return None
-        lo = self._count(bracket, lo_s)
-        hi = UNBOUNDED if hi_s in (None, "$", "inf") else self._count(bracket, hi_s)
-        if lo is None or hi is None:
-            return None
-        if hi != UNBOUNDED and hi < lo:
-            self._syntax(bracket, f"the range {bracket.text} ends before it starts")
-            return None
-        return lo, hi, bool(bang)
-
-    def _repeat(self, t: Token) -> tuple[RepeatOp, int, int] | None:
-        """A SERE repetition ``[*i..j]``, ``[+]``, ``[:*]``, ``[:+]``, ``[=i..j]``,
-        ``[->i..j]`` (None if the bracket is not one; an error if it is a bad one)."""
-        m = _REPEAT.fullmatch(t.text)
-        if m is None:
-            return None
-        kind, args = m.groups()
-        if kind in ("+", ":+"):
-            if args:
-                self._syntax(t, f"[{kind}] takes no count", "write [*2..] for two or more")
-                return "[*", 0, 0
-            return ("[*" if kind == "+" else "[:*"), 1, UNBOUNDED
-        op: RepeatOp = {"*": "[*", ":*": "[:*", "=": "[=", "->": "[->"}[kind]  # type: ignore[assignment]
-        default_lo = 1 if op == "[->" else 0
-        if not args:
-            return (op, 1, 1) if op == "[->" else (op, 0, UNBOUNDED)
-        rng = re.fullmatch(r"(\d*)\s*(?:(\.\.|:|,|\bto\b)\s*(\d+|\$|inf)?)?", args)
-        if rng is None:
-            self._syntax(t, f"bad repetition {t.text}", "e.g. a[*2..3], a[=2], a[->1..]")
-            return op, 0, 0
-        lo_s, sep, hi_s = rng.groups()
-        lo = self._count(t, lo_s) if lo_s else default_lo
-        hi = lo if not sep else UNBOUNDED if hi_s in (None, "$", "inf") else self._count(t, hi_s)
-        if lo is None or hi is None:
-            return op, 0, 0
-        if hi != UNBOUNDED and hi < lo:
-            self._syntax(t, f"the range {t.text} ends before it starts")
-            return op, 0, 0
-        return op, lo, hi
-
-    def _count(self, t: Token, digits: str) -> int | None:
-        n = int(digits) if len(digits) < 10 else MAX_REPEAT + 1
-        if n > MAX_REPEAT:
-            self._syntax(t, f"{digits} steps: more than the {MAX_REPEAT} Spot can count",
-                         "for longer stretches bound them in time: F[0..2s] f")  # fmt: skip
-            return None
-        return n
-
-    def _timed_sere(self, t: Token) -> None:
-        self._syntax(
-            t,
-            "a time bound here (on a SERE) is not supported yet",
-            "time bounds go on F, G, U, W, R and M (F[0..500ms] f, a U[0..1s] b), or write "
-            "the deadline with age: always (go -> (age(go) < 500ms until done)); see "
-            "docs/semantics.md, 'Time'",
-        )
 
 
 def _at(t: Token) -> Span:
