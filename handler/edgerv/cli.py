@@ -135,6 +135,7 @@ def _check(args: argparse.Namespace, run: CheckRun, trace: TraceSet, total: int)
             run.feed(trace.events(run.topics, fields=run.fields()))
     except InputError as exc:
         _emit(run.finish(trace.end), args.json)
+        _report(trace.warnings)
         _report(exc.diagnostics)
         print(
             "edgerv: the trace stopped at that error; the verdicts above cover the events "
@@ -145,7 +146,7 @@ def _check(args: argparse.Namespace, run: CheckRun, trace: TraceSet, total: int)
     results = run.finish(trace.end)
     _emit(results, args.json)
     unread = trace.unread(run.readers())
-    _report(unread)
+    _report(trace.warnings + unread)
     if not any(trace.counts.values()):  # a verification tool never passes having read nothing
         print(
             f"edgerv: error: no message of any monitored topic was read from {trace.name}: "

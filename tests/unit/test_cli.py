@@ -213,6 +213,15 @@ def test_bad_assertion_exit_2_with_position(tmp_path: Path) -> None:
             '{"topic": "/speed", "stamp": 5, "msg": ' + "[" * 50_000 + "]" * 50_000 + "}",
             ":3: error: nested too deep to read",
         ),
+        (
+            '{"topic": "/speed", "stamp": 1.5, "msg": {"data": 1.0}}',
+            ":3: error: stamp 1.5 is not an integer: a stamp is integer nanoseconds (of ROS "
+            "time, or since the run began); if it is in seconds, 1.5 s is 1500000000",
+        ),
+        (
+            '{"topic": "/speed", "stamp": "12:00:01", "msg": {"data": 1.0}}',
+            ':3: error: stamp "12:00:01" is not a number: a stamp is integer nanoseconds',
+        ),
     ],
 )
 def test_bad_trace_lines(monitors: Path, tmp_path: Path, line: str, expected: str) -> None:
@@ -446,3 +455,42 @@ def test_an_internal_error_exits_70_in_one_line_never_as_a_verdict(
     )
     assert ("Traceback (most recent call last)" in done.stderr) == bool(debug)
     assert ("run it again with --debug" in done.stderr) != bool(debug)
+
+
+FRESH = """\
+apiVersion: edgerv.io/v1alpha1
+kind: Monitor
+metadata: {name: fresh}
+spec:
+  assertion: "always (age(speed) < 500ms)"
+  signals:
+    speed: {topic: /speed, type: std_msgs/msg/Float64}
+"""
+
+
+@pytest.mark.parametrize("per_second", [1, 1000])  # seconds, milliseconds
+def test_stamps_that_look_like_seconds_warn_at_the_first_line(
+    tmp_path: Path, per_second: int
+) -> None:
+    """A speed every second for 3 s, then a 2 s gap: read as nanoseconds the gap is 2 ns
+    and the freshness monitor passes; the trace is said to look like seconds."""
+    monitors = tmp_path / "m.yaml"
+    monitors.write_text(FRESH)
+    stamps = [0, 1, 2, 3, 5, 6]
+    rows = [("/speed", s * per_second, {"data": 1.0}) for s in stamps]
+    trace = write_jsonl(tmp_path / "t.jsonl", rows)
+    proc = edgerv("check", monitors, trace)
+    assert proc.returncode == 0  # read as nanoseconds, as documented: nothing is late
+    first = f"{trace}:1: warning: stamps are integer nanoseconds, and these are "
+    assert first in proc.stderr and "look like seconds or milliseconds" in proc.stderr, proc.stderr
+    in_ns = write_jsonl(tmp_path / "ns.jsonl", [(t, s * 10**9, m) for t, s, m in rows])
+    late = edgerv("check", monitors, in_ns)
+    assert late.returncode == 1 and "warning" not in late.stderr, late.stderr
+
+
+def test_stamps_close_together_do_not_warn_where_no_monitor_reads_time(
+    monitors: Path, tmp_path: Path
+) -> None:
+    """An untimed monitor's verdicts depend on the stamps' order only: no warning."""
+    trace = write_jsonl(tmp_path / "t.jsonl", [(t, i, m) for i, (t, _, m) in enumerate(RUN)])
+    assert "warning" not in edgerv("check", monitors, trace).stderr

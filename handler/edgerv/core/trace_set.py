@@ -112,6 +112,11 @@ class TraceSet:
         return total
 
     @property
+    def warnings(self) -> list[Diagnostic]:
+        """What the traces' reading found to warn about (a stamp's unit)."""
+        return [w for trace in self.traces for w in trace.warnings]
+
+    @property
     def end(self) -> int | None:
         ends = [t.end for t in self.traces if t.end is not None]
         return max(ends) if ends else None

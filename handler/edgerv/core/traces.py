@@ -236,6 +236,7 @@ class Trace:
         self.msgtypes: dict[str, str] = {}  # topic -> message type, for bags
         self.counts: Counter[str] = Counter()  # events read, per monitored topic
         self.others: set[str] = set()  # JSON Lines: the topics seen that no monitor reads
+        self.warnings: list[Diagnostic] = []  # about the trace itself, found as it is read
         # The latest time the trace shows as passed: the largest stamp of any of its
         # events, read or not (a bag: also its last message's log time). Monitors with
         # timed atoms take their clock steps up to it at the end of a check.
@@ -297,6 +298,7 @@ class Trace:
             ) from None
         with handle:
             lineno = 0
+            first = True  # the first block's stamps say their unit
             for data in _blocks(handle, progress):
                 chunk = EventChunk(path, parsed_json=True)
                 try:
@@ -305,6 +307,11 @@ class Trace:
                     if len(chunk):
                         yield chunk
                     raise
+                if first and len(chunk) and self.ends_needed:  # (a monitor reads time)
+                    first = False
+                    warning = stamp_unit_warning(path, list(chunk.stamps[:10_000]))
+                    if warning is not None:
+                        self.warnings.append(warning)
                 if len(chunk):
                     yield chunk
 
@@ -655,6 +662,47 @@ def _jsonl_event(
     return _record_event(path, lineno, text, record, topics, saw, others)
 
 
+def _not_a_stamp(stamp: Any) -> str:
+    """Why a record's ``stamp`` is none, and what it must be."""
+    must = "a stamp is integer nanoseconds (of ROS time, or since the run began)"
+    if stamp is None:
+        return "missing 'stamp' (integer nanoseconds) and msg has no header.stamp"
+    if isinstance(stamp, float):
+        ns = f"{stamp * 1e9:.0f}" if abs(stamp) < 1e10 else "its seconds times 1000000000"
+        return (f"stamp {stamp!r} is not an integer: {must}; if it is in seconds, "
+                f"{stamp!r} s is {ns}")  # fmt: skip
+    shown = json.dumps(stamp)
+    shown = shown if len(shown) <= 40 else shown[:37] + "..."
+    return f'stamp {shown} is not a number: {must}, e.g. "stamp": 1500000000'
+
+
+MIN_GAP = 100_000  # ns: a run's stamps closer than this (10 kHz) are seldom nanoseconds
+
+
+def stamp_unit_warning(path: str, stamps: Sequence[int]) -> Diagnostic | None:
+    """A warning at the trace's first line when its first stamps are so close together
+    that they are likely seconds or milliseconds, read as nanoseconds (a 2 s gap read as
+    2 ns passes a freshness monitor): their median gap under :data:`MIN_GAP`. Asked only
+    where a monitor reads time (age(), a time bound): other verdicts do not depend on
+    the unit, only on the stamps' order."""
+    distinct = sorted(set(stamps))
+    gaps = [b - a for a, b in itertools.pairwise(distinct)]
+    if len(gaps) < 2:
+        return None
+    median = sorted(gaps)[len(gaps) // 2]
+    if median >= MIN_GAP:
+        return None
+    return Diagnostic(
+        Location(path, 1),
+        f"stamps are integer nanoseconds, and these are {median} ns apart (the median of "
+        f"the first {len(stamps):,}): the run would last {distinct[-1] - distinct[0]:,} ns; "
+        "they look like seconds or milliseconds",
+        severity="warning",
+        hint="write each stamp in nanoseconds (1.5 s is 1500000000), or the verdicts of "
+        "timed monitors (age(), time bounds) are about nanoseconds",
+    )
+
+
 def _bad_line(
     path: str, lineno: int, text: str, message: str, col: int | None = None
 ) -> InputError:
@@ -698,7 +746,7 @@ def _record_event(
     if stamp is None:
         stamp = record.get("stamp")
         if isinstance(stamp, bool) or not isinstance(stamp, int):
-            raise fail("missing 'stamp' (integer nanoseconds) and msg has no header.stamp")
+            raise fail(_not_a_stamp(stamp))
     if stamp not in STAMPS:
         raise fail(f"stamp {stamp} is out of the range of 64-bit nanoseconds")
     saw(stamp)
