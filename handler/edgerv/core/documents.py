@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
 import math
 import re
 from collections.abc import Callable, Iterator
@@ -524,7 +525,40 @@ def _parse_int(
     return value
 
 
+def _duplicate_keys(doc: _Doc) -> None:
+    """A key written twice in one mapping, at any depth, is an error at the second naming
+    the first (YAML keeps only the last, without a word: ``assertion`` written twice
+    would silently check the second)."""
+    stack: list[tuple[yaml.Node, str]] = [(doc.root, "")]
+    seen: set[int] = set()  # an alias is the node it names: walked once
+    while stack:
+        node, where = stack.pop()
+        if id(node) in seen:
+            continue
+        seen.add(id(node))
+        if isinstance(node, yaml.SequenceNode):
+            stack.extend((v, f"{where}[{i}]") for i, v in enumerate(node.value))
+        if not isinstance(node, yaml.MappingNode):
+            continue
+        first: dict[str, yaml.Node] = {}
+        for knode, vnode in node.value:
+            key = str(knode.value) if isinstance(knode, yaml.ScalarNode) else None
+            path = f"{where}.{key}" if where else str(key)
+            if key is not None and key != "<<":
+                if key in first:
+                    mark = first[key].start_mark
+                    doc.error(knode, path, f"'{key}' is written twice in this mapping (first "
+                              f"at line {mark.line + 1}, column {mark.column + 1})",
+                              "YAML would keep only the last: remove one")  # fmt: skip
+                else:
+                    first[key] = knode
+            stack.append((vnode, path))
+
+
 def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
+    _duplicate_keys(doc)
+    if doc.diagnostics:
+        return None
     top = _check_keys(
         doc,
         doc.root,
@@ -721,6 +755,12 @@ def _documents(path: str, text: str) -> Iterator[_Doc]:
             if mark is not None
             else Location(path)
         )
+        long_key = _long_json_key(text)
+        if long_key is not None:  # valid JSON, which YAML reads but for keys over 1,024
+            problem = (f"a key of {len(long_key):,} characters ('{long_key[:40]}...'): YAML, "
+                       f"which reads this JSON, takes keys of at most {MAX_KEY:,}")  # fmt: skip
+            hint = "no Monitor field is that long: check the key"
+            raise InputError([Diagnostic(loc, problem, hint=hint)]) from None
         raise InputError([Diagnostic(loc, f"invalid YAML: {exc.problem}")]) from None
     except yaml.reader.ReaderError as exc:  # a character YAML does not allow (a control)
         at = min(max(0, exc.position), len(text))
@@ -732,6 +772,27 @@ def _documents(path: str, text: str) -> Iterator[_Doc]:
         raise InputError([Diagnostic(Location(path, line + 1, col, 1, src), problem)]) from None
     except yaml.YAMLError as exc:  # any other the parser raises: at least the file
         raise InputError([Diagnostic(Location(path), f"invalid YAML: {exc}")]) from None
+
+
+MAX_KEY = 1024  # characters: PyYAML's limit for a key in a flow mapping (as JSON writes one)
+
+
+def _long_json_key(text: str) -> str | None:
+    """The first key longer than :data:`MAX_KEY` if ``text`` is JSON, else None."""
+    try:
+        stack = [json.loads(text)]
+    except (ValueError, RecursionError):
+        return None
+    while stack:
+        value = stack.pop()
+        if isinstance(value, dict):
+            long = next((k for k in value if len(k) > MAX_KEY), None)
+            if long is not None:
+                return long
+            stack.extend(value.values())
+        elif isinstance(value, list):
+            stack.extend(value)
+    return None
 
 
 def _unique(spec: MonitorSpec, seen: dict[str, Location], diagnostics: list[Diagnostic]) -> bool:

@@ -617,18 +617,23 @@ def _indexed(buf: npt.NDArray[np.uint8], indexes: dict[int, bytes]) -> Any:
     if bool(np.any(ends[:-1] > offsets[1:])) or int(ends[-1]) > len(buf):
         return None
     gaps = np.flatnonzero(np.concatenate(([offsets[0] > 0], ends[:-1] < offsets[1:])))
-    for i in gaps.tolist():  # what no index names: schema and channel records only
-        if not _no_message(buf, int(ends[i - 1]) if i else 0, int(offsets[i])):
+    for i in gaps.tolist():  # what no index names: records that are none of those below
+        if not _nothing_to_take(buf, int(ends[i - 1]) if i else 0, int(offsets[i])):
             return None
-    if int(ends[-1]) < len(buf) and not _no_message(buf, int(ends[-1]), len(buf)):
+    if int(ends[-1]) < len(buf) and not _nothing_to_take(buf, int(ends[-1]), len(buf)):
         return None
     return offsets, heads
 
 
-def _no_message(buf: npt.NDArray[np.uint8], pos: int, end: int) -> bool:
-    """Whether the bytes from ``pos`` to ``end`` are whole records, none a message."""
+_TAKEN = (_MESSAGE, _CHANNEL, _SCHEMA)  # what a walk takes: a chunk holding one is walked
+
+
+def _nothing_to_take(buf: npt.NDArray[np.uint8], pos: int, end: int) -> bool:
+    """Whether the bytes from ``pos`` to ``end`` are whole records, none a message, a
+    channel or a schema (a channel registered in a chunk read from its indexes would
+    be lost, and its messages in the chunks after it with it)."""
     while pos < end:
-        if pos + 9 > end or buf[pos] == _MESSAGE:
+        if pos + 9 > end or int(buf[pos]) in _TAKEN:
             return False
         pos += 9 + int(_gather(buf, np.array([pos + 1]), "<u8")[0])
     return pos == end

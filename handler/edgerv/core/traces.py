@@ -18,7 +18,7 @@ import json
 from collections import Counter
 from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from itertools import compress, islice, repeat
+from itertools import compress, repeat
 from operator import attrgetter, contains, itemgetter
 from pathlib import Path
 from typing import Any, BinaryIO, cast
@@ -197,11 +197,12 @@ def _scan_lines(lines: list[str]) -> list[tuple[Any, int] | None]:
     parseable ones at a time (a failing line stops the map; the next run starts after
     it). What is made of a result is for the caller to check."""
     out: list[tuple[Any, int] | None] = []
+    rest = iter(lines)  # one iterator: a failing line costs one step, not a new pass
     while len(out) < len(lines):
         # a StopIteration from the scanner ends the map as if the lines had; an error
-        # leaves the results before it in ``out``
+        # leaves the results before it in ``out``; either way the failing line is taken
         with contextlib.suppress(ValueError, RecursionError):
-            out.extend(map(_SCAN, islice(lines, len(out), None), repeat(0)))
+            out.extend(map(_SCAN, rest, repeat(0)))
         if len(out) < len(lines):
             out.append(None)
     return out
@@ -321,11 +322,19 @@ class Trace:
         """Read the lines of ``data`` (each ending with a newline) into ``chunk``; return
         the number of the last one. Raises :class:`InputError` at a bad line, ``chunk``
         holding the events before it."""
+        if lineno == 0 and data.startswith(_BOM):  # as a YAML document's: not the line's
+            data = data[len(_BOM) :]
         lineno += 1  # the first line's number
         count = data.count(b"\n")
         if self._take_decoded(chunk, lineno, data, count, topics):
             return lineno + count - 1
-        lines = data.decode("utf-8", errors="replace").split("\n")
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError as exc:  # the lines before it are read, then the error
+            start = data.rfind(b"\n", 0, exc.start) + 1
+            before = self._read_lines(chunk, lineno - 1, data[:start], topics) if start else 0
+            raise _not_utf8(chunk.path, before + 1 if start else lineno, data, start, exc) from None
+        lines = text.split("\n")
         lines.pop()  # after the last newline
         parsed = _scan_lines(lines)
         if self._take_block(chunk, lineno, lines, parsed, topics):
@@ -648,7 +657,10 @@ def _jsonl_event(
     others: set[str] | None = None,
 ) -> TraceEvent | None:
     """One line read with care: the event, None for a topic not read, or the located error."""
-    text = raw.decode("utf-8", errors="replace").rstrip("\r\n")
+    try:
+        text = raw.decode("utf-8").rstrip("\r\n")
+    except UnicodeDecodeError as exc:
+        raise _not_utf8(path, lineno, raw, 0, exc) from None
     try:
         record = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -660,6 +672,22 @@ def _jsonl_event(
             path, lineno, text, "nested too deep to read (a message has a few levels)"
         ) from None
     return _record_event(path, lineno, text, record, topics, saw, others)
+
+
+_BOM = b"\xef\xbb\xbf"  # a UTF-8 byte order mark, as some editors begin a file
+
+
+def _not_utf8(
+    path: str, lineno: int, data: bytes, start: int, exc: UnicodeDecodeError
+) -> InputError:
+    """The located error for bytes that are not UTF-8 in the line starting at ``start``."""
+    end = data.find(b"\n", exc.start)
+    line = data[start : len(data) if end < 0 else end].decode("utf-8", errors="replace")
+    col = len(data[start : exc.start].decode("utf-8", errors="replace")) + 1
+    byte = data[exc.start : exc.start + 1].hex()
+    return _bad_line(
+        path, lineno, line, f"invalid UTF-8 (byte 0x{byte}): a trace is UTF-8 text", col
+    )
 
 
 def _not_a_stamp(stamp: Any) -> str:
