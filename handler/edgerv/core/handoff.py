@@ -201,7 +201,7 @@ def frame_sizes(frame: bytes) -> tuple[int, int]:
         header = json.loads(frame[_FRAME.size : _FRAME.size + hlen])
         return _FRAME.size + hlen, int(header["n"])
     except (struct.error, ValueError, KeyError, TypeError, OverflowError, RecursionError) as exc:
-        raise HandoffError(f"malformed snapshot header: {exc!r}"[:300]) from None
+        raise HandoffError(f"malformed snapshot header: {exc}"[:300]) from None
 
 
 def _inflate(data: bytes, size: int) -> bytes:

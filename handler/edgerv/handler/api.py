@@ -263,15 +263,31 @@ def _message(status: int, text: str) -> web.Response:
     return web.json_response({"errors": [{"message": text}]}, status=status)
 
 
+def _shown(value: Any) -> str:
+    """A request's value as JSON writes it, shortened: never a Python repr."""
+    try:
+        text = json.dumps(value)
+    except (TypeError, ValueError, RecursionError):
+        text = f"a {type(value).__name__}"
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _why(exc: Exception) -> str:
+    """What is wrong with a request, in the request's terms (never a Python repr)."""
+    if isinstance(exc, KeyError):
+        return f"missing field {_shown(exc.args[0] if exc.args else '?')}"
+    return str(exc)[:200] or type(exc).__name__
+
+
 def _integer(value: Any, what: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
-        raise ValueError(f"{what} must be an integer, not {value!r}"[:200])
+        raise ValueError(f"{what} must be an integer, not {_shown(value)}")
     return value
 
 
 def _seconds(value: Any, what: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
-        raise ValueError(f"{what} must be a number of seconds, not {value!r}"[:200])
+        raise ValueError(f"{what} must be a number of seconds, not {_shown(value)}")
     return min(float(value), 1e9)  # inf: never
 
 
@@ -583,7 +599,7 @@ class ControlApi:
         except HandoffError as exc:
             return _message(409, str(exc))
         except (KeyError, ValueError, TypeError) as exc:
-            return _message(400, f"bad handoff request: {exc!r}")
+            return _message(400, f"bad handoff request: {_why(exc)}")
         except RecursionError:
             return _message(400, "bad handoff request: nested too deep")
         return _message(404, f"no handoff step '{step}'")
