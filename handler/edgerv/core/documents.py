@@ -780,13 +780,13 @@ MAX_KEY = 1024  # characters: PyYAML's limit for a key in a flow mapping (as JSO
 def _long_json_key(text: str) -> str | None:
     """The first key longer than :data:`MAX_KEY` if ``text`` is JSON, else None."""
     try:
-        stack = [json.loads(text)]
+        stack: list[Any] = [json.loads(text)]
     except (ValueError, RecursionError):
         return None
     while stack:
         value = stack.pop()
         if isinstance(value, dict):
-            long = next((k for k in value if len(k) > MAX_KEY), None)
+            long: str | None = next((str(k) for k in value if len(k) > MAX_KEY), None)
             if long is not None:
                 return long
             stack.extend(value.values())
