@@ -308,6 +308,9 @@ class MonitorRuntime:
     # steps by the clock too (clock steps); None without any.
     clock: Clock | None = field(init=False)
     past: Past | None = field(init=False)  # its past operators' placeholders and state
+    # the valuation is a letter its past operators made (a step, not a valuation of the
+    # atoms alone): a later letter with the same atoms may take it again (_compress_one)
+    past_stepped: bool = field(default=False, init=False)
     # (a monitor with either compresses its events one by one, never ahead nor with NumPy;
     # a check's chunks, a run of equal letters at a time: :meth:`offer_arrivals`)
     # The signals read through an optional: a message whose optional is empty gives them
@@ -364,6 +367,14 @@ class MonitorRuntime:
 
         Returns True when letters were produced and :meth:`evaluate` has work.
         """
+        if self.threshold == 1 and not self.holding and not self.halted and stamp > self.floor:
+            # nothing to sort: straight to letters (offer_event's first case, no tuple made)
+            last = self.last_released
+            if last is not None and stamp < last:
+                self.late_events += 1
+            self.last_released = stamp
+            self._compress_one(stamp, updates, self.letters, self.stamps)
+            return not self.missing
         return self.offer_event((stamp, seq, updates))
 
     def _offer_held(self, stamp: int, seq: int, updates: Sequence[Update]) -> bool:
@@ -532,7 +543,7 @@ class MonitorRuntime:
             while change <= k:
                 change = next(pending, n)
             end = change
-            if past is not None and not past.settled(self.valuation):
+            if past is not None and not (past.always_settled or past.settled(self.valuation)):
                 end = k + 1
             elif (later := self._past_change()) is not None:
                 end = bisect_left(nows, later, k + 1, end)
@@ -801,6 +812,7 @@ class MonitorRuntime:
                 bits = (self.valuation & keep) | aged
                 if past is not None:
                     bits = past.step(now, bits)
+                    self.past_stepped = True
                 self.valuation = bits
                 letters.append(bits)
                 stamps.append(now)
@@ -888,14 +900,19 @@ class MonitorRuntime:
         """Apply one event to the signal values; append its letter once all have a value."""
         values = self.values
         clock = self.clock
+        now, deadline = stamp, None
         if clock is not None:  # time passed up to the event: the clock steps before it
-            if clock.deadline is not None and clock.deadline < stamp:
+            deadline = clock.deadline
+            if deadline is not None and deadline < stamp:
                 self._clock_steps(stamp - 1, letters, stamps)
+                deadline = clock.deadline
             # a late event counts at the time of the step before it: time never goes back
-            now = stamp if clock.now is None or stamp > clock.now else clock.now
+            if clock.now is not None and stamp <= clock.now:
+                now = clock.now
             clock.now = now
+            last = clock.last
             for sig, _ in updates:
-                clock.last[sig] = now
+                last[sig] = now
         if self.missing:
             for sig, value in updates:
                 if values[sig] is _UNSET:
@@ -907,7 +924,8 @@ class MonitorRuntime:
                 return
             bits = self._full_valuation()
         else:  # only the placeholders that read the updated signals change
-            funcs, readers = self.monitor.atom_funcs, self.monitor.atoms_of_signal
+            monitor = self.monitor
+            funcs, readers = monitor.atom_funcs, monitor.atoms_of_signal
             bits = self.valuation
             for sig, value in updates:
                 values[sig] = value
@@ -916,12 +934,30 @@ class MonitorRuntime:
                         bits |= 1 << atom
                     else:
                         bits &= ~(1 << atom)
-            if clock is not None:
+            if clock is not None and clock.atoms:
                 bits = (bits & ~clock.mask) | clock.bits()
-        if self.past is not None:
-            bits = self.past.step(stamp if clock is None else clock.now, bits)  # type: ignore[arg-type]
-        if clock is not None:
-            clock.deadline = clock.next_deadline()
+        past = self.past
+        if past is None:
+            if clock is not None:
+                clock.deadline = clock.next_deadline()
+        elif (
+            bits == self.valuation
+            and self.past_stepped
+            and (deadline is None or now < deadline)
+            and (past.always_settled or past.settled(bits))
+        ):
+            # The atoms of the last letter again, before any timed past operator may change
+            # with time, and no prev that a step changes: the step would give the same
+            # letter and leave the state as it is (Past.settled), so it is not taken. The
+            # clock's deadline stays (the past operators' next change is the same) unless
+            # ages started again.
+            if clock is not None and clock.atoms:
+                clock.deadline = clock.next_deadline()
+        else:
+            bits = past.step(now, bits)
+            self.past_stepped = True
+            if clock is not None:
+                clock.deadline = clock.next_deadline()
         self.valuation = bits
         letters.append(bits)
         stamps.append(stamp)

@@ -59,7 +59,9 @@ def compile_boolean(formula: Any) -> BitsFunction:
         raise PastError(f"'{formula}' is not a boolean formula")
     table = _truth_table(str(formula))
     mask = len(table) - 1
-    return lambda b: table[b & mask]
+    function = lambda b: table[b & mask]  # noqa: E731 (it carries its table: Past reads it)
+    function.table, function.mask = table, mask  # type: ignore[attr-defined]
+    return function
 
 
 @lru_cache(maxsize=1024)
@@ -157,12 +159,22 @@ class _Runs:
         return bool(self.runs) and self.runs[0][0] + lo <= now  # type: ignore[operator]
 
     def next_change(self, now: int, lo: int, hi: int) -> int | None:
-        """The first instant after ``now`` at which :meth:`once` may change its answer."""
+        """The first instant after ``now`` at which :meth:`once` may change its answer:
+        a run's start plus ``lo`` or its end plus ``hi``, the first of either after now
+        (the runs are in order, starts and ends ascending; the ongoing one, last, has no
+        end)."""
         best = None
-        for start, end in self.runs:
-            for at in (start + lo, None if end is None else end + hi):  # type: ignore[operator]
-                if at is not None and at > now and (best is None or at < best):
-                    best = at
+        for start, _ in self.runs:
+            if start + lo > now:  # type: ignore[operator]
+                best = start + lo  # type: ignore[operator]
+                break
+        for _, end in self.runs:
+            if end is None:
+                break
+            if end + hi > now:
+                if best is None or end + hi < best:
+                    best = end + hi
+                break
         return best
 
 
@@ -244,6 +256,53 @@ class _UntilRuns:
         return best
 
 
+# What Past.step does for each operator, by code (the most frequent first): its program
+# holds one tuple per operator, its operands as truth tables (no call per operand)
+_TIMED_ONCE, _TIMED_HISTORICALLY, _TIMED_SINCE, _UNTIL = range(4)  # (once 0: `if code` below)
+_PREV, _ONCE, _HISTORICALLY, _SINCE = range(4, 8)
+_TIMED_CODES = {"once": _TIMED_ONCE, "historically": _TIMED_HISTORICALLY, "since": _TIMED_SINCE}
+_UNTIMED_CODES = {"prev": _PREV, "once": _ONCE, "historically": _HISTORICALLY, "since": _SINCE}
+# (code, its bit, the other bits, f's table and mask, g's (or none), lo, hi, delay)
+_Instruction = tuple[int, int, int, Any, int, Any, int, int, int, int]
+
+
+class _Calls:
+    """An operand that is not :func:`compile_boolean`'s, read as a table: ``calls[bits]``
+    is its value (its mask is -1: every bit)."""
+
+    __slots__ = ("function",)
+
+    def __init__(self, function: BitsFunction) -> None:
+        self.function = function
+
+    def __getitem__(self, bits: int) -> bool:
+        return self.function(bits)
+
+
+def _table(operand: BitsFunction) -> tuple[Any, int]:
+    """An operand as its truth table and the mask of the bits it reads."""
+    table = getattr(operand, "table", None)
+    if table is None:
+        return _Calls(operand), -1
+    return table, operand.mask  # type: ignore[attr-defined]
+
+
+def _instruction(op: PastOp) -> _Instruction:
+    if op.kind == "until":
+        code = _UNTIL
+    elif op.window is not None:
+        if op.kind not in _TIMED_CODES:
+            raise PastError(f"'{op.kind}' takes no time bound")
+        code = _TIMED_CODES[op.kind]
+    else:
+        code = _UNTIMED_CODES[op.kind]
+    f_table, f_mask = _table(op.operands[0])
+    g_table, g_mask = _table(op.operands[1]) if len(op.operands) > 1 else ((), 0)
+    lo, hi = (0, 0) if op.window is None else op.window
+    one = 1 << op.bit
+    return code, one, ~one, f_table, f_mask, g_table, g_mask, lo, hi, op.delay
+
+
 class Past:
     """The derived placeholders of one monitor and their state. Not thread-safe."""
 
@@ -254,6 +313,9 @@ class Past:
         self._prevs = [
             (i, op.bit) for i, op in enumerate(self.ops) if op.window is None and op.kind == "prev"
         ]
+        self.always_settled = not self._prevs  # settled() is True whatever the letter
+        self._program = tuple(_instruction(op) for op in self.ops)
+        self._timed = tuple(i for i, op in enumerate(self.ops) if op.window is not None)
 
     @staticmethod
     def _initial(op: PastOp) -> Any:
@@ -265,39 +327,54 @@ class Past:
 
     def step(self, now: int, bits: int) -> int:
         """Take a step at ``now`` whose atoms are ``bits``: the letter with the derived
-        placeholders set, inner ones first (an outer one reads their new bits)."""
-        for op, state in zip(self.ops, self.state, strict=True):
-            f = op.operands[0](bits)
-            if op.kind == "until":
-                assert op.window is not None
-                state.step(now, f, op.operands[1](bits))
-                state.prune(now, op.delay)
-                value = state.holds(now, *op.window, op.delay)
-            elif op.window is not None and op.kind == "since":
-                state.step(now, f, op.operands[1](bits))
-                value = state.holds(now, *op.window)
-            elif op.window is not None:
-                lo, hi = op.window
-                value = self._timed(state, now, lo, hi, f if op.kind == "once" else not f)
-                if op.kind == "historically":
-                    value = not value
-            elif op.kind == "prev":  # the operand at the step before (none: false)
-                value, state[0] = state[0], f
-            elif op.kind == "once":
-                value = state[0] = state[0] or f
-            elif op.kind == "historically":
-                value = state[0] = state[0] and f
-            else:  # f since g: g now, or f now and (f since g) at the step before
-                g = op.operands[1](bits)
-                value = state[0] = g or (f and state[0])
-            bits = bits | (1 << op.bit) if value else bits & ~(1 << op.bit)
-        return bits
+        placeholders set, inner ones first (an outer one reads their new bits).
 
-    @staticmethod
-    def _timed(runs: _Runs, now: int, lo: int, hi: int, holds: bool) -> bool:
-        runs.step(now, holds)
-        runs.prune(now, hi)
-        return runs.once(now, lo, hi)
+        The timed once and historically (the runs of their operand, :class:`_Runs`) are
+        stepped here, not by calls: what :meth:`_Runs.step`, :meth:`_Runs.prune` and
+        :meth:`_Runs.once` do, in that order."""
+        for (code, one, off, ft, fm, gt, gm, lo, hi, delay), state in zip(
+            self._program, self.state, strict=True
+        ):
+            if code <= _TIMED_HISTORICALLY:  # once[lo..hi] f; historically: not once !f
+                holds = ft[bits & fm]
+                if code:  # historically
+                    holds = not holds
+                runs = state.runs
+                if not runs:
+                    if holds:
+                        runs.append([now, None])
+                        value = lo == 0
+                    else:
+                        value = False
+                else:
+                    last = runs[-1]
+                    if last[1] is None:
+                        if not holds:
+                            last[1] = now
+                    elif holds:
+                        runs.append([now, None])
+                    while runs and (end := runs[0][1]) is not None and end + hi <= now:
+                        del runs[0]
+                    value = bool(runs) and runs[0][0] + lo <= now
+                if code:  # historically
+                    value = not value
+            elif code == _TIMED_SINCE:
+                state.step(now, ft[bits & fm], gt[bits & gm])
+                value = state.holds(now, lo, hi)
+            elif code == _UNTIL:
+                state.step(now, ft[bits & fm], gt[bits & gm])
+                state.prune(now, delay)
+                value = state.holds(now, lo, hi, delay)
+            elif code == _PREV:  # the operand at the step before (none: false)
+                value, state[0] = state[0], ft[bits & fm]
+            elif code == _ONCE:
+                value = state[0] = state[0] or ft[bits & fm]
+            elif code == _HISTORICALLY:
+                value = state[0] = state[0] and ft[bits & fm]
+            else:  # f since g: g now, or f now and (f since g) at the step before
+                value = state[0] = gt[bits & gm] or (ft[bits & fm] and state[0])
+            bits = bits | one if value else bits & off
+        return bits
 
     def settled(self, bits: int) -> bool:
         """Would a step with the atoms of ``bits`` (the last step's letter) at the same
@@ -306,10 +383,13 @@ class Past:
         may change (:meth:`next_change`): a run of equal messages is a run of equal
         letters, and a batch takes it whole.
 
-        Only ``prev`` can answer no: it gives the operand of the step before, which the
-        next step replaces by the last one. ``once``, ``historically`` and ``since``
-        already hold what a repeated operand gives them, and a timed one's runs do not
-        change while its operand does not (its truth then changes with time only).
+        Only ``prev`` can answer no (:attr:`always_settled` where there is none): it
+        gives the operand of the step before, which the next step replaces by the last
+        one. ``once``, ``historically`` and ``since`` already hold what a repeated
+        operand gives them, and a timed one's runs do not change while its operand does
+        not (its truth then changes with time only, and what a step would forget of
+        them, a run that ends out of its window, waits for an instant at or after
+        :meth:`next_change`: a step before it forgets nothing).
         """
         state = self.state
         return all(state[i][0] == bool(bits >> bit & 1) for i, bit in self._prevs)
@@ -317,46 +397,48 @@ class Past:
     def prune(self, now: int) -> None:
         """Forget the runs no window reaching back from ``now`` can see, as a step at
         ``now`` does (a batch that takes a run of equal letters whole prunes once)."""
-        for op, state in zip(self.ops, self.state, strict=True):
-            if op.window is None:
-                continue
-            if op.kind == "until":
-                state.prune(now, op.delay)
-            elif op.kind != "since":
-                state.prune(now, op.window[1])
-            elif state.live:
-                state.runs.prune(now, op.window[1])
+        program, state = self._program, self.state
+        for i in self._timed:
+            code, hi, delay = program[i][0], program[i][8], program[i][9]
+            s = state[i]
+            if code == _UNTIL:
+                s.prune(now, delay)
+            elif code != _TIMED_SINCE:
+                s.prune(now, hi)
+            elif s.live:
+                s.runs.prune(now, hi)
 
     def time_changes(self, now: int, bits: int) -> bool:
         """Does a timed one's truth at ``now`` differ from its bit in ``bits`` (the
         last step's letter), every operand held since that step? Then time alone
         changed it, and a clock step is due at ``now``."""
-        for op, state in zip(self.ops, self.state, strict=True):
-            if op.window is not None:
-                lo, hi = op.window
-                if op.kind == "until":
-                    state.prune(now, op.delay)
-                    value = state.holds(now, lo, hi, op.delay)
-                elif op.kind == "since":
-                    value = state.holds(now, lo, hi)
-                else:
-                    state.prune(now, hi)
-                    value = state.once(now, lo, hi) != (op.kind == "historically")
-                if value != bool(bits >> op.bit & 1):
-                    return True
+        program, state = self._program, self.state
+        for i in self._timed:
+            code, one, _, _, _, _, _, lo, hi, delay = program[i]
+            s = state[i]
+            if code == _UNTIL:
+                s.prune(now, delay)
+                value = s.holds(now, lo, hi, delay)
+            elif code == _TIMED_SINCE:
+                value = s.holds(now, lo, hi)
+            else:
+                s.prune(now, hi)
+                value = s.once(now, lo, hi) != (code == _TIMED_HISTORICALLY)
+            if value != bool(bits & one):
+                return True
         return False
 
     def next_change(self, now: int) -> int | None:
         """The first instant after ``now`` at which a timed one may change its truth
         with no new step; None if none can."""
         best = None
-        for op, state in zip(self.ops, self.state, strict=True):
-            if op.window is None:
-                continue
-            if op.kind == "until":
-                at = state.next_change(now, *op.window, op.delay)
+        program, state = self._program, self.state
+        for i in self._timed:
+            code, lo, hi, delay = program[i][0], program[i][7], program[i][8], program[i][9]
+            if code == _UNTIL:
+                at = state[i].next_change(now, lo, hi, delay)
             else:
-                at = state.next_change(now, *op.window)
+                at = state[i].next_change(now, lo, hi)
             if at is not None and (best is None or at < best):
                 best = at
         return best
