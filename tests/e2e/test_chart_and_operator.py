@@ -23,7 +23,7 @@ import yaml
 from kopf.testing import KopfRunner
 from kube import Cluster
 
-from edgerv.handler.client import ApiError, HandlerClient, Unreachable, Untrusted
+from edgerv.handler.client import ApiError, HandlerClient, Untrusted, WrongScheme
 from edgerv.handler.migrate import migrate
 from edgerv.handler.tls import ClientTls
 
@@ -277,7 +277,7 @@ def test_the_handlers_serve_https_only_to_callers_that_trust_the_release_ca(
     wrong_name = ClientTls(str(release_ca(cluster, namespace)), "erv-handler.other.svc")
     with pytest.raises(Untrusted, match="its certificate is not trusted"):
         HandlerClient(f"{ip}:8470", TOKEN, wrong_name).monitors(timeout=10.0)
-    with pytest.raises(Unreachable):
+    with pytest.raises(WrongScheme, match="speaks HTTPS"):
         HandlerClient(f"http://{ip}:8470", TOKEN).monitors(timeout=10.0)
 
 

@@ -335,7 +335,7 @@ def test_exit_3_says_the_move_is_unsettled_who_did_not_answer_and_what_to_run(
         err = capsys.readouterr().err
         assert err.startswith("edgerv migrate: m: unsettled: the move failed")
         assert f"{edge} did not confirm it resumed m" in err
-        again = f"edgerv migrate --from {edge} --to {cloud} --monitor m"
+        again = f"edgerv migrate --from {edge} --to {cloud} --monitor m --timeout 0.3"
         assert err.endswith(f"run `{again}` again once {edge} answer(s): "
                             "it finishes the move or undoes it\n")  # fmt: skip
         assert pair.edge.slots["m"].handoff == "sending" and not pair.cloud.slots["m"].active

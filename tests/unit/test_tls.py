@@ -27,8 +27,8 @@ from edgerv.handler.client import (
     HandlerClient,
     ServerError,
     Unauthorized,
-    Unreachable,
     Untrusted,
+    WrongScheme,
 )
 from edgerv.handler.engine import Engine
 from edgerv.handler.limits import Limits
@@ -122,7 +122,7 @@ def test_failed_handshakes_never_use_up_the_handlers_connections(
         for i in range(12):
             if i % 2:
                 plain = HandlerClient(f"http://127.0.0.1:{api.port}", TOKEN)
-                with pytest.raises(Unreachable):
+                with pytest.raises(WrongScheme, match="speaks HTTPS"):
                     plain.call("/v1/monitors", method="GET", timeout=2.0)
             else:
                 stranger = ClientTls(str(pki.stranger))

@@ -6,9 +6,13 @@ caller tells a transient one (the handler is unreachable, busy or restarting: tr
 again) from a permanent one (the definition is invalid: fix it):
 
 * :class:`Unreachable`: no answer (reset, timed out); :class:`Refused`: nothing listens
-  there, so the handler is down and runs nothing.
+  there, so the handler is down and runs nothing; :class:`Unresolved`: the address's
+  host name is not known (nothing was sent).
 * :class:`Untrusted`: the handler's certificate is not one the caller trusts (another
   CA, another name, expired): nothing was sent; a setting to fix, not a moment to wait.
+* :class:`WrongScheme`: the handler speaks HTTPS and was called over plain HTTP, or the
+  reverse (each confirmed by a second connection that speaks its scheme): it acted on
+  nothing; a setting to fix too.
 * :class:`HttpError`: an answer with an HTTP error, ``status`` and the handler's
   reason: :class:`Invalid` (400, 413, 422: the request, e.g. a Monitor document, is
   wrong), :class:`Unauthorized` (401: the bearer token is refused, e.g. rotated),
@@ -21,13 +25,14 @@ from __future__ import annotations
 
 import http.client
 import json
+import socket
 import ssl
 import urllib.parse
 from collections.abc import Sequence
-from typing import Any, cast
+from typing import Any, Literal, cast
 
 from edgerv.handler.payloads import ErrorBody, HandoffRequest, MonitorListing, MonitorReport
-from edgerv.handler.tls import ClientTls, is_loopback
+from edgerv.handler.tls import ClientTls, is_loopback, speaks_tls
 from edgerv.handler.token import Token, current
 
 
@@ -43,8 +48,34 @@ class Refused(Unreachable):
     """Nothing listens at the handler's address: it is down, and runs no monitor."""
 
 
+class Unresolved(Unreachable):
+    """The host name of the handler's address is not known (DNS): nothing was sent.
+    ``detail``: that, in words (``its host NAME is not known (REASON)``)."""
+
+    def __init__(self, message: str, detail: str) -> None:
+        super().__init__(message)
+        self.detail = detail
+
+
 class Untrusted(ApiError):
-    """The handler's certificate failed verification: the request was not sent."""
+    """The handler's certificate failed verification: the request was not sent.
+    ``reason``: OpenSSL's (``unable to get local issuer certificate``, ``Hostname
+    mismatch, ...``)."""
+
+    def __init__(self, message: str, reason: str = "") -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+class WrongScheme(ApiError):
+    """The handler speaks another scheme than the one it was called with: ``speaks`` is
+    ``https`` (called over plain HTTP: its TLS took the request for a bad handshake) or
+    ``http`` (called over HTTPS: it answered the handshake in plain HTTP). It acted on
+    nothing."""
+
+    def __init__(self, message: str, speaks: Literal["http", "https"]) -> None:
+        super().__init__(message)
+        self.speaks = speaks
 
 
 class HttpError(ApiError):
@@ -187,17 +218,48 @@ class HandlerClient:
                 raise Untrusted(
                     f"{self.base}: its certificate is not trusted ({exc.verify_message}): "
                     "give the CA that signed it (and the name it carries), or check that "
-                    "this address is the handler's"
+                    "this address is the handler's",
+                    str(exc.verify_message),
                 ) from None
             except (http.client.HTTPException, OSError) as exc:
                 self.close()
                 if attempt == 1 and reused and not isinstance(exc, TimeoutError):
                     continue  # the kept-alive connection had been closed: once more
+                self._wrong_scheme(exc, timeout)
+                if isinstance(exc, socket.gaierror):
+                    detail = f"its host {self._host} is not known ({exc.strerror or exc})"
+                    raise Unresolved(f"{self.base} is unreachable: {detail}", detail) from None
                 kind = Refused if isinstance(exc, ConnectionRefusedError) else Unreachable
                 raise kind(f"{self.base} is unreachable: {exc}") from None
         if check and status >= 400:
             raise http_error(f"{self.base}{path}", status, answer)
         return status, answer
+
+    def _wrong_scheme(self, exc: BaseException, timeout: float) -> None:
+        """Raise :class:`WrongScheme` when the failure ``exc`` of a call is the handler
+        speaking the other scheme: HTTPS that took our plain request for a bad handshake
+        (it closed the connection), or plain HTTP that answered our handshake. Each is
+        confirmed by a second connection in the scheme it seems to speak (a TLS hello
+        that gets a TLS answer, or ``GET /healthz``, which needs no token, that gets an
+        HTTP one): a handler that only went away is unreachable, as before."""
+        port = self._port or (443 if self._https else 80)
+        probe = min(timeout, 5.0)
+        if self._https:
+            if isinstance(exc, ssl.SSLError) and _speaks_plain_http(
+                self._host, port, self._netloc, probe
+            ):
+                raise WrongScheme(
+                    f"{self.base}: the handler speaks plain HTTP, not HTTPS: nothing was sent",
+                    "http",
+                )
+        elif isinstance(exc, http.client.BadStatusLine | ConnectionResetError) and speaks_tls(
+            self._host, port, probe
+        ):
+            raise WrongScheme(
+                f"{self.base}: the handler speaks HTTPS, not plain HTTP: it took the request "
+                "for a bad handshake and acted on nothing",
+                "https",
+            )
 
     def json(self, what: str, raw: bytes) -> Any:
         """An answer as JSON, or :class:`BadAnswer` naming the handler and the call."""
@@ -288,3 +350,41 @@ class HandlerClient:
 
 def _quoted(name: str) -> str:
     return urllib.parse.quote(name, safe="")
+
+
+def _speaks_plain_http(host: str, port: int, netloc: str, timeout: float) -> bool:
+    """Does ``host:port`` answer a plain ``GET /healthz`` with an HTTP status line?"""
+    request = f"GET /healthz HTTP/1.1\r\nHost: {netloc}\r\nConnection: close\r\n\r\n"
+    try:
+        with socket.create_connection((host, port), timeout) as sock:
+            sock.sendall(request.encode())
+            answer = b""
+            while len(answer) < 5 and (chunk := sock.recv(5 - len(answer))):
+                answer += chunk
+    except OSError:
+        return False
+    return answer == b"HTTP/"
+
+
+def address_problem(address: str) -> str | None:
+    """What is wrong with a handler's address as :class:`HandlerClient` reads it
+    (``HOST:PORT``, ``http://HOST[:PORT]`` or ``https://HOST[:PORT]``); None if nothing."""
+    if not address.strip() or address != address.strip():
+        return f"'{address}' is not HOST:PORT" if address.strip() else "an empty address"
+    scheme, sep, _ = address.partition("://")
+    if sep and scheme not in ("http", "https"):
+        return f"'{address}': the scheme must be http:// or https://, not {scheme}://"
+    parts = urllib.parse.urlsplit(address if sep else f"//{address}")
+    if parts.path not in ("", "/") or parts.query or parts.fragment or parts.username:
+        return f"'{address}' is not HOST:PORT: a handler's address has no path, query or user"
+    try:
+        port = parts.port
+    except ValueError:
+        return f"'{address}': the port must be a number from 1 to 65535"
+    if not parts.hostname:
+        return f"'{address}' names no host"
+    if port is None and not sep:
+        return f"'{address}' is not HOST:PORT: give the port, e.g. {address}:8470"
+    if port == 0:
+        return f"'{address}': the port must be a number from 1 to 65535"
+    return None

@@ -11,20 +11,23 @@ on the silent one). A move that ends unsettled (``edgerv migrate``'s exit 3: a
 handler did not answer, so where its monitors run is not confirmed) is recorded
 with ``"ok": false`` and ``unsettled``; its monitors are settled at the start of
 each later round (a record with ``"settle": true``) and not moved again until
-that succeeds. Authenticates with ``EDGERV_TOKEN`` like the handlers.
+that succeeds. A round that moves nothing says why (:func:`why_nothing_moves`), once
+each time the reason changes. Authenticates with ``EDGERV_TOKEN`` like the handlers.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
+import math
 import os
 import signal
 import sys
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -33,15 +36,29 @@ from edgerv.core.placement import (
     DeadlineReading,
     HandlerReport,
     MonitorLoad,
+    Move,
     Placement,
     PolicyConfig,
     PolicyConfigError,
     PolicyMemory,
+    _allowed,
+    _deadline_at_risk,
+    _deadline_ratio,
+    _loaded,
+    _pressured,
     placement_from_json,
     plan,
 )
-from edgerv.handler.client import ApiError, HandlerClient
-from edgerv.handler.migrate import NotMoved, Unsettled, migrate, settle
+from edgerv.handler.client import ApiError, HandlerClient, address_problem
+from edgerv.handler.migrate import (
+    HelpFormatter,
+    NotMoved,
+    Unsettled,
+    migrate,
+    seconds_above_zero,
+    seconds_from_zero,
+    settle,
+)
 from edgerv.handler.tls import ClientTls, add_client_arguments, client_tls
 from edgerv.handler.token import Token
 
@@ -56,34 +73,43 @@ class Target:
 
 def parse_handlers(text: str) -> list[Target]:
     """``edge=HOST:PORT,cloud=HOST:PORT`` (a tier may have several handlers)."""
-    targets = []
+    targets: list[Target] = []
     for i, item in enumerate(p.strip() for p in text.split(",")):
-        tier, eq, address = item.partition("=")
-        if not eq or not tier.strip() or not address.strip():
+        tier, eq, address = (part.strip() for part in item.partition("="))
+        problem = ""
+        if not eq or not tier or not address:
+            problem = f"item {i + 1} '{item}' is not TIER=HOST:PORT"
+        elif bad := address_problem(address):
+            problem = f"item {i + 1} '{item}': {bad}"
+        elif any(t.address == address for t in targets):
+            problem = f"item {i + 1} '{item}': {address} is listed already"
+        if problem:
             raise InputError(
                 [
                     Diagnostic(
                         Location("--handlers"),
-                        f"item {i + 1} '{item}' is not TIER=HOST:PORT",
+                        problem,
                         hint="e.g. --handlers edge=10.0.0.2:8080,cloud=10.0.0.9:8080",
                     )
                 ]
             )
-        targets.append(Target(tier.strip(), address.strip()))
+        targets.append(Target(tier, address))
     return targets
 
 
 def parse_pairs(text: str, flag: str) -> dict[str, float]:
-    """``edge=0,cloud=40``."""
+    """``edge=0,cloud=40``: a finite number from 0 for each name."""
     out = {}
     for item in filter(None, (p.strip() for p in text.split(","))):
         key, eq, value = item.partition("=")
         try:
-            if not eq:
+            if not eq or not key.strip() or not 0 <= float(value) < math.inf:
                 raise ValueError
             out[key.strip()] = float(value)
         except ValueError:
-            raise InputError([Diagnostic(Location(flag), f"'{item}' is not NAME=NUMBER")]) from None
+            raise InputError(
+                [Diagnostic(Location(flag), f"'{item}' is not NAME=NUMBER (a number from 0)")]
+            ) from None
     return out
 
 
@@ -162,6 +188,373 @@ def build_reports(
     return reports, placements, where
 
 
+@dataclass(frozen=True)
+class Idle:
+    """Why a round moved nothing: ``kind`` (one of :data:`IDLE_KINDS`), the sentence
+    ``text`` (with its numbers), and ``key``: the kind and whom it is about, not the
+    numbers. It is said again only when the key changes."""
+
+    kind: str
+    text: str
+    key: tuple[object, ...] = ()
+
+
+IDLE_KINDS = (
+    "no answer",  # no handler answered this round
+    "no monitors",  # no handler defines a monitor
+    "not started",  # a monitor runs nowhere and is not started (a handler is silent, ...)
+    "unsettled",  # the policy would move monitors an unsettled move left held: settled first
+    "no deadline signal",  # a handler measures a deadline but has too few makespans yet
+    "deadline met",  # the deadline is met (the numbers), nothing else presses
+    "no traffic",  # under deadline pressure, but the movable monitors read no events
+    "hysteresis",  # a monitor may come down later (calm, cooldown), or a deadline shed waits
+    "placed",  # no pressure, and no monitor above its home tier: all where it would go
+    "pinned",  # what would move is pinned (placement.migrate) or held by maxLatencyMs
+    "no room",  # under pressure, but no handler of the tier above can take monitors
+    "nothing to shed",  # under pressure, but the policy's rule sheds nothing (CPU at target)
+)
+
+
+def _names(names: Sequence[str], most: int = 5) -> str:
+    """``a, b and 3 more``."""
+    shown = ", ".join(names[:most])
+    return shown + (f" and {len(names) - most} more" if len(names) > most else "")
+
+
+def _verb(names: Sequence[str], one: str, many: str) -> str:
+    return one if len(names) == 1 else many
+
+
+def _deadline_words(h: HandlerReport, c: PolicyConfig) -> str:
+    """``p95 makespan 80.0 ms, 64% of its 125 ms budget`` (a reading with information)."""
+    d, ratio = h.deadline, _deadline_ratio(h, c)
+    assert d is not None and d.p95 is not None and ratio is not None
+    return f"p95 makespan {d.p95 * 1000:.1f} ms, {ratio:.0%} of its {d.budget * 1000:g} ms budget"
+
+
+def _pressure(h: HandlerReport, c: PolicyConfig) -> list[str]:
+    """What puts a handler under pressure, in words (none: it is not)."""
+    words = []
+    if h.cpu >= c.cpu_high:
+        words.append(f"CPU {h.cpu:.0%}, high mark {c.cpu_high:.0%}")
+    if h.ingest_lag >= c.lag_high:
+        words.append(f"ingest lag {h.ingest_lag:.2f} s, high mark {c.lag_high:g} s")
+    wanting = sorted(m for m, load in h.monitors.items() if load.active and load.migration_wanted)
+    if wanting:
+        words.append(f"{_names(wanting)} {_verb(wanting, 'wants', 'want')} to migrate")
+    if _deadline_at_risk(h, c):
+        words.append(f"{_deadline_words(h, c)}, high mark {c.deadline_high:.0%}")
+    return words
+
+
+def _unrest(h: HandlerReport, c: PolicyConfig) -> str:
+    """Why a handler is not calm, in words."""
+    words = []
+    if h.cpu > c.cpu_low:
+        words.append(f"CPU {h.cpu:.0%}, calm at {c.cpu_low:.0%} or less")
+    if h.ingest_lag > c.lag_low:
+        words.append(f"ingest lag {h.ingest_lag:.2f} s, calm at {c.lag_low:g} s or less")
+    wanting = sorted(m for m, load in h.monitors.items() if load.active and load.migration_wanted)
+    if wanting:
+        words.append(f"{_names(wanting)} {_verb(wanting, 'wants', 'want')} to migrate")
+    ratio = _deadline_ratio(h, c)
+    if ratio is not None and ratio > c.deadline_low:
+        words.append(f"{_deadline_words(h, c)}, calm at {c.deadline_low:.0%} or less")
+    return "; ".join(words)
+
+
+def _stuck(
+    h: HandlerReport,
+    reports: Sequence[HandlerReport],
+    placements: Mapping[str, Placement],
+    c: PolicyConfig,
+    memory: PolicyMemory,
+    now: float,
+    unknown_rates: Collection[str],
+) -> Idle:
+    """Why a handler under pressure (``_pressure``) sheds nothing this round."""
+    rank = {t: i for i, t in enumerate(c.tiers)}
+    pressure = "; ".join(_pressure(h, c))
+    key = (h.name,)
+    active = sorted(h.active())
+    if not active:
+        return Idle(
+            "nothing to shed",
+            f"{h.name} is under pressure ({pressure}) but runs no monitor",
+            ("nothing to shed", *key),
+        )
+    shed_at = memory.deadline_shed.get(h.name, -math.inf)
+    if not _loaded(h, c) and now - shed_at < c.deadline_wait:
+        return Idle(
+            "hysteresis",
+            f"hysteresis holds: {h.name}'s deadline is at risk ({pressure}), but monitors "
+            f"were moved off it for its deadline {now - shed_at:.1f} s ago: it counts again "
+            f"in {c.deadline_wait - (now - shed_at):.1f} s, once its window holds makespans "
+            f"measured since (--deadline-wait {c.deadline_wait:g} s)",
+            ("hysteresis", *key),
+        )
+    if rank[h.tier] + 1 >= len(c.tiers):
+        return Idle(
+            "no room",
+            f"{h.name} is under pressure ({pressure}) on the highest tier, {h.tier}: "
+            "there is no tier above to move its monitors to",
+            ("no room", *key),
+        )
+    up = c.tiers[rank[h.tier] + 1]
+    there = sorted(b.name for b in reports if b.tier == up)
+    if not [b for b in reports if b.tier == up and not _pressured(b, c)]:
+        which = (
+            f"{_names(there)} {_verb(there, 'is', 'are')} under pressure too"
+            if there
+            else "none answered this round"
+        )
+        return Idle(
+            "no room",
+            f"{h.name} is under pressure ({pressure}), but no handler of the tier above, "
+            f"{up}, can take monitors: {which}",
+            ("no room", *key),
+        )
+    movable = [
+        m
+        for m in active
+        if placements.get(m, Placement()).migrate == "auto"
+        and _allowed(up, placements.get(m, Placement()), c)
+    ]
+    if not movable:
+        pinned = [m for m in active if placements.get(m, Placement()).migrate == "pinned"]
+        far = [m for m in active if m not in pinned]
+        held = []
+        if pinned:
+            held.append(f"{_names(pinned)} pinned (placement.migrate: pinned)")
+        if far:
+            latency = c.tier_latency_ms.get(up, 0.0)
+            held.append(
+                f"{_names(far)} held by placement.maxLatencyMs (tier {up} is {latency:g} ms "
+                "from the robot)"
+            )
+        return Idle(
+            "pinned",
+            f"pinned monitors: {h.name} is under pressure ({pressure}), but none of its "
+            f"monitors may move up to {up}: {'; '.join(held)}",
+            ("pinned", *key),
+        )
+    if not _loaded(h, c) and not sum(h.monitors[m].events_per_second for m in movable):
+        if h.name in unknown_rates:
+            return Idle(
+                "no traffic",
+                f"{h.name}'s deadline is at risk ({pressure}), but its monitors' event rates "
+                "are not known yet (its first poll): the deadline moves the busiest, from the "
+                "next round on",
+                ("no rates", *key),
+            )
+        return Idle(
+            "no traffic",
+            f"the monitors carry no traffic: {h.name}'s deadline is at risk ({pressure}), but "
+            f"{_names(movable)} read no event since the last poll: the deadline moves the "
+            "busiest monitors, and idle ones would free nothing",
+            ("no traffic", *key),
+        )
+    return Idle(
+        "nothing to shed",
+        f"{h.name} is under pressure ({pressure}), but the policy sheds nothing: its CPU "
+        f"{h.cpu:.0%} is at or below the target {c.cpu_target:.0%}",
+        ("nothing to shed", *key),
+    )
+
+
+def _descents(
+    reports: Sequence[HandlerReport],
+    placements: Mapping[str, Placement],
+    c: PolicyConfig,
+    memory: PolicyMemory,
+    now: float,
+    unsettled: Collection[str],
+) -> Idle | None:
+    """Why no monitor above its home tier came down (None: there is none)."""
+    rank = {t: i for i, t in enumerate(c.tiers)}
+    timed: list[tuple[float, str, str]] = []  # (seconds left, text, monitor)
+    waiting: list[tuple[str, str]] = []  # (text, monitor): until a handler is calm
+    pinned: list[str] = []
+    for h in sorted(reports, key=lambda h: (-rank[h.tier], h.name)):
+        if rank[h.tier] == 0:
+            continue
+        down = c.tiers[rank[h.tier] - 1]
+        for m in sorted(h.active()):
+            p = placements.get(m, Placement())
+            if rank[h.tier] <= rank.get(p.tier or "", 0) or m in unsettled:
+                continue
+            if p.migrate == "pinned" or not _allowed(down, p, c):
+                pinned.append(f"{m} on {h.name}")
+                continue
+            below = sorted((b for b in reports if b.tier == down), key=lambda b: (b.cpu, b.name))
+            calm = [b for b in below if b.name in memory.calm_since]
+            if not below:
+                waiting.append(
+                    (f"{m} comes down from {h.name} once a handler of {down} answers", m)
+                )
+                continue
+            if not calm:
+                b = below[0]
+                waiting.append(
+                    (f"{m} comes down from {h.name} once {b.name} is calm ({_unrest(b, c)})", m)
+                )
+                continue
+            b = min(calm, key=lambda b: (memory.calm_since[b.name], b.cpu, b.name))
+            calm_left = c.calm_seconds - (now - memory.calm_since[b.name])
+            bounces = memory.bounces.get(m, 0)
+            moved_ago = now - memory.last_move.get(m, -math.inf)
+            cool_left = c.cooldown_seconds * 2**bounces - moved_ago
+            why = []
+            if calm_left > 0:
+                why.append(
+                    f"{b.name} calm for {now - memory.calm_since[b.name]:.0f} s of "
+                    f"--calm {c.calm_seconds:g} s"
+                )
+            if cool_left > 0:
+                doubled = f", doubled {bounces} time(s) for bounces" if bounces else ""
+                why.append(
+                    f"it moved {moved_ago:.0f} s ago: --cooldown {c.cooldown_seconds:g} s{doubled}"
+                )
+            left = max(calm_left, cool_left, 0.0)
+            timed.append(
+                (
+                    left,
+                    f"{m} may come down from {h.name} to {b.name} in {left:.0f} s "
+                    f"({'; '.join(why)})",
+                    m,
+                )
+            )
+    if timed or waiting:
+        timed.sort()
+        texts = [t for _, t, _ in timed] + [t for t, _ in waiting]
+        more = f"; {len(texts) - 1} more wait" if len(texts) > 1 else ""
+        subjects = sorted(m for *_, m in timed) + sorted(m for _, m in waiting)
+        return Idle("hysteresis", f"hysteresis holds: {texts[0]}{more}", ("down", *subjects))
+    if pinned:
+        return Idle(
+            "pinned",
+            f"pinned monitors: {_names(pinned)} {_verb(pinned, 'runs', 'run')} above its "
+            "home tier and may not come down (placement.migrate: pinned, or "
+            "placement.maxLatencyMs)",
+            ("pinned", *pinned),
+        )
+    return None
+
+
+def why_nothing_moves(
+    reports: Sequence[HandlerReport],
+    placements: Mapping[str, Placement],
+    config: PolicyConfig,
+    memory: PolicyMemory,
+    now: float,
+    planned: Sequence[Move] = (),
+    silent: Sequence[str] = (),
+    starts: bool = True,
+    unsettled: Collection[str] = (),
+    unknown_rates: Collection[str] = (),
+) -> Idle:
+    """Why a round moves nothing, from what the policy saw (:func:`plan`'s inputs, after
+    it ran at ``now``): ``planned`` the policy's moves that the round held back,
+    ``silent`` the handlers that did not answer, ``starts`` whether it starts monitors,
+    ``unsettled`` the monitors whose move ended unsettled, ``unknown_rates`` the handlers
+    polled for the first time (their monitors' event rates are not known yet).
+
+    In this order: nothing to decide on; moves held back; a handler under pressure that
+    sheds nothing (why); a monitor above its home tier that may not come down yet (the
+    hysteresis, and how long) or at all (pinned); else what the deadline reads (no signal
+    yet, or met with margin), else everything is where it would go."""
+    c = config
+    if not reports:
+        return Idle("no answer", "no handler answered this round", ("no answer",))
+    if not any(h.monitors for h in reports):
+        return Idle("no monitors", "no handler defines a monitor", ("no monitors",))
+    starting = sorted(m.monitor for m in planned if not m.source)
+    if starting:
+        if not starts:
+            why = "starting them is left to whoever defined them (the operator)"
+        else:
+            why = (
+                f"none is started while {_names(list(silent))} does not answer: it may run "
+                f"{_verb(starting, 'it', 'them')}"
+            )
+        return Idle(
+            "not started",
+            f"{_names(starting)} {_verb(starting, 'runs', 'run')} nowhere, and {why}",
+            ("not started", *starting, *silent),
+        )
+    held = sorted(m.monitor for m in planned if m.source and m.monitor in unsettled)
+    if held:
+        return Idle(
+            "unsettled",
+            f"{_names(held)} {_verb(held, 'waits', 'wait')} until the move that left "
+            f"{_verb(held, 'it', 'them')} unsettled is settled (tried at the start of each round)",
+            ("unsettled", *held),
+        )
+    rank = {t: i for i, t in enumerate(c.tiers)}
+    pressed = [h for h in sorted(reports, key=lambda h: (rank[h.tier], h.name)) if _pressure(h, c)]
+
+    def stuck(handlers: list[HandlerReport]) -> Idle | None:
+        said = [_stuck(h, reports, placements, c, memory, now, unknown_rates) for h in handlers]
+        if not said:
+            return None
+        return Idle(said[0].kind, "; ".join(i.text for i in said), tuple(i.key for i in said))
+
+    # (one that runs no monitor has nothing to move: said after what may come down to it)
+    found = (
+        stuck([h for h in pressed if h.active()])
+        or _descents(reports, placements, c, memory, now, unsettled)
+        or stuck([h for h in pressed if not h.active()])
+    )
+    if found is not None:
+        return found
+    timed = sorted((h for h in reports if h.deadline is not None), key=lambda h: h.name)
+    blind = [h for h in timed if _deadline_ratio(h, c) is None]
+    if blind:
+        said = [
+            f"{h.name} has {h.deadline.count if h.deadline else 0} makespan(s) in its window, "
+            f"{c.deadline_min_count} needed"
+            for h in blind
+        ]
+        return Idle(
+            "no deadline signal",
+            f"no deadline signal yet: {'; '.join(said)} (is the --deadline topic published, "
+            "its header stamped with the robot's clock?)",
+            ("no deadline signal", *(h.name for h in blind)),
+        )
+    if timed:
+        said = [f"{h.name}'s {_deadline_words(h, c)}" for h in timed]
+        if all((_deadline_ratio(h, c) or 0.0) <= c.deadline_low for h in timed):
+            met, marks = (
+                "with margin",
+                f"monitors move up at {c.deadline_high:.0%}, --deadline-high",
+            )
+        else:  # between the marks: neither pressure nor calm
+            met, marks = (
+                "narrowly",
+                (
+                    f"monitors move up at {c.deadline_high:.0%}, --deadline-high; the handler is "
+                    f"calm at {c.deadline_low:.0%} or less, --deadline-low"
+                ),
+            )
+        return Idle(
+            "deadline met",
+            f"the deadline is met {met}: {'; '.join(said)} ({marks})",
+            ("deadline met", *(h.name for h in timed)),
+        )
+    loads = "; ".join(
+        f"{h.name} CPU {h.cpu:.0%}, ingest lag {h.ingest_lag:.2f} s"
+        for h in sorted(reports, key=lambda h: (rank[h.tier], h.name))
+    )
+    return Idle(
+        "placed",
+        "everything movable is already where it would go: no handler is under pressure "
+        f"({loads}; monitors move up at CPU {c.cpu_high:.0%} or lag {c.lag_high:g} s), and "
+        "no monitor runs above its home tier; no handler measures a deadline "
+        "(edgerv handler --deadline TOPIC=DURATION)",
+        ("placed",),
+    )
+
+
 class Orchestrator:
     def __init__(
         self,
@@ -172,6 +565,7 @@ class Orchestrator:
         grace: float = 1.0,
         starts: bool = True,
         tls: ClientTls | None = None,
+        on_idle: Callable[[Idle], None] | None = None,
     ) -> None:
         self.config = config
         self.token = token
@@ -187,6 +581,9 @@ class Orchestrator:
         # monitor -> (source, destination) of a move of ours that ended unsettled: it is
         # settled at the start of each round, and not moved again until it is
         self.unsettled: dict[str, tuple[Target, Target]] = {}
+        # why the rounds move nothing: said when the reason changes (the last one's key)
+        self.on_idle = on_idle or (lambda idle: log.info("nothing to move: %s", idle.text))
+        self.idle: Idle | None = None
 
     def set_targets(self, targets: Sequence[Target]) -> None:
         """The handlers to poll from now on (the operator's change as pods come and go)."""
@@ -207,6 +604,7 @@ class Orchestrator:
         """Poll, decide, act; return what was done, one record per action."""
         loads = self.poll()
         done = self._settle(loads)
+        first = {str(load["handler"]) for t, load in loads.items() if t not in self.previous}
         reports, placements, where = build_reports(loads, self.previous)
         for m, p in placements.items():
             if p.tier is not None and p.tier not in self.config.tiers and m not in self.warned:
@@ -218,13 +616,33 @@ class Orchestrator:
                     p.tier,
                     ",".join(self.config.tiers),
                 )
-        moves = plan(reports, placements, self.config, self.memory, time.monotonic())
+        now = time.monotonic()
+        planned = plan(reports, placements, self.config, self.memory, now)
+        moves = planned
         if len(loads) < len(self.targets) or not self.starts:
             # A silent handler may run monitors the others only define: starting them
             # elsewhere could make two active copies. Only moves between those that answered.
             # (And none when starting is someone else's job: the operator's.)
             moves = [m for m in moves if m.source]
         moves = [m for m in moves if m.monitor not in self.unsettled]  # settled first
+        if moves:
+            self.idle = None
+        else:
+            silent = [t.address for t in self.targets if t not in loads]
+            self._said(
+                why_nothing_moves(
+                    reports,
+                    placements,
+                    self.config,
+                    self.memory,
+                    now,
+                    planned=planned,
+                    silent=silent,
+                    starts=self.starts,
+                    unsettled=self.unsettled,
+                    unknown_rates=first,
+                )
+            )
         for start in (m for m in moves if not m.source):
             client = self.clients[where[start.destination]]
             started = time.monotonic()
@@ -275,6 +693,12 @@ class Orchestrator:
             record["ms"] = round((time.monotonic() - started) * 1000, 1)
             done.append(record)
         return done
+
+    def _said(self, idle: Idle) -> None:
+        """Say why this round moves nothing, unless the last round said it already."""
+        if self.idle is None or idle.key != self.idle.key:
+            self.on_idle(idle)
+        self.idle = idle
 
     def _client(self, target: Target) -> HandlerClient:
         return self.clients.get(target) or self._new_client(target)
@@ -328,7 +752,32 @@ class Orchestrator:
         return record
 
 
+def positive_number(text: str) -> float:
+    """A finite number above 0 (a ratio, a fraction)."""
+    with contextlib.suppress(ValueError):
+        if 0 < (value := float(text)) < math.inf:
+            return value
+    raise argparse.ArgumentTypeError(f"'{text}' is not a number above 0")
+
+
+DESCRIPTION = """\
+Poll the handlers' load reports (GET /v1/load) every --interval seconds, ask the
+placement policy where each monitor should run, and do it: start a monitor that
+runs nowhere, move the others by the handoff of edgerv migrate. Each action is
+printed as one JSON line on stdout. A round that moves nothing says why on
+stderr, once each time the reason changes ("edgerv orchestrate: nothing to
+move: ..."). A handler that does not answer is left out of that round, and no
+monitor is started that round (it may run on the silent one). A move that ends
+unsettled (a handler did not answer, so where its monitors run is not
+confirmed) is printed with "ok": false and "unsettled"; its monitors are settled
+at the start of each later round, and not moved again until that succeeds.
+Authenticates with the token in EDGERV_TOKEN, as the handlers do.
+"""
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.description = DESCRIPTION
+    p.formatter_class = HelpFormatter
     add_client_arguments(p)
     p.add_argument(
         "--handlers",
@@ -346,14 +795,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--tier-latency",
         default="",
         metavar="TIER=MS,...",
-        help="each tier's latency from the robot, for placement.maxLatencyMs",
-    )
-    p.add_argument("--interval", type=float, default=1.0, metavar="SECONDS")
-    p.add_argument(
-        "--calm", type=float, default=30.0, metavar="SECONDS", help="calm before coming down"
+        help="each tier's latency from the robot in milliseconds, for placement.maxLatencyMs "
+        "(default: 0 for each)",
     )
     p.add_argument(
-        "--cooldown", type=float, default=60.0, metavar="SECONDS", help="least time between moves"
+        "--interval",
+        type=seconds_above_zero,
+        default=1.0,
+        metavar="SECONDS",
+        help="between two rounds",
+    )
+    p.add_argument(
+        "--calm",
+        type=seconds_from_zero,
+        default=30.0,
+        metavar="SECONDS",
+        help="how long the handler below must be calm before a monitor comes back down",
+    )
+    p.add_argument(
+        "--cooldown",
+        type=seconds_from_zero,
+        default=60.0,
+        metavar="SECONDS",
+        help="a monitor comes back down no sooner than this after its last move, doubled "
+        "after each bounce",
     )
     defaults = {f.name: f.default for f in fields(PolicyConfig)}
     p.add_argument(
@@ -361,40 +826,45 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         default=defaults["max_moves_down"],
         metavar="N",
-        help="monitors brought down a tier per round below a calm handler (default %(default)s)",
+        help="monitors brought down a tier per round below a calm handler",
     )
     p.add_argument(
         "--deadline-high",
-        type=float,
+        type=positive_number,
         default=defaults["deadline_high"],
         metavar="RATIO",
         help="deadline pressure: a handler's p95 makespan / budget at or above this "
-        "(default %(default)s; handlers started with --deadline)",
+        "(handlers started with --deadline)",
     )
     p.add_argument(
         "--deadline-low",
-        type=float,
+        type=positive_number,
         default=defaults["deadline_low"],
         metavar="RATIO",
-        help="calm needs p95 makespan / budget at or below this (default %(default)s)",
+        help="calm needs p95 makespan / budget at or below this",
     )
     p.add_argument(
         "--deadline-shed",
-        type=float,
+        type=positive_number,
         default=defaults["deadline_shed"],
         metavar="FRACTION",
         help="under deadline pressure, move at least this share of the handler's movable "
-        "event load up a tier, busiest first (default %(default)s)",
+        "event load up a tier, busiest first",
     )
     p.add_argument(
         "--deadline-wait",
-        type=float,
+        type=seconds_from_zero,
         default=defaults["deadline_wait"],
         metavar="SECONDS",
-        help="after such a move, leave that handler's deadline alone this long "
-        "(default %(default)s)",
+        help="after such a move, leave that handler's deadline alone this long",
     )
-    p.add_argument("--timeout", type=float, default=30.0, metavar="SECONDS", help="per migration")
+    p.add_argument(
+        "--timeout",
+        type=seconds_above_zero,
+        default=30.0,
+        metavar="SECONDS",
+        help="per migration; after a failure, as long again to settle it",
+    )
     p.add_argument("--once", action="store_true", help="one round (after a first poll), then exit")
 
 
@@ -414,10 +884,21 @@ def config_from(args: argparse.Namespace, targets: Sequence[Target]) -> PolicyCo
                 )
             ]
         )
+    latency = parse_pairs(args.tier_latency, "--tier-latency")
+    strangers = sorted(set(latency) - set(tiers))
+    if strangers:
+        raise InputError(
+            [
+                Diagnostic(
+                    Location("--tier-latency"),
+                    f"tier {', '.join(strangers)} is not one of the tiers {','.join(tiers)}",
+                )
+            ]
+        )
     try:
         return PolicyConfig(
             tiers=tuple(tiers),
-            tier_latency_ms=parse_pairs(args.tier_latency, "--tier-latency"),
+            tier_latency_ms=latency,
             calm_seconds=args.calm,
             cooldown_seconds=args.cooldown,
             max_moves_down=args.max_moves_down,
@@ -427,8 +908,14 @@ def config_from(args: argparse.Namespace, targets: Sequence[Target]) -> PolicyCo
             deadline_wait=args.deadline_wait,
         )
     except PolicyConfigError as exc:
-        flag = "--" + exc.setting.replace("_", "-")
-        raise InputError([Diagnostic(Location(flag), str(exc))]) from None
+        flag, said = "--" + exc.setting.replace("_", "-"), str(exc)
+        if exc.setting == "deadline_low":  # the two marks: name the one given
+            marks = f"--deadline-low {args.deadline_low:g}, --deadline-high {args.deadline_high:g}"
+            given_high = args.deadline_high != PolicyConfig.deadline_high
+            if given_high and args.deadline_low == PolicyConfig.deadline_low:
+                flag = "--deadline-high"
+            said = f"{said} ({marks})"
+        raise InputError([Diagnostic(Location(flag), said)]) from None
     except ValueError as exc:
         raise InputError([Diagnostic(Location("--tiers"), str(exc))]) from None
 
@@ -441,8 +928,12 @@ def run(args: argparse.Namespace) -> int:
     except InputError as exc:
         print(exc, file=sys.stderr)
         return 2
+
+    def say(idle: Idle) -> None:
+        print(f"edgerv orchestrate: nothing to move: {idle.text}", file=sys.stderr, flush=True)
+
     orchestrator = Orchestrator(
-        targets, config, os.environ.get("EDGERV_TOKEN"), args.timeout, tls=tls
+        targets, config, os.environ.get("EDGERV_TOKEN"), args.timeout, tls=tls, on_idle=say
     )
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):

@@ -15,6 +15,7 @@ loopback address, or when asked for by name (``--plain-http``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import http.client
 import ipaddress
 import socket
@@ -102,6 +103,28 @@ class _VerifiedConnection(http.client.HTTPSConnection):
         )
 
 
+def speaks_tls(host: str, port: int, timeout: float) -> bool:
+    """Does ``host:port`` answer a TLS ClientHello with a TLS handshake record (its
+    ServerHello)? The handshake is left unfinished: nothing is sent but the hello, and
+    the handler never counts it as a connection (a failed handshake gives its place back)."""
+    context = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    context.check_hostname = False
+    context.verify_mode = ssl.CERT_NONE
+    incoming, outgoing = ssl.MemoryBIO(), ssl.MemoryBIO()
+    hello = context.wrap_bio(incoming, outgoing, server_hostname=host or None)
+    with contextlib.suppress(ssl.SSLWantReadError):
+        hello.do_handshake()  # writes the ClientHello to ``outgoing``, then wants an answer
+    try:
+        with socket.create_connection((host, port), timeout) as sock:
+            sock.sendall(outgoing.read())
+            answer = b""
+            while len(answer) < 2 and (chunk := sock.recv(2 - len(answer))):
+                answer += chunk
+    except OSError:
+        return False
+    return answer == b"\x16\x03"  # a handshake record, TLS 1.x
+
+
 def is_loopback(host: str) -> bool:
     """An address whose traffic never leaves the machine (127.0.0.0/8, ::1, localhost)."""
     if host == "localhost":
@@ -118,8 +141,8 @@ def add_client_arguments(p: argparse.ArgumentParser) -> None:
         "--ca-file",
         metavar="FILE",
         help="verify the handlers' certificates against this CA (PEM; default: the "
-        "system's CAs). A HOST:PORT is reached over HTTPS unless it is loopback; "
-        "http://HOST:PORT asks for plain HTTP",
+        "system's CAs). A HOST:PORT is reached over HTTPS, except a loopback one when "
+        "neither this nor --tls-server-name is given; http://HOST:PORT asks for plain HTTP",
     )
     p.add_argument(
         "--tls-server-name",
