@@ -49,10 +49,16 @@ def array_column(positions: list[int], rows: Sequence[Sequence[Any]]) -> Column:
     """:func:`rows_column` in NumPy arrays: positions of int64, each field's values in
     the array NumPy makes of them (bool, int64, float64; Python objects where NumPy
     cannot hold them exactly, e.g. strings and integers beyond int64)."""
+    return as_arrays(rows_column(positions, rows))
+
+
+def as_arrays(column: Column) -> Column:
+    """A column of lists (:func:`rows_column`) in NumPy arrays, as :func:`array_column`
+    makes them."""
     import numpy as np
 
-    positions_, values = rows_column(positions, rows)
-    return np.array(positions_, np.int64), [_array(v) for v in values]
+    positions, values = column
+    return np.array(positions, np.int64), [_array(v) for v in values]
 
 
 def _array(values: Sequence[Any]) -> Any:

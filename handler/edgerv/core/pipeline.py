@@ -39,6 +39,7 @@ Event = tuple[int, int, Sequence[Update]]  # (stamp ns, arrival sequence, update
 SHORT_EVALUATION = 64
 MIN_MEAN_RUN = 6
 _UNSET = object()
+_UNBOUNDED = 1 << 62  # a buffer without a capacity: more than any batch makes
 _STAMP = itemgetter(0)
 _UPDATES = itemgetter(2)
 _VALUE = itemgetter(1)
@@ -312,7 +313,8 @@ class MonitorRuntime:
     # atoms alone): a later letter with the same atoms may take it again (_compress_one)
     past_stepped: bool = field(default=False, init=False)
     # (a monitor with either compresses its events one by one, never ahead nor with NumPy;
-    # a check's chunks, a run of equal letters at a time: :meth:`offer_arrivals`)
+    # a check's chunks and the live handler's long batches, a run of equal letters at a
+    # time: :meth:`offer_arrivals`, :meth:`take_arrivals`)
     # The signals read through an optional: a message whose optional is empty gives them
     # ABSENT, no update (the signal holds its value). A monitor with one takes ABSENT out
     # of the updates it is offered (the router's events come without: Router._offer_held).
@@ -421,39 +423,67 @@ class MonitorRuntime:
 
         Returns True when letters were produced and :meth:`evaluate` has work.
         """
-        stamps = arrivals.stamps
-        if not len(stamps) or self.halted:
+        if not len(arrivals.stamps) or self.halted:
             return False
+        self.take_arrivals(arrivals)
+        return len(self.letters) > 0
+
+    def take_arrivals(self, arrivals: Arrivals, capacity: int | None = None) -> tuple[int, bool]:
+        """:meth:`offer_arrivals` into a buffer that holds at most ``capacity`` events
+        plus letters (``bufferCapacity``; None: no bound), as the live handler admits
+        its events one at a time: an event is taken while the buffer holds fewer than
+        ``capacity``, and dropped otherwise, with nothing changed. So exactly the events
+        that offering each in turn after that test takes are taken, with the same
+        letters (clock steps included), stamps and state.
+
+        Returns how many events were taken, and whether offering one of them would have
+        returned True (letters were produced: :meth:`evaluate` has work).
+        """
+        stamps = arrivals.stamps
+        n = len(stamps)
+        if capacity is not None and self.buffered >= capacity:
+            return 0, False  # full: nothing is taken, so it stays full
+        if not n or self.halted:
+            return n, False
         if self.held:
             arrivals = _without_absent(arrivals, self.held)
         if arrivals.columnar:
-            if self._offer_columns(arrivals):
-                return len(self.letters) > 0
+            if self._offer_columns(arrivals, capacity):
+                return n, True  # (every signal valued: each event, or window, made letters)
             arrivals = arrivals.as_lists()
             stamps = arrivals.stamps
         elif (  # a sort window over a long chunk: else offered one by one
             self.threshold != 1
-            and len(stamps) >= COLUMNS_FROM
-            and self._offer_columns(arrivals.as_arrays())
+            and n >= COLUMNS_FROM
+            and self.past is None
+            and self._offer_columns(arrivals.as_arrays(), capacity)
         ):
-            return len(self.letters) > 0
+            return n, True
         if self.threshold != 1 or self.holding or min(stamps) <= self.floor:
+            # one by one; with a sort window a release can leave fewer events plus
+            # letters than it took (no letter while a signal has no value): each tested
+            taken, ready = 0, False
             for stamp, updates in zip(stamps, arrivals.every_update(), strict=True):
-                self.offer(stamp, 0, updates)
-            return len(self.letters) > 0
+                if capacity is None or self.buffered < capacity:
+                    ready = self.offer(stamp, 0, updates) or ready
+                    taken += 1
+            return taken, ready
         late = sum(map(lt, islice(stamps, 1, None), stamps))  # each older than the one before
+        taken = self._compress_arrivals(arrivals, not late, capacity)
+        if taken < n:  # the rest dropped: only the events taken count
+            late = sum(map(lt, islice(stamps, 1, taken), stamps))
         last = self.last_released
         if last is not None and stamps[0] < last:
             late += 1
         self.late_events += late
-        self.last_released = stamps[-1]
-        self._compress_arrivals(arrivals, in_order=not late)
-        return len(self.letters) > 0
+        self.last_released = stamps[taken - 1]
+        return taken, not self.missing  # (what offer returns for each: the last tells)
 
-    def _offer_columns(self, arrivals: Arrivals) -> bool:
+    def _offer_columns(self, arrivals: Arrivals, capacity: int | None = None) -> bool:
         """:meth:`offer_arrivals` for arrivals in arrays, a column at a time
         (:func:`edgerv.core.columns.compress`) where that gives the same letters: False
-        where it does not, having changed nothing.
+        where it does not, having changed nothing; also where the buffer (``capacity``:
+        events plus letters) might not take every event (:meth:`take_arrivals`).
 
         With ``sortThreshold`` k > 1, events in stamp order arriving at an empty sort
         buffer are released k at a time in the order they came: the chunk's whole windows
@@ -487,6 +517,10 @@ class MonitorRuntime:
         )
         if got is None:
             return False
+        if capacity is not None and self.buffered + len(got.letters) + n - whole > capacity:
+            # (else all are taken: one by one, each event finds the buffer holding less
+            # than this, without its own letter or place and those of the events after it)
+            return False
         released = stamps[:whole]
         late = int((released[1:] < released[:-1]).sum())
         if last is not None and int(released[0]) < last:
@@ -507,7 +541,9 @@ class MonitorRuntime:
                 self.offer(stamp, 0, updates)
         return True
 
-    def _compress_arrivals(self, arrivals: Arrivals, in_order: bool) -> None:
+    def _compress_arrivals(
+        self, arrivals: Arrivals, in_order: bool, capacity: int | None = None
+    ) -> int:
         """What :meth:`_compress_one` does event by event, a run of equal letters at once.
 
         An event changes the letter only if it changes an atom's truth (a timed atom's
@@ -519,16 +555,27 @@ class MonitorRuntime:
         the state they would have; each event between two of them makes the letter of
         the last one again, with its own stamp (docs/semantics.md, section 3: how, not
         what).
+
+        With a ``capacity`` (events plus letters, :meth:`take_arrivals`) the events are
+        taken while the buffer holds fewer: an event compressed one by one is tested
+        before its clock steps and letter, and a run of equal letters, one letter each,
+        is cut where it fills the buffer; the events from there on are not taken (with
+        one letter per event, letters only grow: once full, full). Returns how many
+        events were taken: what this gives for those alone, the same.
         """
         stamps, n = arrivals.stamps, len(arrivals.stamps)
         before = list(self.values)
         clock, past = self.clock, self.past
         nows = self._nows(stamps, in_order) if clock is not None else stamps
         last = [] if clock is None else list(clock.last)
+        # no letter is made while a signal has no value, clock steps included: the events
+        # until then all fit if the first does (take_arrivals tested it)
         k = self._compress_while_missing(arrivals) if self.missing else 0
         if k == n:
-            return
+            return n
         letters, out_stamps = self.letters, self.stamps
+        # the letters at which the buffer is full (the sort buffer stays as it is)
+        full = _UNBOUNDED if capacity is None else capacity - len(self.events)
         changes = self._atom_changes(arrivals, k, before)
         if self.monitor.timed:
             changes = sorted({*changes, *self._timed_changes(arrivals, k, nows, last)})
@@ -536,6 +583,8 @@ class MonitorRuntime:
         change = next(pending, n)
         synced = k - 1  # the events up to it have the state a step leaves
         while k < n:
+            if len(letters) >= full:  # the k-th event and every later one are dropped
+                break
             if synced < k - 1:  # the run before it left the values and the time behind
                 self._sync(arrivals, k - 1, before, nows)
             self._compress_one(stamps[k], arrivals.updates(k), letters, out_stamps)
@@ -547,14 +596,16 @@ class MonitorRuntime:
                 end = k + 1
             elif (later := self._past_change()) is not None:
                 end = bisect_left(nows, later, k + 1, end)
+            end = min(end, k + 1 + max(0, full - len(letters)))  # those the buffer takes
             if end > k + 1:  # the same letter again, up to the next event that may change it
                 letters.extend(array(letters.typecode, [self.valuation]) * (end - k - 1))
                 out_stamps.extend(stamps[k + 1 : end])
             k = end
-        if synced < n - 1:
-            self._sync(arrivals, n - 1, before, nows)
+        if synced < k - 1:
+            self._sync(arrivals, k - 1, before, nows)
             if past is not None:
-                past.prune(nows[n - 1])
+                past.prune(nows[k - 1])
+        return k
 
     def _past_change(self) -> int | None:
         """The first instant after now at which a timed past operator may change."""

@@ -27,7 +27,7 @@ from edgerv.core.deadline import MakespanWindow
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import MonitorSpec
 from edgerv.core.handoff import HandoffError
-from edgerv.core.monitor import EDGES, CompiledMonitor, compile_monitor
+from edgerv.core.monitor import CompiledMonitor, compile_monitor
 from edgerv.core.pipeline import MonitorRuntime, Router, TopicRoute, Verdict
 from edgerv.core.placement import placement_json
 from edgerv.core.reactions import Reaction
@@ -51,20 +51,10 @@ PRESSURE_SECONDS = 1.0
 SCHEDULE_SECONDS = 0.002
 WAKE_LETTERS = 512
 # Batches of at least this many messages are ingested a column at a time (each monitor's
-# messages of the batch at once, in NumPy arrays where it has this many), shorter ones a
-# message at a time: below it, building arrays costs more than it saves.
+# messages of the batch at once: in NumPy arrays where it has this many and no past
+# operator, else in lists), shorter ones a message at a time: below it, building the
+# columns costs more than it saves.
 COLUMNS_FROM = 32
-
-
-def _letters_a_message(runtime: MonitorRuntime) -> int | None:
-    """The most a message can add to a monitor's buffer (events plus letters): itself, and
-    the clock steps before it (each timed atom changes with time at most once or twice
-    between two messages: at its duration's edges); None where time may change it more
-    often (a timed past operator: at each edge of the runs it holds)."""
-    m = runtime.monitor
-    if any(op.window is not None for op in m.past):
-        return None
-    return 1 + sum(len(EDGES[a.op]) for a in m.timed)
 
 
 class VerdictSink(Protocol):
@@ -269,19 +259,28 @@ class Engine(HandoffSteps):
         """Whether ``runtime``'s buffer takes one more event (counted); else it is dropped."""
         slot = self.slots[runtime.name]
         if len(runtime.events) + len(runtime.letters) >= slot.capacity:
-            slot.dropped += 1
-            if slot.dropped in (1, 10, 100, 1000) or slot.dropped % 10000 == 0:
-                log.warning(
-                    "monitor %s: buffer full (%d events), %d events dropped",
-                    slot.name,
-                    slot.capacity,
-                    slot.dropped,
-                )
+            self._dropped(slot, 1)
             return False
         slot.events += 1
         if slot.pending_since is None:
             slot.pending_since = now
         return True
+
+    @staticmethod
+    def _dropped(slot: MonitorSlot, count: int) -> None:
+        """Count ``count`` events that found ``slot``'s buffer full, and log the 1st, 10th,
+        100th, 1000th and every 10,000th (as each would be, one at a time)."""
+        before = slot.dropped
+        slot.dropped = after = before + count
+        marks = [m for m in (1, 10, 100, 1000) if before < m <= after]
+        marks += range((before // 10000 + 1) * 10000, after + 1, 10000)
+        for dropped in marks:
+            log.warning(
+                "monitor %s: buffer full (%d events), %d events dropped",
+                slot.name,
+                slot.capacity,
+                dropped,
+            )
 
     def _ingest_each(
         self,
@@ -315,52 +314,67 @@ class Engine(HandoffSteps):
         """:meth:`ingest` a long batch a column at a time: each topic's field values
         gathered once, each monitor handed its messages of the batch as
         :class:`~edgerv.core.pipeline.Arrivals`, which give the letters of offering them
-        one by one (runs of equal letters at once). A monitor whose buffer cannot take
-        all of its messages is offered them one by one, and drops what does not fit, as
-        :meth:`_ingest_each` would. A batch with fewer than COLUMNS_FROM messages on
-        every topic goes to :meth:`_ingest_each` whole."""
+        one by one (runs of equal letters at once), clock steps included. Its buffer's
+        capacity is tested where the letters are made
+        (:meth:`~edgerv.core.pipeline.MonitorRuntime.take_arrivals`): it takes and drops
+        exactly what :meth:`_ingest_each` would. A batch with fewer than COLUMNS_FROM
+        messages on every topic goes to :meth:`_ingest_each` whole."""
         routes, slots = self.router.routes, self.slots
         stamps_, topics, rows = (list(c) for c in zip(*batch, strict=True))
         by_topic = batches.positions_by_topic(topics, routes)
         if max(map(len, by_topic.values()), default=0) < COLUMNS_FROM:
             # spread over many topics: no monitor has enough of them for NumPy to pay
             return self._ingest_each(batch, now, admit)
-        stamps = np.array(stamps_, np.int64)
-        reads: dict[str, list[tuple[batches.Column, batches.Binding]]] = {}
+        reads: dict[str, list[tuple[str, batches.Binding]]] = {}
         runtimes: dict[str, MonitorRuntime] = {}
+        lists: dict[str, batches.Column] = {}  # each topic's column, Python values
         for topic, at in by_topic.items():
-            route, column = routes[topic], batches.array_column(at, rows)
+            route = routes[topic]
+            lists[topic] = batches.rows_column(at, rows)
             self.messages[topic] = self.messages.get(topic, 0) + len(at)
             self.heard[topic] = now
-            top = int(stamps[column[0]].max())
-            if top > self.newest.get(topic, top - 1):
-                self.newest[topic] = top
             for runtime, b in route.readers:
-                reads.setdefault(runtime.name, []).append((column, route.bindings[b]))
+                reads.setdefault(runtime.name, []).append((topic, route.bindings[b]))
                 runtimes[runtime.name] = runtime
         self.router.seq += len(batch)
         woke = False
+        arrays: dict[str, batches.Column] = {}  # in NumPy arrays, made on first use
+        stamps: Any = None
         for name, mine in reads.items():
             runtime, slot = runtimes[name], slots[name]
-            arrived = batches.column_arrivals(stamps, mine, len(runtime.values))
-            most = _letters_a_message(runtime)  # letters and events it may add, per message
-            if most is None or runtime.buffered + len(arrived.stamps) * most > slot.capacity:
-                # some might not fit: offered one by one, each admitted or dropped
-                ready, each = False, arrived.as_lists()  # Python values, as one by one
-                for stamp, updates in zip(each.stamps, each.every_update(), strict=True):
-                    if admit(runtime) and runtime.offer(stamp, 0, updates):
-                        ready = True
-            else:
-                slot.events += len(arrived.stamps)
-                if slot.pending_since is None:
-                    slot.pending_since = now
+            if runtime.past is None:  # columns.compress may make its letters: arrays
+                if stamps is None:
+                    stamps = np.array(stamps_, np.int64)
+                for topic, _ in mine:
+                    if topic not in arrays:
+                        arrays[topic] = batches.as_arrays(lists[topic])
+                columns = [(arrays[topic], binding) for topic, binding in mine]
+                arrived = batches.column_arrivals(stamps, columns, len(runtime.values))
                 if len(arrived.stamps) < COLUMNS_FROM:  # too few for NumPy to pay
                     arrived = arrived.as_lists()
-                ready = runtime.offer_arrivals(arrived)
+            else:  # past operators are stepped in Python: a run of equal letters at a time
+                columns = [(lists[topic], binding) for topic, binding in mine]
+                arrived = batches.arrivals(stamps_, columns, len(runtime.values))
+            n = len(arrived.stamps)
+            # the events its buffer takes, as _admit would one at a time; the rest dropped
+            taken, ready = runtime.take_arrivals(arrived, slot.capacity)
+            if taken:
+                slot.events += taken
+                if slot.pending_since is None:
+                    slot.pending_since = now
+            if taken < n:
+                self._dropped(slot, n - taken)
             if ready:
                 slot.pending_since = now if runtime.events else None
                 self.waiting[name] = runtime
                 woke = woke or len(runtime.letters) >= WAKE_LETTERS
+        for topic, at in by_topic.items():
+            if topic in arrays:  # (NumPy's max, where the arrays were made)
+                top = int(stamps[arrays[topic][0]].max())
+            else:
+                top = max(map(stamps_.__getitem__, at))
+            if top > self.newest.get(topic, top - 1):
+                self.newest[topic] = top
         return woke
 
     def taken(self, batch: Sequence[tuple[Any, ...]]) -> None:
