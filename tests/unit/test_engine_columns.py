@@ -5,7 +5,7 @@ ingested one at a time: the same verdicts, state, counts and drops.
 (:func:`edgerv.core.arrivals.column_arrivals`), which :func:`edgerv.core.columns.compress`
 turns into letters where NumPy computes what Python does, and the list path elsewhere
 (past operators, sort windows with events waiting, late events, a handoff holding). A
-monitor whose buffer cannot take all its messages of a batch is offered them one by one.
+monitor's capacity is tested where its letters are made (MonitorRuntime.take_arrivals).
 Each engine here is held against one fed a message at a time (the path every message
 took before), on random monitors, runs and batch sizes.
 """
