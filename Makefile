@@ -51,14 +51,15 @@ test: lint
 	$(BIN)/pytest -q tests/integration tests/e2e
 
 # Fuzzing, longer than `make test` does: each coverage-guided target of tests/fuzz (atheris:
-# the CDR readers, the snapshot bundle, the assertion parser) for FUZZ_SECONDS from its seed
+# the CDR readers, the snapshot bundle, the assertion parser, the API's requests as bytes)
+# for FUZZ_SECONDS from its seed
 # corpus (new inputs are kept in .fuzz/), then the property tests (hostile input, the
 # assertion grammar) with FUZZ_EXAMPLES random examples each. A crash or a hang is written
 # to tests/fuzz/crashes/<target>/: check it in (the unit tier replays it).
 FUZZ_SECONDS ?= 60
 FUZZ_EXAMPLES ?= 1000
 fuzz: install
-	@status=0; for target in cdr bundle assertion; do \
+	@status=0; for target in cdr bundle assertion api; do \
 	  mkdir -p .fuzz/$$target tests/fuzz/crashes/$$target; \
 	  echo "fuzzing $$target for $(FUZZ_SECONDS) s"; \
 	  $(BIN)/python tests/fuzz/fuzz_$$target.py .fuzz/$$target tests/fuzz/corpus/$$target \

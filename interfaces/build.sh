@@ -17,13 +17,19 @@
 #                        edgerv_msgs wheels there are removed: the image takes one)
 #
 # Idempotent: the wheel's version is <package.xml's version>+src.<hash> of the package's
-# sources, of this script and pack_wheel.py, of the Python version and of the versions of
+# sources, of this script, pack_wheel.py and the packing it uses (edgerv's ros_types.py),
+# of the Python version and of the versions of
 # the ROS packages it builds against. If that version is installed, imports, and its wheel
 # is in WHEEL_DIR, nothing is done (about half a second). A build takes about 12 s.
 #
 # Needs on the machine: cmake >= 3.21, make, a C and a C++ compiler, the venv
 # interpreter's headers (Python.h), and PyPI (for the build-time packages in BUILD_REQS,
 # installed into the venv; pip does nothing for those already there).
+#
+# The robot's own interface packages are built the same way (rosidl, the same build-time
+# packages, the same wheel layout) by edgerv itself, `edgerv types build DIR`, or by the
+# handler at a type's first use: edgerv.handler.ros_types, docs/handler.md ("Your own
+# message types").
 set -euo pipefail
 
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -90,7 +96,7 @@ BASEVER="$(sed -n 's:.*<version>\(.*\)</version>.*:\1:p' "$SRC/package.xml" | he
 [ -n "$BASEVER" ] || die "no <version> in $SRC/package.xml"
 SRCHASH="$(cd "$HERE" && {
   find edgerv_msgs -type f -print0 | LC_ALL=C sort -z | xargs -0 sha256sum
-  sha256sum pack_wheel.py build.sh
+  sha256sum pack_wheel.py build.sh ../handler/edgerv/handler/ros_types.py
   printf 'python %s\n%s\n' "$PYVER" "$ros_versions"
 } | sha256sum | cut -c1-12)"
 VERSION="$BASEVER+src.$SRCHASH"

@@ -244,6 +244,15 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     )
     orchestrate.add_arguments(orch)
     orch.set_defaults(func=orchestrate.run)
+
+    from edgerv.handler import ros_types
+
+    types = sub.add_parser(
+        "types",
+        help="build the message types of your own ROS packages for the handler (rosidl)",
+        description='edgerv types build DIR...: see docs/handler.md, "Your own message types"',
+    )
+    ros_types.add_arguments(types)
     _add_debug(sub)
     return parser
 

@@ -6,9 +6,12 @@ sender released (docs/protocol.md, "Wire form"). Whatever the bytes:
 ``unbundle``, ``frame_sizes``, ``decode`` and ``restore`` return, or raise
 ``HandoffError``; and a snapshot that restores runs on (events, the sort,
 evaluation, clock steps) without any error. The first byte of an input picks the
-entry (0: a bundle; 1: one frame as it is; 2: frames deflated into a bundle here,
-so that mutations of the frames are not lost in the deflate stream; 3: a header
-and a body, framed here, see :func:`framed`), the second the monitor definition
+entry (0: a bundle, read as ``edgerv migrate`` reads it and as a receiver does,
+:func:`~edgerv.core.handoff.read_bundle`; 1: one frame as it is; 2: a frame deflated
+into a bundle here, so that mutations of the frame are not lost in the deflate stream,
+its runs of letters swollen by the second byte's high bits (:data:`SWELL`: valid
+snapshots, huge once decoded, which a receiver reads within its budget or refuses); 3:
+a header and a body, framed here, see :func:`framed`), the second the monitor definition
 the snapshot is restored into (``bundle.dict``: the header's JSON words)::
 
     python tests/fuzz/fuzz_bundle.py WORK_CORPUS tests/fuzz/corpus/bundle \
@@ -21,6 +24,7 @@ it for a few thousand inputs and replays every input in
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import random
 import sys
@@ -89,6 +93,36 @@ def framed(data: bytes) -> bytes:
     return b"ERV3" + len(header).to_bytes(4, "big") + len(body).to_bytes(4, "big") + header + body
 
 
+def swollen(frame: bytes, factor: int) -> bytes:
+    """The same snapshot with each run of letters ``factor`` times as long (at most 2^32 - 1
+    a run): as valid, as small on the wire (a run's length is 4 bytes, deflated to about
+    nothing), and ``factor`` times the letters once decoded."""
+    import json
+
+    import numpy as np
+
+    hlen = int.from_bytes(frame[4:8], "big")
+    header, body = json.loads(frame[12 : 12 + hlen]), frame[12 + hlen :]
+    runs = header["runs"]
+    lengths = np.frombuffer(body, "<u4", count=runs, offset=2 * runs).astype(np.uint64)
+    lengths = np.minimum(lengths * factor, 2**32 - 1)
+    header["n"] = int(lengths.sum())
+    grown = body[: 2 * runs] + lengths.astype("<u4").tobytes() + body[6 * runs :]
+    return framed(len(json.dumps(header)).to_bytes(2, "big") + json.dumps(header).encode() + grown)
+
+
+def deflate_bomb(inflated: int) -> bytes:
+    """A zlib stream of ``inflated`` zero bytes, about a thousandth of that: one deflate
+    block of a MiB of zeros, repeated (made in a moment; its checksum is not the stream's,
+    as a reader that stops past its limit never learns)."""
+    import zlib
+
+    raw = zlib.compressobj(9, zlib.DEFLATED, -15)  # raw deflate: blocks without a header
+    block = raw.compress(bytes(1 << 20)) + raw.flush(zlib.Z_FULL_FLUSH)
+    end = raw.flush(zlib.Z_FINISH)
+    return b"\x78\xda" + block * (inflated >> 20) + end + bytes(4)
+
+
 def load() -> None:
     from edgerv.core.documents import load_monitors_text
     from edgerv.core.monitor import compile_monitor
@@ -97,8 +131,29 @@ def load() -> None:
         _monitors.append(compile_monitor(load_monitors_text("m", DOCUMENT.format(assertion))[0]))
 
 
+def swell(frame: bytes, factor: int) -> bytes:
+    """:func:`swollen`, for a frame whose header reads (else the frame as it is)."""
+    if factor == 1:
+        return frame
+    try:
+        return swollen(frame, factor)
+    except (ValueError, KeyError, TypeError, IndexError, OverflowError, RecursionError):
+        return frame
+
+
+SWELL = [1, 1, 1, 1, 7, 1000, 10**5, 2**20]  # by data[1] // 4: valid, and huge decoded
+
+
 def fuzz_one_input(data: bytes) -> None:
-    from edgerv.core.handoff import HandoffError, bundle, decode, frame_sizes, unbundle
+    from edgerv.core.handoff import (
+        BundleTooLarge,
+        HandoffError,
+        bundle,
+        decode,
+        frame_sizes,
+        read_bundle,
+        unbundle,
+    )
     from edgerv.core.pipeline import MonitorRuntime
 
     if not _monitors:
@@ -109,10 +164,18 @@ def fuzz_one_input(data: bytes) -> None:
     try:
         if mode == 0:
             frames = unbundle(rest, LIMIT)
+            with contextlib.suppress(HandoffError):  # the receiver's reading: the same
+                read_bundle(rest, LIMIT, max_letters=MAX_LETTERS)
         elif mode == 1:
             frames = [rest]
-        elif mode == 2:
-            frames = unbundle(bundle([rest]), LIMIT)
+        elif mode == 2:  # swollen, maybe: a receiver reads it within its budget, or refuses
+            wire = bundle([swell(rest, SWELL[data[1] // 4 % len(SWELL)])])
+            try:
+                snaps = read_bundle(wire, LIMIT, max_letters=MAX_LETTERS)
+            except BundleTooLarge:
+                return
+            frames = unbundle(wire, LIMIT)
+            assert len(frames) == len(snaps)
         else:
             frames = [framed(rest)]
         for frame in frames:

@@ -5,12 +5,17 @@
 CDR seeds: for each reader of ``fuzz_cdr.READERS``, its index byte and a message of
 its type as rosbags serializes it (the bytes a publisher sends). Bundle seeds: real
 snapshots of each monitor of ``fuzz_bundle.ASSERTIONS``, as a bundle (entry 0), as a
-frame (entries 1 and 2) and as a header and a body (entry 3).
+frame (entries 1 and 2, and 2 swollen) and as a header and a body (entry 3). API seeds:
+requests of each call, as ``fuzz_api`` reads them (a byte for the reads' size, then the
+bytes sent), a real bundle for its receiving monitor among them::
+
+    python tests/fuzz/make_corpus.py api    # only tests/fuzz/corpus/api/
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -20,6 +25,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
+import fuzz_api  # noqa: E402
 import fuzz_bundle  # noqa: E402
 import fuzz_cdr  # noqa: E402
 
@@ -96,9 +102,68 @@ def main() -> None:
         write(bundle_dir, bytes([0, i]) + bundle([frame]))
         write(bundle_dir, bytes([1, i]) + frame)
         write(bundle_dir, bytes([2, i]) + frame + frame)
+        write(bundle_dir, bytes([2, i + 4 * 6]) + frame)  # swollen (fuzz_bundle.SWELL)
         size = int.from_bytes(frame[4:8], "big")
         write(bundle_dir, bytes([3, i]) + size.to_bytes(2, "big") + frame[12:])
 
 
+def api_requests() -> list[bytes]:
+    """One request of each call (and a few pipelined, chunked), as a client sends them."""
+    from edgerv.core.handoff import bundle, encode
+    from edgerv.core.pipeline import MonitorRuntime
+
+    fuzz_api.load()
+    rt = MonitorRuntime(fuzz_api._state["monitors"]["n"])
+    rt.holding = True
+    for stamp, seq, updates in fuzz_bundle.events(3, 40, 100):
+        rt.offer(stamp, seq, updates)
+    adoptable = bundle([encode(rt.snapshot(cut=150, epoch=fuzz_api.EPOCH))])
+
+    def request(method: str, path: str, body: bytes = b"", token: bool = True) -> bytes:
+        auth = f"Authorization: Bearer {fuzz_api.TOKEN}\r\n" if token else ""
+        length = f"Content-Length: {len(body)}\r\n" if method in ("POST", "PUT") else ""
+        return f"{method} {path} HTTP/1.1\r\nHost: edge\r\n{auth}{length}\r\n".encode() + body
+
+    def step(name: str, **fields: object) -> bytes:
+        body = {"epoch": 9, "monitors": ["m"], **fields}
+        return request("POST", f"/v1/handoff/{name}", json.dumps(body).encode())
+
+    document = fuzz_api.DOCUMENT.replace("NAME", "q").encode()
+    chunked = (
+        f"POST /v1/monitors HTTP/1.1\r\nHost: e\r\nAuthorization: Bearer {fuzz_api.TOKEN}\r\n"
+        "Transfer-Encoding: chunked\r\n\r\n"
+    ).encode() + b"".join(b"%x\r\n%s\r\n" % (len(p), p) for p in (document[:50], document[50:]))
+    return [
+        request("GET", "/healthz", token=False),
+        request("GET", "/metrics", token=False),
+        request("GET", "/v1/monitors") + request("GET", "/v1/monitors/m")
+        + request("GET", "/v1/load"),
+        request("GET", "/v1/monitors", token=False),
+        request("POST", "/v1/monitors", document),
+        chunked + b"0\r\n\r\n",
+        request("PUT", "/v1/monitors/q", document) + request("DELETE", "/v1/monitors/q"),
+        request("POST", "/v1/monitors/m/deactivate") + request("POST", "/v1/monitors/m/activate"),
+        step("hold", peer="http://127.0.0.1:1") + step("release", cuts={"m": 200}, grace=0.0)
+        + step("commit"),
+        step("hold") + step("abort"),
+        request("POST", "/v1/handoff/cut", json.dumps({"epoch": 7, "monitors": ["n"]}).encode()),
+        request("POST", f"/v1/handoff/adopt?epoch={fuzz_api.EPOCH}", adoptable),
+        request("POST", "/v1/handoff/adopt?epoch=8", adoptable),
+    ]  # fmt: skip
+
+
+def api_seeds() -> None:
+    api_dir = HERE / "corpus" / "api"
+    api_dir.mkdir(parents=True, exist_ok=True)
+    for old in api_dir.iterdir():
+        old.unlink()
+    for i, data in enumerate(api_requests()):
+        write(api_dir, bytes([0 if i % 3 else 7]) + data)
+
+
 if __name__ == "__main__":
-    main()
+    if sys.argv[1:] == ["api"]:
+        api_seeds()
+    else:
+        main()
+        api_seeds()

@@ -212,7 +212,8 @@ def test_a_hostile_client_neither_stops_the_verdicts_nor_grows_the_handler(
     assert not wrong, wrong[:10]
     assert len(kinds) == len(ALLOWED) + 1  # every kind was tried
     assert all("500" not in got for k, got in outcomes if k == "a burst")
-    assert any("503" in got for k, got in outcomes if k == "a burst")
+    # /healthz needs no place under the cap (issue #38): a burst past it is answered
+    assert all(got == "200" for k, got in outcomes if k == "a burst")
     assert after - before < 64 * 1024, (before, after)  # a generous bound: 64 MiB
     assert "Traceback" not in handler.stderr
     assert len(offline) > 50

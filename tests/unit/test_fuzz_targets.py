@@ -19,9 +19,9 @@ import pytest
 from helpers import bounded
 
 FUZZ = Path(__file__).resolve().parents[1] / "fuzz"
-TARGETS = ["cdr", "bundle", "assertion"]
+TARGETS = ["cdr", "bundle", "assertion", "api"]
 RUNS = 2000
-DICTS = {name: [f"-dict={FUZZ / name}.dict"] for name in ("bundle", "assertion")}
+DICTS = {name: [f"-dict={FUZZ / name}.dict"] for name in ("bundle", "assertion", "api")}
 
 
 def target(name: str) -> ModuleType:
@@ -76,6 +76,8 @@ def test_the_seeds_are_real_inputs(name: str) -> None:
                 module._readers[data[0]](data[1:])
             elif name == "assertion":
                 assert module.compiles(data.decode()), data
+            elif name == "api":  # each an HTTP request the API answers (2xx, 3xx, 4xx)
+                assert data[1:].startswith((b"GET ", b"POST ", b"PUT ", b"DELETE ")), data
             else:
                 mode, rest = data[0], data[2:]
                 frames = (

@@ -14,7 +14,11 @@ is always the project's contract for bad input:
   the same bytes, the same values;
 * the snapshot bundle: frames and snapshots, or :class:`HandoffError`; a snapshot
   that restores runs on without error;
-* the control API: a 2xx or 4xx answer, never a 500, and it answers on.
+* the control API: a 2xx or 4xx answer, never a 500, and it answers on; its requests
+  also as a stream of bytes (heads, bodies chunked or not, pipelined, cut short, damaged):
+  every answer JSON, none a 500, and ``/healthz`` answered after;
+* bundles whose content is valid but huge (runs of letters swollen): read within their
+  budget, or refused for it before they are decoded.
 
 Never another exception, and never a hang: each example runs under a timer
 (:func:`bounded`). The examples are derandomized, so a run in CI is reproducible;
@@ -25,12 +29,15 @@ fuzz`` does): a failure found so becomes an ``@example`` here.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import http.client
 import json
 import math
+import socket
 import struct
 import sys
 import tempfile
+import tracemalloc
 import urllib.parse
 from collections.abc import Callable, Iterator
 from functools import cache
@@ -49,10 +56,12 @@ from edgerv.core.checker import CheckRun, check_types
 from edgerv.core.diagnostics import InputError
 from edgerv.core.documents import load_monitors_text
 from edgerv.core.handoff import (
+    BundleTooLarge,
     HandoffError,
     bundle,
     decode,
     encode,
+    read_bundle,
     unbundle,
 )
 from edgerv.core.monitor import CompiledMonitor, compile_monitor, compile_monitors
@@ -62,6 +71,7 @@ from edgerv.core.traces import Trace
 from edgerv.handler import api as api_module
 from edgerv.handler.api import ControlApi
 from edgerv.handler.engine import Engine
+from edgerv.handler.limits import Limits
 from helpers import Hang, bounded, compiled, props, spec_of
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fuzz"))
@@ -652,13 +662,15 @@ class Api:
     """A real handler API (aiohttp, its own thread) over an engine with two monitors: ``m``
     runs here, ``n`` is only defined (a receiver's side)."""
 
-    def __init__(self) -> None:
+    def __init__(self, limits: Limits | None = None) -> None:
         self.engine = Engine("props", flush_after=1e9)
         monitor = handoff_monitor(0)
         self.engine.put(monitor, active=True)
         other = compile_monitor(spec_of("always (a -> x < 5)", {"a": "bool", "x": "float"}, "n"))
         self.engine.put(other, active=False)
-        self.api = ControlApi(self.engine, CollectorRegistry(), TOKEN, on_change=lambda: None)
+        self.api = ControlApi(
+            self.engine, CollectorRegistry(), TOKEN, on_change=lambda: None, limits=limits
+        )
         self.api.start("127.0.0.1", 0)
         self.conn = http.client.HTTPConnection("127.0.0.1", self.api.port, timeout=20)
         self.epoch = 10**15  # for the steps a test prepares (above what strategies draw)
@@ -791,6 +803,219 @@ def test_posted_documents_answer_2xx_or_4xx_never_500(api: Api, text: str) -> No
                 assert errors and all(e["location"].startswith("request") for e in errors)
     finally:
         api.reset()
+
+
+# -- the control API's requests as a stream of bytes -------------------------------------------
+
+WIRE_LIMITS = Limits(read_seconds=0.5, idle_seconds=0.5, bodies=8 << 20, bundle=4 << 20)
+CALLS = [
+    ("GET", "/healthz"), ("GET", "/metrics"), ("GET", "/v1/monitors"), ("GET", "/v1/load"),
+    ("GET", "/v1/monitors/m"), ("POST", "/v1/monitors"), ("PUT", "/v1/monitors/p"),
+    ("DELETE", "/v1/monitors/p"), ("POST", "/v1/monitors/m/deactivate"),
+    ("POST", "/v1/monitors/n/activate"), ("GET", "/nosuch"), ("PATCH", "/v1/monitors"),
+    *(("POST", f"/v1/handoff/{step}") for step in STEPS),
+]  # fmt: skip
+HEAD_JUNK = [b"Transfer-Encoding: chunked\r\n", b"Content-Length: -1\r\n",
+             b"Content-Length: 99999999999999999999\r\n", b"Expect: 100-continue\r\n",
+             b"Content-Encoding: gzip\r\n", b"X: " + b"y" * 9000 + b"\r\n", b"\x00\r\n",
+             b"Authorization: Bearer " + b"t" * 5000 + b"\r\n", b"Host\r\n"]  # fmt: skip
+
+
+def _document(name: str) -> bytes:
+    return json.dumps(
+        {"apiVersion": "edgerv.io/v1alpha1", "kind": "Monitor", "metadata": {"name": name},
+         "spec": {"assertion": "always (a -> x < 5)",
+                  "signals": {"a": {"topic": "/a", "type": "std_msgs/msg/Bool"},
+                              "x": {"topic": "/x", "type": "std_msgs/msg/Float64"}}}}
+    ).encode()  # fmt: skip
+
+
+@dataclasses.dataclass
+class Call:
+    """One request of :func:`http_requests`, described; :func:`wire_of` makes its bytes."""
+
+    method: str
+    path: str
+    token: str | None
+    body: bytes  # b"<bundle>", b"<huge bundle>": one made at run time, for the epoch
+    framing: str  # length, chunked, short (one byte less), long (more), none
+    junk: bytes  # a header line, or nothing
+    chunks: list[int]  # chunked: the chunks' sizes
+    bad_chunk: bytes  # chunked: a bad size line before the chunks, or nothing
+
+
+@st.composite
+def http_requests(draw: st.DrawFn) -> tuple[int, list[Call]]:
+    """A request or two pipelined, built valid (a call of the API, its token, a body framed
+    by its length or in chunks) and then damaged: a wrong length, a bad chunk, a junk
+    header. Returns the epoch an ``adopt`` is for (its bundle is made then: it needs a
+    receiving monitor), and the calls."""
+    epoch = draw(st.integers(10, 10**6))
+    calls = []
+    for _ in range(draw(st.integers(1, 2))):
+        method, path = draw(st.sampled_from(CALLS))
+        step = path.rsplit("/", 1)[-1]
+        if step == "adopt":
+            path += f"?epoch={epoch}"
+            body = draw(st.sampled_from([b"<bundle>", b"<huge bundle>", b"not a bundle"]))
+        elif path.startswith("/v1/handoff/"):
+            names = draw(st.lists(st.sampled_from(["m", "n", "nosuch"]), min_size=1, max_size=2))
+            request = {"epoch": draw(st.sampled_from([epoch, 10**29, -1])), "monitors": names,
+                       "cuts": dict.fromkeys(names, 200), "grace": 0.0, "wait": 0.01}  # fmt: skip
+            body = json.dumps(request).encode()
+        elif method in ("POST", "PUT"):
+            body = _document(path.rsplit("/", 1)[-1] if method == "PUT" else "q")
+        else:
+            body = b""
+        calls.append(
+            Call(
+                method, path, draw(st.sampled_from([TOKEN, TOKEN, "wrong", None])), body,
+                draw(st.sampled_from(["length"] * 4 + ["chunked"] * 2 + ["short", "long", "none"])),
+                draw(st.sampled_from(HEAD_JUNK)) if draw(st.integers(0, 4)) == 3 else b"",
+                draw(st.lists(st.integers(1, 4096), max_size=4)),
+                draw(st.sampled_from([b"zz\r\n", b"-1\r\n", b"ffffffffffff\r\n"]))
+                if draw(st.integers(0, 3)) == 2 else b"",
+            )
+        )  # fmt: skip
+    return epoch, calls
+
+
+def wire_of(call: Call, bundles: dict[bytes, bytes]) -> bytes:
+    """A call's bytes (``bundles``: what the placeholders stand for)."""
+    body = bundles.get(call.body, call.body)
+    head = [f"{call.method} {call.path} HTTP/1.1\r\nHost: edge\r\n".encode()]
+    if call.token:
+        head.append(f"Authorization: Bearer {call.token}\r\n".encode())
+    if call.framing == "chunked":
+        head.append(b"Transfer-Encoding: chunked\r\n")
+        body = call.bad_chunk + _chunked(body, call.chunks)
+    elif call.framing != "none":
+        size = {"short": -1, "long": 7}.get(call.framing, 0) + len(body)
+        head.append(f"Content-Length: {max(0, size)}\r\n".encode())
+    if call.framing == "long":
+        head.append(b"Connection: close\r\n")  # it waits for the rest: the last one
+    return b"".join(head) + call.junk + b"\r\n" + body
+
+
+def _chunked(body: bytes, sizes: list[int]) -> bytes:
+    out, at = b"", 0
+    for size in [*sizes, len(body)]:
+        if at < len(body):
+            out += b"%x\r\n%s\r\n" % (len(body[at : at + size]), body[at : at + size])
+            at += size
+    return out + b"0\r\n\r\n"
+
+
+def _answers(data: bytes) -> list[tuple[int, bytes, bytes]]:
+    """The answers in what the API sent back, each whole one: status, head, body."""
+    out = []
+    while data:
+        top, sep, rest = data.partition(b"\r\n\r\n")
+        if not sep:
+            break
+        status = int(top.split(b" ", 2)[1])
+        length = 0
+        for line in top.split(b"\r\n")[1:]:
+            name, _, value = line.partition(b":")
+            if name.strip().lower() == b"content-length":
+                length = int(value)
+        out.append((status, top, rest[:length]))
+        data = rest[length:]
+    return out
+
+
+@pytest.fixture(scope="module")
+def wire_api() -> Iterator[Api]:
+    wait = api_module.MAX_WAIT
+    api_module.MAX_WAIT = 0.05
+    server = Api(WIRE_LIMITS)
+    yield server
+    server.close()
+    api_module.MAX_WAIT = wait
+
+
+@props(80)
+@given(http_requests(), st.data())
+@example((10, [Call("GET", "/healthz", None, b"", "none", HEAD_JUNK[0], [], b"")]), None)
+@example((10, [Call("POST", "/v1/monitors", TOKEN, b"x", "length", b"Content-Encoding: gzip\r\n",
+                    [], b"")]), None)  # fmt: skip
+def test_the_apis_requests_as_bytes_answer_json_never_500(
+    wire_api: Api, call: tuple[int, list[Call]], data: st.DataObject | None
+) -> None:
+    epoch, calls = call
+    try:
+        with contextlib.suppress(HandoffError):
+            wire_api.engine.receive("n", epoch)  # an adopt finds a handoff receiving
+        real = adoptable(wire_api, epoch)
+        bundles = {  # the huge one: valid, and past the budget once decoded
+            b"<bundle>": real,
+            b"<huge bundle>": bundle([fuzz_bundle.swollen(unbundle(real)[0], 10**5)]),
+        }
+        wire = b"".join(wire_of(c, bundles) for c in calls)
+        wire += b"GET /healthz HTTP/1.1\r\nHost: e\r\nConnection: close\r\n\r\n"
+        if data is not None and data.draw(st.integers(0, 5)) == 3:  # (0: the likeliest)
+            wire = data.draw(damaged(wire))
+        with bounded(20), socket.create_connection(("127.0.0.1", wire_api.api.port or 0)) as sock:
+            sock.settimeout(10)
+            with contextlib.suppress(OSError):  # the API may close before it has all
+                sock.sendall(wire)
+            got = b""
+            with contextlib.suppress(OSError):
+                while chunk := sock.recv(65536):
+                    got += chunk
+        assert b"Traceback" not in got
+        for status, top, body in _answers(got):
+            if status < 200:
+                continue  # 100 Continue: the answer follows
+            event(f"{status}")
+            assert status < 500 or status == 503, (status, top, body)
+            if top.lower().find(b"content-type: text/plain; version=") >= 0:
+                assert status == 200  # /metrics (an empty registry here)
+            else:
+                assert b"application/json" in top, (top, body)
+                json.loads(body)
+        with bounded(20):
+            assert wire_api.call("GET", "/healthz")[0] == 200
+            for _ in range(3):  # and the engine runs on
+                wire_api.engine.emit(wire_api.engine.tick())
+    finally:
+        wire_api.reset()
+
+
+# -- bundles whose content is valid but huge -----------------------------------------------------
+
+
+@props(60)
+@given(
+    st.lists(st.tuples(st.integers(0, len(HANDOFF_ASSERTIONS) - 1), st.integers(0, 5),
+                       st.sampled_from([1, 3, 100, 10**4, 10**5, 4 * 10**5, 10**6, 2**32])),
+             min_size=1, max_size=4),
+    st.sampled_from([1 << 20, 4 << 20]),
+)  # fmt: skip
+def test_valid_but_huge_bundles_are_read_within_their_budget_or_refused_undecoded(
+    frames: list[tuple[int, int, int]], budget: int
+) -> None:
+    """Snapshots whose runs of letters are swollen (each run ``factor`` times as long: a
+    valid snapshot, as small on the wire): :func:`read_bundle` returns them, having taken
+    no more than its budget (tracemalloc), or refuses them before any is decoded."""
+    wire = bundle(fuzz_bundle.swollen(real_frame(i, seed), factor) for i, seed, factor in frames)
+    tracemalloc.start()
+    try:
+        with bounded(20):
+            snaps = read_bundle(wire, budget)
+        event("read")
+        assert len(snaps) == len(frames)
+        _, peak = tracemalloc.get_traced_memory()
+        assert peak <= budget + (256 << 10), (peak, budget)
+    except BundleTooLarge:
+        event("over the budget")
+        _, peak = tracemalloc.get_traced_memory()
+        assert peak < 256 << 10, peak  # refused before anything was decoded
+    except HandoffError as exc:  # a run past 2^32 - 1 letters, or more than 16 Mi letters
+        event("refused")
+        assert "out of range" in str(exc) or "count" in str(exc), exc
+    finally:
+        tracemalloc.stop()
 
 
 def test_the_timer_catches_a_hang() -> None:

@@ -221,20 +221,29 @@ def test_bad_certificate_files_are_named_and_the_handler_exits_2(
 
 
 def test_the_connection_cap_holds_over_tls(pki: Pki) -> None:
-    """Over TLS a connection counts once its handshake is done: two idle callers hold a
-    cap of two, and a third gets the 503 that says so, over TLS."""
+    """Over TLS a place is taken by a request with the token, as over plain HTTP: two
+    idle callers hold none; two with a request under way (a body on its way) hold a cap
+    of two, and a third request with the token gets the 503 that says so, over TLS."""
     engine = Engine("edge", flush_after=1e9)
     api = serve(engine, pki, connections=2)
     tls = ClientTls(str(pki.ca))
+    idle = [tls.connection("127.0.0.1", api.port, 5.0) for _ in range(2)]
     held = [tls.connection("127.0.0.1", api.port, 5.0) for _ in range(2)]
     try:
-        for conn in held:
+        for conn in idle:
             conn.connect()
+        third = HandlerClient(f"127.0.0.1:{api.port}", TOKEN, tls)
+        assert third.monitors() == []
+        third.close()
+        for conn in held:
+            conn.putrequest("PUT", "/v1/monitors/m")
+            conn.putheader("Authorization", f"Bearer {TOKEN}")
+            conn.putheader("Content-Length", "100")
+            conn.endheaders()  # the body never comes
         deadline = time.monotonic() + 2.0
         while api_open(api) < 2 and time.monotonic() < deadline:
             time.sleep(0.01)
-        third = HandlerClient(f"127.0.0.1:{api.port}", TOKEN, tls)
-        with pytest.raises(ServerError, match="at most 2 connections at once"):
+        with pytest.raises(ServerError, match="at most 2 clients' connections at once"):
             third.monitors()
         for conn in held:
             conn.close()
@@ -243,7 +252,7 @@ def test_the_connection_cap_holds_over_tls(pki: Pki) -> None:
             time.sleep(0.01)
         assert third.monitors() == []
     finally:
-        for conn in held:
+        for conn in [*idle, *held]:
             conn.close()
         api.stop()
 

@@ -48,7 +48,7 @@ import json
 import struct
 import zlib
 from array import array
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -63,7 +63,24 @@ _FRAME = struct.Struct("!4sII")  # magic, header length, body length
 _MAGIC = b"ERV3"
 _BUNDLE = struct.Struct("!4sI")  # magic, length of the frames once inflated
 _BUNDLE_MAGIC = b"ERVB"
-MAX_BUNDLE = 1 << 30  # inflated bytes a bundle may announce
+MAX_BUNDLE = 256 << 20  # what a bundle may take, inflated and decoded (bytes)
+MAX_LETTERS = 1 << 24  # letters one snapshot may carry
+INFLATE_STEP = 1 << 20  # bytes inflated at a time (the cap is checked after each)
+INFLATE_FEED = 1 << 16  # deflated bytes given to zlib at a time
+# What decoding takes beyond the frame's own bytes, measured with tracemalloc
+# (tests/unit/test_bundle_budget.py): its header's JSON as Python objects (at most ~20
+# times its text: ``[{},{},...]``), each letter about twice (NumPy's repeat, then the
+# array; 3 here), each run, each kept stamp in a dict and the list of varints it is read
+# from.
+HEADER_FACTOR = 32
+LETTER_FACTOR = 3
+STAMP_BYTES = 240
+RUN_BYTES = 10  # each run: its letter widened, its length as NumPy's repeat takes it (intp)
+FRAME_BYTES = 256  # a frame's view and its place in the list of frames
+
+
+class BundleTooLarge(HandoffError):
+    """A bundle that announces, inflates or would decode to more than its budget."""
 
 
 def cut_point(first_stamps: Mapping[str, int], topics: Iterable[str]) -> int | None:
@@ -92,7 +109,7 @@ def _varints(numbers: Iterable[int]) -> bytearray:
     return out
 
 
-def _from_varints(data: bytes, n: int, what: str) -> list[int]:
+def _from_varints(data: bytes | memoryview, n: int, what: str) -> list[int]:
     out, i = [], 0
     for _ in range(n):
         z = shift = 0
@@ -167,30 +184,108 @@ def bundle(frames: Iterable[bytes]) -> bytes:
     return _BUNDLE.pack(_BUNDLE_MAGIC, len(raw)) + zlib.compress(raw, 6)
 
 
-def unbundle(data: bytes, limit: int = MAX_BUNDLE) -> list[bytes]:
-    """A bundle -> its snapshot frames, each to check with :func:`decode`."""
-    if len(data) < _BUNDLE.size or data[:4] != _BUNDLE_MAGIC:
+def bundled_size(data: bytes | bytearray | memoryview) -> int:
+    """The inflated size a bundle announces, from its first 8 bytes (raises
+    :class:`HandoffError` if they are not a bundle's)."""
+    if len(data) < _BUNDLE.size or bytes(data[:4]) != _BUNDLE_MAGIC:
         raise HandoffError("not an edgerv snapshot bundle (or one of another wire version)")
-    size = int(_BUNDLE.unpack_from(data)[1])
+    return int(_BUNDLE.unpack_from(data)[1])
+
+
+def _inflated(data: bytes | bytearray | memoryview, limit: int) -> bytearray:
+    size = bundled_size(data)
     if size > limit:
-        raise HandoffError(f"a bundle of {size} bytes is over the limit of {limit}")
+        raise BundleTooLarge(f"a bundle of {size} bytes is over the limit of {limit}")
     try:
-        raw = _inflate(data[_BUNDLE.size :], size)
+        return _inflate(memoryview(data)[_BUNDLE.size :], size)
     except zlib.error as exc:
         raise HandoffError(f"a bundle does not inflate: {exc}") from None
-    frames, i = [], 0
-    while i < len(raw):
-        if len(raw) - i < _FRAME.size:
+
+
+def _split(raw: bytes | bytearray | memoryview, budget: int) -> list[memoryview]:
+    """A bundle's inflated bytes -> its frames (views, not copies). What the frames and
+    their headers will take (:data:`FRAME_BYTES`, :data:`HEADER_FACTOR`) is counted as
+    they are found, against ``budget`` with the bytes themselves."""
+    view = memoryview(raw)
+    frames: list[memoryview] = []
+    i, cost = 0, _held(len(view))
+    while i < len(view):
+        if len(view) - i < _FRAME.size:
             raise HandoffError("a bundle ends inside a frame")
-        magic, hlen, blen = _FRAME.unpack_from(raw, i)
+        magic, hlen, blen = _FRAME.unpack_from(view, i)
         if magic != _MAGIC:
             raise HandoffError("not an edgerv snapshot (or one of another wire version)")
         end = i + _FRAME.size + hlen + blen
-        if end > len(raw):
+        if end > len(view):
             raise HandoffError("a bundle ends inside a frame")
-        frames.append(raw[i:end])
+        cost += FRAME_BYTES + HEADER_FACTOR * hlen
+        if cost > budget:
+            raise BundleTooLarge(
+                f"a bundle's first {len(frames) + 1} snapshots would take more than the "
+                f"limit of {budget} bytes read"
+            )
+        frames.append(view[i:end])
         i = end
     return frames
+
+
+def unbundle(data: bytes, limit: int = MAX_BUNDLE) -> list[bytes]:
+    """A bundle -> its snapshot frames, each to check with :func:`decode` (a receiver
+    reads one with :func:`read_bundle`, which checks what it costs first)."""
+    return [bytes(frame) for frame in _split(_inflated(data, limit), limit)]
+
+
+def decoded_cost(header: Mapping[str, Any], hlen: int) -> int:
+    """Bytes a frame's header and decoding take beyond the frame itself, from its header
+    alone (its counts checked already: :func:`_header`)."""
+    letter = array(letter_typecode(int(header["bits"]))).itemsize
+    return (
+        HEADER_FACTOR * hlen
+        + LETTER_FACTOR * letter * int(header["n"])
+        + RUN_BYTES * int(header["runs"])
+        + STAMP_BYTES * int(header["stamps"])
+    )
+
+
+def read_bundle(
+    data: bytes | bytearray | memoryview,
+    budget: int = MAX_BUNDLE,
+    admit: Callable[[str, int], None] | None = None,
+    max_letters: int = MAX_LETTERS,
+) -> list[Snapshot]:
+    """A receiver's reading of a bundle: its snapshots, each checked (:func:`decode`), or
+    :class:`HandoffError` naming the snapshot (:class:`BundleTooLarge` past ``budget``).
+
+    In order, each step before the next costs anything: the announced size against the
+    budget; the inflation, capped at that size as it goes; every frame's header, and
+    ``admit(monitor, epoch)`` for it (it raises :class:`HandoffError` for a snapshot the
+    receiver does not take: a monitor it is not receiving); the inflated bytes and what
+    decoding the frames will take (:func:`decoded_cost`) against the budget; only then the
+    letters and stamps of each frame."""
+    raw = _inflated(data, budget)
+    frames = _split(raw, budget)  # counts the headers' cost before any is parsed
+    headers, cost = [], _held(len(raw)) + FRAME_BYTES * len(frames)
+    for i, frame in enumerate(frames, 1):
+        try:
+            h, hlen, blen = _header(frame, max_letters)
+            if admit is not None:
+                admit(h["monitor"], h["epoch"])
+        except HandoffError as exc:
+            raise type(exc)(f"snapshot {i} of {len(frames)}: {exc}") from None
+        headers.append((h, hlen, blen))
+        cost += decoded_cost(h, hlen)
+    if cost > budget:
+        raise BundleTooLarge(
+            f"a bundle of {len(frames)} snapshots would take {cost} bytes decoded, over the "
+            f"limit of {budget}"
+        )
+    snaps = []
+    for i, (frame, (h, hlen, blen)) in enumerate(zip(frames, headers, strict=True), 1):
+        try:
+            snaps.append(_decode(frame, h, hlen, blen))
+        except HandoffError as exc:
+            raise HandoffError(f"snapshot {i} of {len(frames)}: {exc}") from None
+    return snaps
 
 
 def frame_sizes(frame: bytes) -> tuple[int, int]:
@@ -204,13 +299,36 @@ def frame_sizes(frame: bytes) -> tuple[int, int]:
         raise HandoffError(f"malformed snapshot header: {exc}"[:300]) from None
 
 
-def _inflate(data: bytes, size: int) -> bytes:
-    """Decompress exactly ``size`` bytes: a hostile message cannot blow up memory."""
+def _inflate(data: bytes | bytearray | memoryview, size: int) -> bytearray:
+    """Decompress exactly ``size`` bytes, at most :data:`INFLATE_STEP` at a time, fed
+    :data:`INFLATE_FEED` bytes at a time: a hostile stream stops one step past ``size``,
+    whatever it would inflate to, having taken that and what :func:`_held` counts."""
     d = zlib.decompressobj()
-    out = d.decompress(data, size + 1)
-    if len(out) != size or d.unconsumed_tail or not d.eof or d.unused_data:
+    out = bytearray()
+    view = memoryview(data)
+    at = 0
+    pending: bytes | memoryview = b""
+    while True:
+        if not pending and at < len(view):
+            pending, at = view[at : at + INFLATE_FEED], at + INFLATE_FEED
+        chunk = d.decompress(pending, min(INFLATE_STEP, size + 1 - len(out)))
+        out += chunk
+        if len(out) > size:
+            raise HandoffError(
+                "a bundle does not inflate to its announced size: it goes on past it"
+            )
+        pending = d.unconsumed_tail
+        if d.eof or not (chunk or pending or at < len(view)):
+            break
+    if len(out) != size or not d.eof or d.unused_data or at < len(view):
         raise HandoffError("a bundle does not inflate to its announced size")
     return out
+
+
+def _held(inflated: int) -> int:
+    """What inflating ``inflated`` bytes took at most: the bytes, a bytearray's growth (an
+    eighth), a step's output and its input."""
+    return inflated + inflated // 8 + min(inflated, INFLATE_STEP) + INFLATE_FEED
 
 
 def _stamp(t: Any) -> bool:
@@ -222,8 +340,11 @@ def _stamp_or_none(t: Any) -> bool:
     return t is None or _stamp(t)
 
 
-def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
-    """Parse and check a snapshot frame; raise :class:`HandoffError` if it is bad."""
+def _header(
+    data: bytes | bytearray | memoryview, max_letters: int
+) -> tuple[dict[str, Any], int, int]:
+    """A frame's header, parsed, and its counts checked (letters, runs, stamps against the
+    frame's bytes); its header and body lengths."""
     if len(data) < _FRAME.size:
         raise HandoffError("too short for a snapshot")
     magic, hlen, blen = _FRAME.unpack_from(data)
@@ -232,18 +353,53 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
     if len(data) != _FRAME.size + hlen + blen:
         raise HandoffError("length does not match its frame")
     try:
-        h = json.loads(data[_FRAME.size : _FRAME.size + hlen])
+        h = json.loads(bytes(data[_FRAME.size : _FRAME.size + hlen]))
         if not isinstance(h, dict):
             raise HandoffError("a snapshot's header is not a JSON object")
         if h.get("v") != WIRE_VERSION:
-            raise HandoffError(f"wire version {h.get('v')} is not {WIRE_VERSION}")
+            raise HandoffError(f"wire version {_shown(h.get('v'))} is not {WIRE_VERSION}")
         n, bits = int(h["n"]), int(h["bits"])
         runs, kept = int(h["runs"]), int(h["stamps"])
         if not (0 <= n <= max_letters and 0 <= bits <= 16):
             raise HandoffError("letter count or width out of range")
-        if not (0 <= runs <= n and 0 <= kept <= n and 6 * runs <= blen):
+        # each run takes 6 bytes, each kept stamp at least 2 (two varints)
+        if not (0 <= runs <= n and 0 <= kept <= n and 6 * runs + 2 * kept <= blen):
             raise HandoffError("run or stamp count out of range")
-        body = data[_FRAME.size + hlen :]
+        if not isinstance(h.get("monitor"), str):
+            raise HandoffError("a snapshot's monitor is not a name")
+        if not _stamp(h.get("epoch")):
+            raise HandoffError("a snapshot's epoch is not a 64-bit integer")
+        h["n"], h["bits"], h["runs"], h["stamps"] = n, bits, runs, kept
+        return h, hlen, blen
+    except HandoffError:
+        raise
+    except (ValueError, KeyError, TypeError, OverflowError, UnicodeDecodeError) as exc:
+        raise HandoffError(f"malformed snapshot: {exc}"[:300]) from None
+    except RecursionError:  # Python's JSON parser recurses per level
+        raise HandoffError("malformed snapshot: its header is nested too deep") from None
+
+
+def _shown(value: Any) -> str:
+    """A header's value as JSON writes it, shortened (never a Python repr)."""
+    try:
+        text = json.dumps(value)
+    except (TypeError, ValueError, RecursionError):
+        text = f"a {type(value).__name__}"
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def decode(data: bytes | bytearray | memoryview, max_letters: int = MAX_LETTERS) -> Snapshot:
+    """Parse and check a snapshot frame; raise :class:`HandoffError` if it is bad."""
+    return _decode(data, *_header(data, max_letters))
+
+
+def _decode(
+    data: bytes | bytearray | memoryview, h: dict[str, Any], hlen: int, blen: int
+) -> Snapshot:
+    """A frame whose header :func:`_header` read: its letters, stamps and fields checked."""
+    n, bits, runs, kept = h["n"], h["bits"], h["runs"], h["stamps"]
+    try:
+        body = memoryview(data)[_FRAME.size + hlen :]
         run_letters = np.frombuffer(body, dtype="<u2", count=runs)
         run_lengths = np.frombuffer(body, dtype="<u4", offset=2 * runs, count=runs)
         if runs and (int(run_letters.max()) >= 1 << bits or int(run_lengths.min()) < 1):
@@ -251,7 +407,9 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
         if int(run_lengths.sum(dtype=np.int64)) != n:
             raise HandoffError("letters do not have the announced count")
         letters = array(letter_typecode(bits))
-        letters.frombytes(np.repeat(run_letters.astype(letters.typecode), run_lengths).tobytes())
+        repeated = np.repeat(run_letters.astype(letters.typecode), run_lengths)
+        letters.frombytes(repeated.data.cast("B"))  # (no copy to bytes first)
+        del repeated
         pairs = _from_varints(body[6 * runs :], 2 * kept, "stamps")
         stamps: dict[int, int] = {}
         i = stamp = 0
@@ -262,6 +420,7 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
             if not _stamp(stamp):
                 raise HandoffError("a stamp is not 64-bit integer nanoseconds")
             stamps[i] = stamp
+        del pairs
         values = tuple(h["values"])
         if not all(v is None or isinstance(v, bool | int | float | str) for v in values):
             raise HandoffError("a signal value is not a plain value")
@@ -275,7 +434,9 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
         if not _stamp(cut) or not _stamp_or_none(last_released):
             raise HandoffError("the cut or the last release is not 64-bit integer nanoseconds")
         if not (isinstance(valuation, int) and 0 <= valuation < 1 << bits):
-            raise HandoffError(f"valuation {valuation!r} does not fit {bits} placeholder bits")
+            raise HandoffError(
+                f"valuation {_shown(valuation)} does not fit {bits} placeholder bits"
+            )
         return Snapshot(
             monitor=str(h["monitor"]),
             epoch=int(h["epoch"]),
@@ -297,5 +458,5 @@ def decode(data: bytes, max_letters: int = 1 << 24) -> Snapshot:
         raise
     except (ValueError, KeyError, TypeError, OverflowError) as exc:  # Overflow: int(inf)
         raise HandoffError(f"malformed snapshot: {exc}"[:300]) from None
-    except RecursionError:  # Python's JSON parser recurses per level
+    except RecursionError:
         raise HandoffError("malformed snapshot: its header is nested too deep") from None

@@ -16,11 +16,18 @@ Open: ``GET /healthz``, ``GET /metrics`` (Prometheus text). Everything under
   on either
 
 A body with bad documents changes nothing and gets 400 with every error located
-in the body (``request:LINE:COL``).
+in the body (``request:LINE:COL``). Every answer's body is JSON (``/metrics``: text).
 
 What one client may take is bounded (:class:`Limits`, docs/handler.md "Limits on
-input"): connections open at once (one more gets 503), the time to send a request
-(head and body) and to read its answer, idle kept-alive connections, monitors defined.
+input"). A connection costs a file descriptor until a request with the token comes on it
+(:mod:`edgerv.handler.admission`); the open calls need no place and do not wait for the
+engine's lock. Whatever can be checked before a request's body is read is checked first,
+in this order: the token, a place, the call, the declared size and encoding (none is
+taken), the handoff's step and (``adopt``) its epoch and that a handoff is receiving
+under it. A body is read by its deadline, at most its call's limit, and within what all
+bodies may hold at once (``Limits.bodies``); a snapshot bundle is checked before it is
+inflated and decoded, one at a time, off the event loop
+(:func:`edgerv.core.handoff.read_bundle`). The engine's lock is taken on worker threads.
 """
 
 from __future__ import annotations
@@ -30,21 +37,37 @@ import contextlib
 import hmac
 import json
 import logging
+import re
+import resource
 import ssl
 import threading
 import time
 from collections.abc import Awaitable, Callable
-from typing import Any, cast
+from concurrent.futures import ThreadPoolExecutor
+from http import HTTPStatus
+from typing import Any, TypeVar, cast
 
 from aiohttp import web
 from aiohttp.http_exceptions import HttpProcessingError
+from aiohttp.web_protocol import RequestHandler, RequestPayloadError
+from aiohttp.web_request import BaseRequest
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import MonitorSpec, parse_monitors_text
-from edgerv.core.handoff import HandoffError, bundle, decode_frames, encode, unbundle
+from edgerv.core.handoff import (
+    BundleTooLarge,
+    HandoffError,
+    Snapshot,
+    bundle,
+    bundled_size,
+    encode,
+    read_bundle,
+)
 from edgerv.core.monitor import CompiledMonitor
+from edgerv.handler.admission import Connection, Pool
 from edgerv.handler.engine import Engine
+from edgerv.handler.handoff_state import HandoffState
 from edgerv.handler.limits import Limits
 from edgerv.handler.payloads import (
     AdoptAnswer,
@@ -59,23 +82,34 @@ from edgerv.handler.token import Token, current
 log = logging.getLogger("edgerv.handler.api")
 http_log = logging.getLogger("edgerv.handler.api.http")  # aiohttp's server logs here
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
-MAX_BODY = 1 << 20  # Monitor documents
+T = TypeVar("T")
+MAX_BODY = 1 << 20  # Monitor documents, and a call that takes no body
+MAX_STEP_BODY = 8 << 20  # a handoff step's JSON (10,000 monitors' names, cuts, topics)
 MAX_HANDOFF_BODY = 64 << 20  # a bundle of snapshots (deflated)
+MAX_EPOCH = 2**63 - 1  # a handoff's epoch: the drivers' clock, 64-bit nanoseconds
 MAX_WAIT = 5.0  # seconds a release call may wait for events past the cut
 RELEASE_POLL = 0.002  # how often it looks again meanwhile
 MAX_HEADERS = 32  # a request's header lines (our clients send 5); each at most 8,190 bytes
-REFUSED_LINGER = 1.0  # seconds a connection beyond the cap stays open to read its answer
+READ_STEP = 1 << 16  # a body is read this much at a time
+OPEN = frozenset({"/healthz", "/metrics"})  # no token, no place under the cap
+STEPS = ("hold", "receive", "cut", "release", "commit", "abort", "adopt")
+RECEIVING = HandoffState.RECEIVING
 DEADLINE = web.RequestKey("deadline", float)  # the request's body is in by then (loop time)
+BODY = web.RequestKey("body", bytearray)  # read by the gate, before the call's handler
+EPOCH = web.RequestKey("epoch", int)  # adopt: the epoch of its query, checked
+_REPR = re.compile(r":?\s*(?:bytearray\(|b'|b\")")
 
 
 class _ClientFault(logging.Filter):
     """aiohttp logs a request it cannot parse at ERROR with a traceback: a client's fault
-    (garbage, too many headers), so one line at DEBUG, not a flood a client can cause."""
+    (garbage, too many headers, a body it cannot decode while it discards it), so one line
+    at DEBUG, not a flood a client can cause."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         exc = record.exc_info[1] if record.exc_info else None
-        if isinstance(exc, HttpProcessingError):
-            record.msg, record.args = "%s: %s", (record.getMessage(), exc.message)
+        if isinstance(exc, HttpProcessingError | RequestPayloadError):
+            said = getattr(exc, "message", None) or str(exc).strip()
+            record.msg, record.args = "%s: %s", (record.getMessage(), said)
             record.levelno, record.levelname = logging.DEBUG, "DEBUG"
             record.exc_info = record.exc_text = None
             return http_log.isEnabledFor(logging.DEBUG)  # the level was checked as ERROR
@@ -85,158 +119,28 @@ class _ClientFault(logging.Filter):
 http_log.addFilter(_ClientFault())
 
 
-class _Connection(asyncio.Protocol):
-    """One client's connection, around aiohttp's protocol: it counts toward the cap and
-    is closed when a request's head does not arrive within ``read_seconds`` of its first
-    byte, or an answer waits that long for the client to read it. (The body's deadline is
-    kept by ``ControlApi._limit``; aiohttp keeps the idle one.)"""
+class _Protocol(RequestHandler):
+    """aiohttp's protocol, with the answers it makes itself (a request it cannot parse: a
+    line too long, too many headers, not HTTP) in JSON like every other."""
 
-    def __init__(self, pool: _Connections, inner: asyncio.Protocol, counted: bool = False) -> None:
-        self.pool = pool
-        self.inner = inner
-        self.transport: asyncio.Transport | None = None
-        self.busy = False  # a request is under way: its bytes came, its answer is not out
-        self.deadline = 0.0  # for the request under way (the loop's clock)
-        self.reading: asyncio.TimerHandle | None = None  # its head is on its way
-        self.writing: asyncio.TimerHandle | None = None  # an answer waits to be read
-        self.counted = counted  # toward the cap: from the accept, or over TLS from the handshake
-        self.refused = False  # over TLS: the cap was reached during its handshake
+    def __init__(self, server: web.Server, loop: asyncio.AbstractEventLoop) -> None:
+        super().__init__(server, loop=loop, **server._kwargs)
 
-    def _soon(self) -> float:
-        return asyncio.get_running_loop().time() + self.pool.limits.read_seconds
-
-    def _cut_at(self, deadline: float, why: str) -> asyncio.TimerHandle:
-        return asyncio.get_running_loop().call_at(deadline, self._cut, why)
-
-    def _cut(self, why: str) -> None:
-        log.info("closed a connection: %s within %g s", why, self.pool.limits.read_seconds)
-        if self.transport is not None:
-            self.transport.abort()
-
-    def request_arrived(self) -> float:
-        """The head is in (aiohttp parsed it): the deadline for its body. A request whose
-        bytes came while the one before was answered gets the whole time for its body."""
-        if self.reading is None:
-            self.deadline = self._soon()
-        else:
-            self.reading.cancel()
-            self.reading = None
-        self.busy = True
-        return self.deadline
-
-    def answered(self) -> None:
-        self.busy = False
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        assert isinstance(transport, asyncio.Transport)
-        self.transport = transport
-        if not self.counted:  # over TLS: the handshake is done
-            if self.pool.open >= self.pool.limits.connections:
-                self.refused = True
-                _Refused(self.pool.refusal).connection_made(transport)
-                return
-            self.pool.open += 1
-            self.counted = True
-        self.inner.connection_made(transport)
-
-    def data_received(self, data: bytes) -> None:
-        if self.refused:
-            return
-        if not self.busy and self.reading is None:
-            self.busy = True
-            self.deadline = self._soon()
-            self.reading = self._cut_at(self.deadline, "a request's head did not arrive")
-        self.inner.data_received(data)
-
-    def eof_received(self) -> bool | None:
-        return None if self.refused else self.inner.eof_received()
-
-    def pause_writing(self) -> None:  # the client does not read what it asked for
-        if self.refused:
-            return
-        if self.writing is None:
-            self.writing = self._cut_at(self._soon(), "an answer was not read")
-        self.inner.pause_writing()
-
-    def resume_writing(self) -> None:
-        if self.refused:
-            return
-        if self.writing is not None:
-            self.writing.cancel()
-            self.writing = None
-        self.inner.resume_writing()
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        for timer in (self.reading, self.writing):
-            if timer is not None:
-                timer.cancel()
-        self.transport = None
-        self.pool.release(self)
-        if not self.refused:
-            self.inner.connection_lost(exc)
-
-
-class _Refused(asyncio.Protocol):
-    """A connection beyond the cap: answered 503 at once, closed once the client is done
-    (or after ``REFUSED_LINGER``; closing before its request was read could reset the
-    connection under the answer)."""
-
-    def __init__(self, answer: bytes) -> None:
-        self.answer = answer
-        self.timer: asyncio.TimerHandle | None = None
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        assert isinstance(transport, asyncio.Transport)
-        transport.write(self.answer)
-        try:
-            transport.write_eof()
-        except OSError:  # the client is gone already
-            transport.abort()
-            return
-        self.timer = asyncio.get_running_loop().call_later(REFUSED_LINGER, transport.abort)
-
-    def data_received(self, data: bytes) -> None:
-        pass  # the request: it is not served
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        if self.timer is not None:
-            self.timer.cancel()
-
-
-class _Connections:
-    """The protocol factory the API listens with: aiohttp's, counted and capped."""
-
-    def __init__(self, make: Callable[[], asyncio.Protocol], limits: Limits, tls: bool) -> None:
-        self.make = make
-        self.limits = limits
-        # Over TLS a connection counts from the end of its handshake: asyncio never tells
-        # the protocol of a handshake that failed (a plain-HTTP caller, a certificate the
-        # caller refused, a handshake that timed out), so one counted at the accept would
-        # never be given back. Handshakes under way are bounded by their timeout.
-        self.tls = tls
-        self.open = 0
-        text = (
-            f"this handler serves at most {limits.connections} connections at once "
-            "(--api-max-connections): try again in a moment"
-        )
-        body = json.dumps({"errors": [{"message": text}]}).encode()
-        self.refusal = (
-            "HTTP/1.1 503 Service Unavailable\r\nContent-Type: application/json\r\n"
-            f"Content-Length: {len(body)}\r\nRetry-After: 1\r\nConnection: close\r\n\r\n"
-        ).encode() + body
-
-    def __call__(self) -> asyncio.Protocol:
-        if self.open >= self.limits.connections:  # counted here: accepts come in bursts
-            return _Refused(self.refusal)
-        if self.tls:  # counted once its handshake is done (see _Connection.connection_made)
-            return _Connection(self, self.make())
-        self.open += 1
-        return _Connection(self, self.make(), counted=True)
-
-    def release(self, connection: _Connection) -> None:
-        if connection.counted:
-            connection.counted = False
-            self.open -= 1
+    def handle_error(
+        self,
+        request: BaseRequest,
+        status: int = 500,
+        exc: BaseException | None = None,
+        message: str | None = None,
+    ) -> web.StreamResponse:
+        super().handle_error(request, status, exc, message)  # logs it (at debug: _ClientFault)
+        said = exc.message if isinstance(exc, HttpProcessingError) else None
+        text = (said or HTTPStatus(status).phrase).splitlines()[0]
+        text = _REPR.split(text)[0].rstrip(":")[:200]  # (what aiohttp quotes: a Python repr)
+        what = "a request this handler cannot read" if status < 500 else "an internal error"
+        answer = _message(status, f"{what}: {text}")
+        answer.force_close()
+        return answer
 
 
 def _active(request: web.Request) -> bool:
@@ -279,10 +183,29 @@ def _why(exc: Exception) -> str:
     return str(exc)[:200] or type(exc).__name__
 
 
-def _integer(value: Any, what: str) -> int:
+def _integer(value: Any, what: str, low: int = -(2**63), high: int = 2**63 - 1) -> int:
+    """A whole number within ``low`` and ``high`` (by default, 64-bit nanoseconds)."""
     if isinstance(value, bool) or not isinstance(value, int):
         raise ValueError(f"{what} must be an integer, not {_shown(value)}")
+    if not low <= value <= high:
+        raise ValueError(f"{what} must be from {low} to {high}, not {_shown(value)}")
     return value
+
+
+def _epoch(value: Any) -> int:
+    """A handoff's epoch: what the drivers take from their clock (``edgerv migrate``: the
+    time in nanoseconds), so a whole number from 1 to 2^63 - 1. (An epoch of 10^29 would
+    fence the monitor against every later handoff.)"""
+    return _integer(value, "epoch", 1, MAX_EPOCH)
+
+
+def _query_epoch(text: str | None) -> int:
+    """``adopt``'s ``?epoch=``: decimal digits only (no sign, spaces or underscores)."""
+    if text is None:
+        raise ValueError('missing field "epoch" (?epoch= in the address)')
+    if not text.isascii() or not text.isdigit() or len(text) > 19:
+        raise ValueError(f"epoch must be from 1 to {MAX_EPOCH}, not {_shown(text)}")
+    return _epoch(int(text))
 
 
 def _seconds(value: Any, what: str) -> float:
@@ -306,7 +229,7 @@ def _handoff_body(body: Any) -> HandoffRequest:
     names = body["monitors"]
     if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
         raise ValueError("monitors must be a list of monitor names")
-    _integer(body["epoch"], "epoch")
+    _epoch(body["epoch"])
     if body.get("peer") is not None and not isinstance(body["peer"], str):
         raise ValueError("peer must be a handler's address")
     return cast(HandoffRequest, body)
@@ -347,60 +270,166 @@ class ControlApi:
         self.on_routes = on_routes or on_change  # only the topics to read changed
         self._loop: asyncio.AbstractEventLoop | None = None
         self._runner: web.AppRunner | None = None
-        self.connections: _Connections | None = None  # counted toward the cap (its loop's)
+        self.connections: Pool | None = None  # who holds what (its loop's)
         self._server: asyncio.Server | None = None
         self._thread: threading.Thread | None = None
         self.port: int | None = None
+        # the engine's lock is taken here, off the event loop: the open calls are answered
+        # while the engine holds it; /metrics has a thread of its own
+        self._work = ThreadPoolExecutor(2, thread_name_prefix="edgerv-api")
+        self._scraper = ThreadPoolExecutor(1, thread_name_prefix="edgerv-metrics")
+        self._scrape: asyncio.Future[bytes] | None = None  # shared by concurrent scrapes
+        self._bodies = 0  # bytes of request bodies held now (Limits.bodies)
+        self._decoding: asyncio.Lock | None = None  # one bundle decoded at a time
 
-    # -- authentication --------------------------------------------------------------------
+    async def _locked(self, call: Callable[..., T], *args: Any) -> T:
+        """``call(*args)`` on a worker thread (it takes the engine's lock)."""
+        return await asyncio.get_running_loop().run_in_executor(self._work, call, *args)
+
+    # -- admission: the token, a place, the call, its body ----------------------------------
+
+    def _authorized(self, request: web.Request) -> bool:
+        given = request.headers.get("Authorization", "")
+        scheme, _, credential = given.partition(" ")
+        token = current(self.token)
+        return token is None or (
+            scheme.lower() == "bearer"
+            # (a header's bytes that are not UTF-8 come as surrogates: compared as sent)
+            and hmac.compare_digest(
+                credential.strip().encode("utf-8", "surrogateescape"), token.encode()
+            )
+        )
 
     @web.middleware
-    async def _auth(self, request: web.Request, handler: Handler) -> web.StreamResponse:
-        if request.path.startswith("/v1"):
-            given = request.headers.get("Authorization", "")
-            scheme, _, credential = given.partition(" ")
-            token = current(self.token)
-            ok = token is None or (
-                scheme.lower() == "bearer"
-                and hmac.compare_digest(credential.strip().encode(), token.encode())
-            )
-            if not ok:
+    async def _gate(self, request: web.Request, handler: Handler) -> web.StreamResponse:
+        """The only middleware: what needs no token is served at once; the rest shows the
+        token, takes a place, is checked as far as its head allows, then has its body
+        read (``request[BODY]``) before its handler runs."""
+        transport = request.transport
+        conn = transport.get_protocol() if transport is not None else None
+        if not isinstance(conn, Connection):  # served some other way (aiohttp's test client)
+            conn = None
+        else:
+            request[DEADLINE] = conn.request_arrived()
+        held = [0]  # bytes of the bodies' budget this request holds
+        try:
+            if request.path in OPEN or not request.path.startswith("/v1"):
+                return await self._answer(request, handler)  # no token, no place, no body
+            if not self._authorized(request):
                 return web.json_response(
                     {"errors": [{"message": "missing or wrong bearer token"}]},
                     status=401,
                     headers={"WWW-Authenticate": 'Bearer realm="edgerv"'},
                 )
-        return await handler(request)
+            if conn is not None and self.connections and not self.connections.admit(conn):
+                answer = _message(
+                    503,
+                    f"this handler serves at most {self.limits.connections} clients' "
+                    "connections at once, each busy now (--api-max-connections): try again "
+                    "in a moment",
+                )
+                answer.headers["Retry-After"] = "1"
+                answer.force_close()
+                return answer
+            if request.match_info.http_exception is not None:
+                return await self._answer(request, handler)  # 404, 405: its body left unread
+            refused = self._before_body(request)
+            if refused is None and request.body_exists:
+                refused = await self._read_body(request, held)
+            if refused is not None:
+                return refused
+            return await self._answer(request, handler)
+        finally:
+            self._bodies -= held[0]
+            if conn is not None:
+                conn.answered()
 
-    # -- limits ----------------------------------------------------------------------------
-
-    @web.middleware
-    async def _limit(self, request: web.Request, handler: Handler) -> web.StreamResponse:
-        """Outermost: the request's head is in; its body must be by the deadline."""
-        transport = request.transport
-        conn = transport.get_protocol() if transport is not None else None
-        if not isinstance(conn, _Connection):  # served some other way (aiohttp's test client)
-            return await handler(request)
-        request[DEADLINE] = conn.request_arrived()
+    @staticmethod
+    async def _answer(request: web.Request, handler: Handler) -> web.StreamResponse:
+        """The handler's answer; aiohttp's own 4xx (no such call, a method not allowed) as
+        JSON like every other."""
         try:
             return await handler(request)
-        finally:
-            conn.answered()
-
-    @web.middleware
-    async def _body(self, request: web.Request, handler: Handler) -> web.StreamResponse:
-        """After the token is checked: read the body of a call that takes one, by its
-        deadline and within its size (the handlers then read it from memory)."""
-        if not request.body_exists or request.match_info.http_exception is not None:
-            return await handler(request)  # nothing to read, or a 404/405: left unread
-        limit = MAX_HANDOFF_BODY if request.path.startswith("/v1/handoff/") else MAX_BODY
-        if (request.content_length or 0) > limit:
-            answer = _message(413, f"body larger than {limit} bytes")
-            answer.force_close()  # not read: the connection cannot carry another request
+        except web.HTTPException as exc:
+            if exc.status < 400:
+                raise
+            answer = _message(exc.status, exc.reason)
+            for name in ("Allow", "Retry-After"):
+                if name in exc.headers:
+                    answer.headers[name] = exc.headers[name]
             return answer
+
+    def _body_limit(self, request: web.Request) -> int:
+        """The most a call's body may be: its own limit, within what all may hold at once."""
+        if request.path == "/v1/handoff/adopt":
+            limit = MAX_HANDOFF_BODY
+        else:
+            limit = MAX_STEP_BODY if request.path.startswith("/v1/handoff/") else MAX_BODY
+        return min(limit, self.limits.bodies)
+
+    def _before_body(self, request: web.Request) -> web.Response | None:
+        """What the head alone tells: the declared size against the call's limit, a
+        handoff's step, and for ``adopt`` its epoch and that a handoff receives under it."""
+        limit = self._body_limit(request)
+        if (request.content_length or 0) > limit:
+            return _too_large(f"body larger than {limit} bytes")
+        if request.headers.get("Content-Encoding", "identity").lower() not in ("identity", ""):
+            answer = _message(415, "a body is taken as it is sent: no Content-Encoding")
+            answer.force_close()
+            return answer
+        if not request.path.startswith("/v1/handoff/"):
+            return None
+        step = request.match_info.get("step", "")
+        if step not in STEPS:
+            return _message(404, f"no handoff step {_shown(step)}; the steps: {', '.join(STEPS)}")
+        if step != "adopt":
+            return None
+        try:
+            epoch = request[EPOCH] = _query_epoch(request.query.get("epoch"))
+        except ValueError as exc:
+            return _message(400, f"bad handoff request: {exc}")
+        if not self._adopts(epoch):
+            return _message(
+                409,
+                f"no monitor is being received here under epoch {epoch} (nor was adopted "
+                "under it): a bundle is taken after its receive step",
+            )
+        return None
+
+    def _adopts(self, epoch: int) -> bool:
+        """Some monitor here takes a bundle of ``epoch``: it is being received under it, or
+        it was adopted under it (a repeated adoption: its answer was lost). Read without
+        the engine's lock (a glance: the adoption itself checks under it)."""
+        for slot in list(self.engine.slots.values()):
+            if slot.epoch == epoch and (
+                slot.handoff == RECEIVING or (slot.handoff is None and slot.runtime is not None)
+            ):
+                return True
+        return False
+
+    async def _read_body(self, request: web.Request, held: list[int]) -> web.Response | None:
+        """Read the body into ``request[BODY]``: by the request's deadline, at most its
+        call's limit (chunked or not: never a byte past it), within what all bodies may
+        hold at once. An answer when it is refused."""
+        limit = self._body_limit(request)
+        declared = request.content_length
+        if not self._hold(held, declared or 0):
+            return self._busy()
+        body = bytearray()
+        first = request.path == "/v1/handoff/adopt"  # a bundle: its size, in its first bytes
         try:
             async with asyncio.timeout_at(request.get(DEADLINE)):
-                await request.read()  # chunked: bounded by the app's client_max_size
+                while len(body) <= limit:
+                    chunk = await request.content.read(min(READ_STEP, limit + 1 - len(body)))
+                    if not chunk:
+                        break
+                    if declared is None and not self._hold(held, len(body) + len(chunk)):
+                        return self._busy()
+                    body += chunk
+                    if first and len(body) >= 8:
+                        first = False
+                        if refused := self._bundle_head(body):
+                            return refused
         except TimeoutError:
             answer = _message(
                 408,
@@ -413,30 +442,84 @@ class ControlApi:
             if request.transport is not None:
                 request.transport.close()
             return answer
-        return await handler(request)
+        except ConnectionError:  # the client is gone: the answer goes nowhere
+            answer = _message(400, "the connection was lost before the body came")
+            answer.force_close()
+            return answer
+        except (HttpProcessingError, RequestPayloadError, ValueError) as exc:  # a bad chunk
+            answer = _message(400, f"the request's body cannot be read: {_why(exc)}")
+            answer.force_close()
+            return answer
+        if len(body) > limit:
+            return _too_large(f"body larger than {limit} bytes")
+        request[BODY] = body
+        return None
+
+    def _hold(self, held: list[int], size: int) -> bool:
+        """Hold ``size`` bytes of the bodies' budget for this request (it held ``held[0]``)."""
+        more = size - held[0]
+        if more > 0 and self._bodies + more > self.limits.bodies:
+            return False
+        if more > 0:
+            self._bodies += more
+            held[0] = size
+        return True
+
+    def _busy(self) -> web.Response:
+        answer = _message(
+            503,
+            f"this handler holds {self._bodies} bytes of request bodies now, and no more "
+            f"than {self.limits.bodies} at once: try again in a moment",
+        )
+        answer.headers["Retry-After"] = "1"
+        answer.force_close()
+        return answer
+
+    def _bundle_head(self, body: bytearray) -> web.Response | None:
+        """A bundle's first bytes: that it is one, and the size it announces inflated."""
+        try:
+            size = bundled_size(body)
+        except HandoffError as exc:
+            answer = _message(409, str(exc))
+            answer.force_close()  # the rest is not read
+            return answer
+        if size > self.limits.bundle:
+            return _too_large(
+                f"a bundle of {size} bytes inflated is over the limit of {self.limits.bundle}"
+            )
+        return None
 
     # -- routes ----------------------------------------------------------------------------
 
     async def healthz(self, request: web.Request) -> web.Response:
-        active = sum(1 for m in self.engine.snapshot() if m["active"])
+        # without the engine's lock: the liveness probe is answered whatever the engine does
+        active = sum(1 for slot in list(self.engine.slots.values()) if slot.active)
         return web.json_response(
             {"status": "ok", "handler": self.engine.name, "activeMonitors": active}
         )
 
     async def metrics(self, request: web.Request) -> web.Response:
-        return web.Response(
-            body=generate_latest(self.registry), headers={"Content-Type": CONTENT_TYPE_LATEST}
-        )
+        """One collection at a time, on its own thread, shared by the scrapes that come
+        while it runs."""
+        scrape = self._scrape
+        if scrape is None or scrape.done():
+            loop = asyncio.get_running_loop()
+            scrape = self._scrape = loop.run_in_executor(
+                self._scraper, generate_latest, self.registry
+            )
+        body = await asyncio.shield(scrape)
+        return web.Response(body=body, headers={"Content-Type": CONTENT_TYPE_LATEST})
 
     async def load(self, request: web.Request) -> web.Response:
-        return web.json_response(self.engine.load())
+        return web.json_response(await self._locked(self.engine.load))
 
     async def list_monitors(self, request: web.Request) -> web.Response:
-        return web.json_response({"handler": self.engine.name, "monitors": self.engine.snapshot()})
+        monitors = await self._locked(self.engine.snapshot)
+        return web.json_response({"handler": self.engine.name, "monitors": monitors})
 
     async def get_monitor(self, request: web.Request) -> web.Response:
         name = request.match_info["name"]
-        for m in self.engine.snapshot():
+        for m in await self._locked(self.engine.snapshot):
             if m["name"] == name:
                 return web.json_response(m)
         return _message(404, f"no monitor '{name}'")
@@ -444,25 +527,23 @@ class ControlApi:
     async def _read_specs(
         self, request: web.Request
     ) -> tuple[list[CompiledMonitor], web.Response | None]:
-        raw = await request.read()  # read by ``_body``, within the app's client_max_size
-        if len(raw) > MAX_BODY:
-            return [], _message(413, f"body larger than {MAX_BODY} bytes")
+        raw = request.get(BODY, bytearray())  # read by the gate, within MAX_BODY
         try:
             text = raw.decode()
         except UnicodeDecodeError:
             return [], _message(400, "the body is not UTF-8 text")
-        specs, diagnostics = parse_monitors_text("request", text)
-        if diagnostics:
-            return [], _errors(diagnostics)
-        loop = asyncio.get_running_loop()
-        compiled, errors = await loop.run_in_executor(None, self._compile_all, specs)
+        del raw
+        loop = asyncio.get_running_loop()  # parsed and compiled off the event loop
+        compiled, errors = await loop.run_in_executor(None, self._compile_all, text)
         if errors:
             return [], _errors(errors)
         return compiled, None
 
-    def _compile_all(
-        self, specs: list[MonitorSpec]
-    ) -> tuple[list[CompiledMonitor], list[Diagnostic]]:
+    def _compile_all(self, text: str) -> tuple[list[CompiledMonitor], list[Diagnostic]]:
+        specs: list[MonitorSpec]
+        specs, diagnostics = parse_monitors_text("request", text)
+        if diagnostics:
+            return [], diagnostics
         compiled, errors = [], []
         for spec in specs:
             try:
@@ -475,17 +556,25 @@ class ControlApi:
         compiled, problem = await self._read_specs(request)
         if problem is not None:
             return problem
-        existing = self.engine.slots.keys()
-        clash = [c.name for c in compiled if c.name in existing]
-        if clash:
-            return _message(
-                409, f"monitor '{clash[0]}' exists; PUT /v1/monitors/{clash[0]} replaces it"
-            )
-        if len(existing) + len(compiled) > self.limits.monitors:
-            return _message(403, self.limits.full(len(existing)))
         active = _active(request)
-        for c in compiled:
-            self.engine.put(c, active=active)
+        e = self.engine
+
+        def define() -> web.Response | None:  # checked and done at once, under the lock
+            with e.lock:
+                existing = e.slots.keys()
+                clash = [c.name for c in compiled if c.name in existing]
+                if clash:
+                    return _message(
+                        409, f"monitor '{clash[0]}' exists; PUT /v1/monitors/{clash[0]} replaces it"
+                    )
+                if len(existing) + len(compiled) > self.limits.monitors:
+                    return _message(403, self.limits.full(len(existing)))
+                for c in compiled:
+                    e.put(c, active=active)
+            return None
+
+        if refused := await self._locked(define):
+            return refused
         self.on_change()
         log.info("added %s%s", ", ".join(c.name for c in compiled), "" if active else " (idle)")
         return web.json_response({"created": [c.name for c in compiled]}, status=201)
@@ -497,20 +586,29 @@ class ControlApi:
             return problem
         if [c.name for c in compiled] != [name]:
             return _message(400, f"the body must hold exactly one Monitor named '{name}'")
-        defined = len(self.engine.slots)
-        if name not in self.engine.slots and defined >= self.limits.monitors:
-            return _message(403, self.limits.full(defined))
+        active = _active(request)
+        e = self.engine
+
+        def define() -> bool | web.Response:  # checked and done at once, under the lock
+            with e.lock:
+                defined = len(e.slots)
+                if name not in e.slots and defined >= self.limits.monitors:
+                    return _message(403, self.limits.full(defined))
+                return e.put(compiled[0], active=active)
+
         try:
-            created = self.engine.put(compiled[0], active=_active(request))
+            created = await self._locked(define)
         except HandoffError as exc:
             return _message(409, str(exc))
+        if isinstance(created, web.Response):
+            return created
         self.on_change()
         log.info("%s %s", "added" if created else "replaced", name)
         return web.json_response({"name": name, "created": created}, status=201 if created else 200)
 
     async def delete_monitor(self, request: web.Request) -> web.Response:
         name = request.match_info["name"]
-        if not self.engine.remove(name):
+        if not await self._locked(self.engine.remove, name):
             return _message(404, f"no monitor '{name}'")
         self.on_change()
         log.info("removed %s", name)
@@ -519,7 +617,7 @@ class ControlApi:
     async def _set_active(self, request: web.Request, active: bool) -> web.Response:
         name = request.match_info["name"]
         try:
-            self.engine.set_active(name, active)
+            await self._locked(self.engine.set_active, name, active)
         except KeyError:
             return _message(404, f"no monitor '{name}'")
         except HandoffError as exc:
@@ -531,78 +629,131 @@ class ControlApi:
         """One step of a handoff, for a batch of monitors under one epoch (docs/protocol.md).
 
         All or nothing: when a step fails for one monitor, ``hold`` and ``receive``
-        undo it for the others and the answer is 409 naming the monitor.
+        undo it for the others and the answer is 409 naming the monitor. (The gate
+        checked the step, and ``adopt``'s epoch and that something receives under it.)
         """
         step = request.match_info["step"]
-        e = self.engine
         try:
             if step == "adopt":
-                epoch = int(request.query["epoch"])
-                snaps = decode_frames(unbundle(await request.read()))  # outside the engine's lock
-                names = e.adopt_many(epoch, snaps)  # all or nothing
-                self.on_routes()
-                _record(epoch, "adopted", names)
-                return web.json_response(AdoptAnswer(active=names))
-            body = _handoff_body(await request.json())
+                return await self._adopt(request)
+            body = _handoff_body(json.loads(request.get(BODY) or b"null"))
             epoch, names = body["epoch"], body["monitors"]
             if step in ("hold", "receive"):
-                done: list[str] = []
                 peer = body.get("peer")
-                with e.lock:
-                    try:
-                        for name in names:
-                            if step == "hold":
-                                e.hold(name, epoch, peer=peer)
-                            else:
-                                e.receive(name, epoch)
-                            done.append(name)
-                    except HandoffError as exc:
-                        for name in done:
-                            e.abort(name, epoch)
-                        raise HandoffError(f"{name}: {exc}") from None
+                done = await self._locked(self._take, step, epoch, names, peer)
                 self.on_routes()
                 if step == "hold":
                     _record(epoch, f"held for {peer or 'a receiver'}", done)
                 return web.json_response(StepAnswer(monitors=done))
             if step == "cut":
-                with e.lock:
-                    cuts = {n: e.cut(n, epoch) for n in names}
-                    quiet = {n: list(e.slots[n].quiet) for n in names if cuts[n] is not None}
+                cuts, quiet = await self._locked(self._cut, epoch, names)
                 return web.json_response(CutAnswer(cuts=cuts, quiet=quiet))
             if step == "release":
-                at, vouched, grace, wait = _release_body(body)
-                # up to ``wait`` seconds for events past the cut here: no round trip a try
-                until = time.monotonic() + min(MAX_WAIT, wait)
-                while True:
-                    with e.lock:
-                        released = {
-                            n: e.release(n, epoch, at[n], grace, quiet=vouched.get(n, ()))
-                            for n in names
-                        }
-                    waiting = [n for n, data in released.items() if data is None]
-                    if not waiting or time.monotonic() >= until:
-                        break
-                    await asyncio.sleep(RELEASE_POLL)
-                if waiting:
-                    return web.json_response(WaitingAnswer(waiting=waiting), status=202)
-                frames = (encode(snap) for snap in released.values() if snap is not None)
-                return web.Response(body=bundle(frames), content_type="application/octet-stream")
-            if step in ("commit", "abort"):
-                act = e.commit if step == "commit" else e.abort
-                with e.lock:
-                    outcomes = {n: act(n, epoch) for n in names}
-                self.on_routes()
-                for outcome in sorted(set(outcomes.values())):
-                    said = outcome if step == "commit" else f"aborted ({outcome})"
-                    _record(epoch, said, [n for n in names if outcomes[n] == outcome])
-                return web.json_response(OutcomesAnswer(outcomes=outcomes))
+                return await self._release(body)
+            outcomes = await self._locked(self._settle, step, epoch, names)
+            self.on_routes()
+            for outcome in sorted(set(outcomes.values())):
+                said = outcome if step == "commit" else f"aborted ({outcome})"
+                _record(epoch, said, [n for n in names if outcomes[n] == outcome])
+            return web.json_response(OutcomesAnswer(outcomes=outcomes))
+        except BundleTooLarge as exc:
+            return _too_large(str(exc))
         except HandoffError as exc:
             return _message(409, str(exc))
         except (KeyError, ValueError, TypeError) as exc:
             return _message(400, f"bad handoff request: {_why(exc)}")
         except RecursionError:
             return _message(400, "bad handoff request: nested too deep")
-        return _message(404, f"no handoff step '{step}'")
+
+    def _take(self, step: str, epoch: int, names: list[str], peer: str | None) -> list[str]:
+        """``hold`` or ``receive``, all or nothing."""
+        e, done = self.engine, list[str]()
+        with e.lock:
+            try:
+                for name in names:
+                    if step == "hold":
+                        e.hold(name, epoch, peer=peer)
+                    else:
+                        e.receive(name, epoch)
+                    done.append(name)
+            except HandoffError as exc:
+                for name in done:
+                    e.abort(name, epoch)
+                raise HandoffError(f"{name}: {exc}") from None
+        return done
+
+    def _cut(
+        self, epoch: int, names: list[str]
+    ) -> tuple[dict[str, int | None], dict[str, list[str]]]:
+        e = self.engine
+        with e.lock:
+            cuts = {n: e.cut(n, epoch) for n in names}
+            quiet = {n: list(e.slots[n].quiet) for n in names if cuts[n] is not None}
+        return cuts, quiet
+
+    def _settle(self, step: str, epoch: int, names: list[str]) -> dict[str, str]:
+        """``commit`` or ``abort``."""
+        e = self.engine
+        act = e.commit if step == "commit" else e.abort
+        with e.lock:
+            return {n: act(n, epoch) for n in names}
+
+    async def _release(self, body: HandoffRequest) -> web.Response:
+        epoch, names = body["epoch"], body["monitors"]
+        at, vouched, grace, wait = _release_body(body)
+        e = self.engine
+
+        def release() -> dict[str, Snapshot | None]:
+            with e.lock:
+                return {
+                    n: e.release(n, epoch, at[n], grace, quiet=vouched.get(n, ())) for n in names
+                }
+
+        # up to ``wait`` seconds for events past the cut here: no round trip a try
+        until = time.monotonic() + min(MAX_WAIT, wait)
+        while True:
+            released = await self._locked(release)
+            waiting = [n for n, data in released.items() if data is None]
+            if not waiting or time.monotonic() >= until:
+                break
+            await asyncio.sleep(RELEASE_POLL)
+        if waiting:
+            return web.json_response(WaitingAnswer(waiting=waiting), status=202)
+
+        def wire() -> bytes:
+            return bundle(encode(snap) for snap in released.values() if snap is not None)
+
+        return web.Response(body=await self._locked(wire), content_type="application/octet-stream")
+
+    async def _adopt(self, request: web.Request) -> web.Response:
+        """Read the bundle off the event loop, one at a time, each snapshot's header
+        checked against what this handler receives before any is decoded; then adopt."""
+        epoch = request[EPOCH]
+        body = request.get(BODY) or bytearray()
+        seen: set[str] = set()
+
+        def admit(name: str, snap_epoch: int) -> None:
+            slot = self.engine.slots.get(name)
+            if slot is None:
+                raise HandoffError(f"no monitor {_shown(name)} here")
+            if name in seen:
+                raise HandoffError(f"monitor {_shown(name)} comes twice")
+            seen.add(name)
+            if snap_epoch != epoch:
+                raise HandoffError(f"{name}: the snapshot belongs to another handoff")
+            if slot.epoch != epoch or slot.handoff not in (RECEIVING, None):
+                raise HandoffError(f"no receiving handoff of '{name}' with epoch {epoch} here")
+
+        if self._decoding is None:
+            self._decoding = asyncio.Lock()
+        async with self._decoding:
+            snaps = await self._locked(read_bundle, body, self.limits.bundle, admit)
+        del body
+        request[BODY] = bytearray()
+        names = await self._locked(self.engine.adopt_many, epoch, snaps)  # all or nothing
+        self.on_routes()
+        _record(epoch, "adopted", names)
+        return web.json_response(AdoptAnswer(active=names))
 
     async def activate(self, request: web.Request) -> web.Response:
         return await self._set_active(request, True)
@@ -613,9 +764,7 @@ class ControlApi:
     # -- serving ---------------------------------------------------------------------------
 
     def app(self) -> web.Application:
-        app = web.Application(
-            middlewares=[self._limit, self._auth, self._body], client_max_size=MAX_HANDOFF_BODY
-        )
+        app = web.Application(middlewares=[self._gate], client_max_size=MAX_HANDOFF_BODY)
         app.add_routes(
             [
                 web.get("/healthz", self.healthz),
@@ -633,9 +782,29 @@ class ControlApi:
         )
         return app
 
+    async def prepare(self, tls: ssl.SSLContext | None = None) -> Pool:
+        """The app and its runner on the running loop, and the protocol factory to serve
+        it with (:meth:`start` listens with it; the fuzz target, tests/fuzz/fuzz_api.py,
+        feeds its connections bytes)."""
+        self._runner = web.AppRunner(
+            self.app(),
+            access_log=None,
+            keepalive_timeout=self.limits.idle_seconds,
+            lingering_time=self.limits.read_seconds,  # reading an unwanted body
+            max_headers=MAX_HEADERS,
+            logger=http_log,
+        )
+        await self._runner.setup()
+        server = self._runner.server
+        assert server is not None
+        loop = asyncio.get_running_loop()
+        self.connections = Pool(lambda: _Protocol(server, loop=loop), self.limits, tls)
+        return self.connections
+
     def start(self, host: str, port: int, tls: ssl.SSLContext | None = None) -> None:
         """Serve in a thread, HTTPS with ``tls`` (:func:`edgerv.handler.tls.server_context`);
         returns once listening (``self.port`` is the bound port)."""
+        _room_for(self.limits)
         started = threading.Event()
         failure: list[BaseException] = []
 
@@ -643,27 +812,10 @@ class ControlApi:
             loop = asyncio.new_event_loop()
             self._loop = loop
             try:
-                self._runner = web.AppRunner(
-                    self.app(),
-                    access_log=None,
-                    keepalive_timeout=self.limits.idle_seconds,
-                    lingering_time=self.limits.read_seconds,  # reading an unwanted body
-                    max_headers=MAX_HEADERS,
-                    logger=http_log,
-                )
-                loop.run_until_complete(self._runner.setup())
-                assert self._runner.server is not None
-                connections = _Connections(self._runner.server, self.limits, tls is not None)
-                self.connections = connections
+                connections = loop.run_until_complete(self.prepare(tls))
                 self._server = loop.run_until_complete(
-                    loop.create_server(  # in place of a TCPSite
-                        connections,
-                        host,
-                        port,
-                        ssl=tls,
-                        # a caller that connects and never completes the handshake
-                        ssl_handshake_timeout=self.limits.read_seconds if tls else None,
-                    )
+                    # in place of a TCPSite; TLS is started by each connection (admission)
+                    loop.create_server(connections, host, port)
                 )
                 self.port = self._server.sockets[0].getsockname()[1]  # when 0 was asked for
             except BaseException as exc:
@@ -673,7 +825,14 @@ class ControlApi:
             started.set()
             loop.run_forever()
             self._server.close()
+            connections.close_all()
+            assert self._runner is not None
             loop.run_until_complete(self._runner.cleanup())
+            left = asyncio.all_tasks(loop)  # handshakes, bodies being discarded
+            for task in left:
+                task.cancel()
+            if left:
+                loop.run_until_complete(_settled(left))
             loop.close()
 
         self._thread = threading.Thread(target=serve, name="edgerv-api", daemon=True)
@@ -689,3 +848,35 @@ class ControlApi:
             loop.call_soon_threadsafe(loop.stop)
         if self._thread is not None:
             self._thread.join(timeout=10)
+        for pool in (self._work, self._scraper):
+            pool.shutdown(wait=False, cancel_futures=True)
+
+
+async def _settled(tasks: set[asyncio.Task[Any]]) -> None:
+    await asyncio.gather(*tasks, return_exceptions=True)
+
+
+def _too_large(text: str) -> web.Response:
+    answer = _message(413, text)
+    answer.force_close()  # not read: the connection cannot carry another request
+    return answer
+
+
+def _room_for(limits: Limits) -> None:
+    """Open files enough for every connection the limits allow, and as many again for the
+    rest of the handler (DDS, files): the soft limit raised toward the hard one if need be."""
+    want = 2 * (limits.connections + limits.pending) + 64
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft != resource.RLIM_INFINITY and soft < want:
+        raised = want if hard == resource.RLIM_INFINITY else min(want, hard)
+        with contextlib.suppress(ValueError, OSError):
+            resource.setrlimit(resource.RLIMIT_NOFILE, (raised, hard))
+        if raised < want:
+            log.warning(
+                "open files are limited to %d: fewer than the %d the API's limits may take "
+                "(--api-max-connections %d, --api-max-pending %d)",
+                raised,
+                want,
+                limits.connections,
+                limits.pending,
+            )

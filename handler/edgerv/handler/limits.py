@@ -13,12 +13,18 @@ from dataclasses import dataclass
 class Limits:
     """The defaults suit a small board. Without them one client could hold the API:
     aiohttp keeps an idle connection an hour and waits for a request's head or body, or
-    for its answer to be read, for ever; and every monitor defined costs memory."""
+    for its answer to be read, for ever; and every monitor defined costs memory.
 
-    connections: int = 32  # open at once; one beyond gets 503 and is closed
+    Who holds a place, and who is closed to let others in: :mod:`edgerv.handler.admission`.
+    """
+
+    connections: int = 32  # admitted at once: a request with the token came on each
+    pending: int = 256  # not admitted (yet) at once; one more closes one of the address with most
     read_seconds: float = 10.0  # to send a request's head and body (from its first byte)
     idle_seconds: float = 30.0  # a connection with no request under way is closed after
     monitors: int = 10_000  # defined here, active or not (~10 KiB each: bench/RESULTS.md)
+    bodies: int = 128 << 20  # bytes of request bodies held at once, all requests together
+    bundle: int = 256 << 20  # bytes a snapshot bundle may take, inflated and decoded
 
     def full(self, defined: int) -> str:
         """Why one more monitor is refused."""

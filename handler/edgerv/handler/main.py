@@ -30,10 +30,12 @@ from edgerv.core.deadline import MakespanWindow, parse_deadline
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
 from edgerv.core.documents import MonitorSpec, read_monitors
 from edgerv.core.language.spot_worker import add_budget_argument, worker
+from edgerv.handler import ros_types
+from edgerv.handler.clock import SimClock
 from edgerv.handler.engine import Engine, VerdictSink
 from edgerv.handler.health import DiagnosticsConfig, Health
 from edgerv.handler.limits import Limits
-from edgerv.handler.sinks import VerdictLog
+from edgerv.handler.sinks import VerdictLog, ViolationLines
 from edgerv.handler.tls import is_loopback, server_context
 from edgerv.handler.token import Token, TokenFile
 
@@ -218,8 +220,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=whole_number,
         default=given.connections,
         metavar="N",
-        help="serve at most N connections at once; one more is answered 503 and closed "
+        help="serve at most N connections a request with the token came on; one more "
+        "such request closes the one idle longest, or is answered 503 when each is busy "
         f"(default {given.connections})",
+    )
+    p.add_argument(
+        "--api-max-pending",
+        type=whole_number,
+        default=given.pending,
+        metavar="N",
+        help="keep at most N connections that have not shown the token (new ones, and "
+        "those of /healthz and /metrics); one more closes the one that waited longest of "
+        f"the address that holds the most (default {given.pending})",
     )
     p.add_argument(
         "--api-read-timeout",
@@ -270,6 +282,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="SECONDS",
         help="a monitor that had no event this long shows as STALE on /diagnostics "
         f"(default {given_diagnostics.stale:g}; 0: never)",
+    )
+    p.add_argument(
+        "--use-sim-time",
+        action="store_true",
+        help="take ROS time from /clock (rosgraph_msgs/msg/Clock), as a ROS node with "
+        "use_sim_time does: a simulation's, or `edgerv replay`'s; timed monitors follow it",
+    )
+    p.add_argument(
+        "--quiet-violations",
+        action="store_true",
+        help="print no line per violation (by default one on stderr and /rosout, at most "
+        "one a second per monitor); the verdicts still go to their topics and logs",
+    )
+    p.add_argument(
+        "--types-cache",
+        metavar="DIR",
+        help="where message types of your own packages (not installed: found as .msg files "
+        "where `edgerv check` finds them) are built at their first use, once (default "
+        "$EDGERV_TYPES_CACHE, else ~/.cache/edgerv/types; none: build nothing): see "
+        'docs/handler.md, "Your own message types"',
     )
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
 
@@ -370,12 +402,14 @@ def run(args: argparse.Namespace) -> int:
     from edgerv.handler.api import ControlApi
     from edgerv.handler.metrics import build_registry
 
+    ros_types.configure(args.types_cache)  # types of the robot's own, built at first use
     ros_node.init_ros()
     sinks: list[VerdictSink] = []
     verdict_log = VerdictLog(args.verdict_log) if args.verdict_log else None
     if verdict_log:
         sinks.append(verdict_log)
     window = max(0.0, args.reorder_window)
+    clock = SimClock(args.flush_after) if args.use_sim_time else None  # else the system's
     engine = Engine(
         args.name,
         sinks,
@@ -383,7 +417,14 @@ def run(args: argparse.Namespace) -> int:
         type_check=ros_node.type_problem,
         reorder_window=window,
         deadline=MakespanWindow(deadline.topic, deadline.budget_ns) if deadline else None,
+        clock=clock,
     )
+    lines = None
+    if not args.quiet_violations:  # a line per violation on stderr and /rosout
+        lines = ViolationLines(
+            lambda m: s.compiled.spec.topics if (s := engine.slots.get(m)) else ()
+        )
+        engine.sinks.append(lines)
     health = Health(
         args.name,
         DiagnosticsConfig(args.diagnostics_period, args.diagnostics_hold, args.diagnostics_stale),
@@ -436,6 +477,7 @@ def run(args: argparse.Namespace) -> int:
             on_routes=ros.wake,
             limits=Limits(
                 connections=args.api_max_connections,
+                pending=args.api_max_pending,
                 read_seconds=args.api_read_timeout,
                 idle_seconds=args.api_idle_timeout,
                 monitors=args.max_monitors,
@@ -478,6 +520,8 @@ def run(args: argparse.Namespace) -> int:
     engine.wake()
     scheduler.join(timeout=10)
     engine.drain()
+    if lines is not None:
+        lines.close()  # the violations held back that no line followed
     reactor.close()  # after the last violations' reactions
     if api:
         api.stop()

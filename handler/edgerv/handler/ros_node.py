@@ -8,7 +8,8 @@ as the bytes the publisher sent, reads just the needed fields from the CDR
 to the engine.
 
 The timestamp of a message is its ``header.stamp`` when it has a header, else
-the DDS source timestamp: the instant the robot published it.
+the DDS source timestamp: the instant the robot published it (with ``--use-sim-time``,
+the ROS time then: :meth:`edgerv.handler.clock.SimClock.published`).
 
 With ``--deadline TOPIC=DURATION`` it also subscribes to TOPIC (raw, a subscription
 of its own whatever the monitors read) once the ROS graph shows a publisher and
@@ -54,7 +55,15 @@ from edgerv.core.deadline import MakespanWindow
 from edgerv.core.documents import QosSpec
 from edgerv.core.msgtypes import starts_with_header
 from edgerv.core.pipeline import TopicRoute, Verdict
+from edgerv.handler import ros_types
 from edgerv.handler.cdr_out import encode_diagnostic_array
+from edgerv.handler.clock import (
+    CLOCK_DEPTH,
+    CLOCK_TOPIC,
+    CLOCK_TYPE,
+    SYSTEM_CLOCK_HINT,
+    SimClock,
+)
 from edgerv.handler.engine import Engine
 from edgerv.handler.health import Health, Pacer, Reading, Status, read_engine
 from edgerv.handler.reorder import ReorderWindow
@@ -90,15 +99,14 @@ Taken = tuple[int, str, list[Any], bytes, int]
 
 def message_class(msg_type: str) -> Any:
     """The rclpy class of ``pkg/msg/Type`` (or of a service's event, ``pkg/srv/Name_Event``,
-    in its package's ``srv`` module); raises ImportError with what to install."""
+    in its package's ``srv`` module). A type not installed, of a package of the robot's
+    own, is built from its .msg files where ``edgerv check`` finds them (at its first use,
+    cached: :mod:`edgerv.handler.ros_types`); raises ImportError saying what to do."""
     pkg, kind, name = msg_type.split("/")
     try:
         return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
     except (ImportError, AttributeError):
-        raise ImportError(
-            f"message type {msg_type} is not installed in this handler "
-            f"(pip install ros-jazzy-{pkg.replace('_', '-')})"
-        ) from None
+        return ros_types.message_class(msg_type)
 
 
 def type_problem(msg_type: str) -> str | None:
@@ -234,6 +242,12 @@ class RosIngest:
 
         self.engine = engine
         self.node = rclpy.create_node(node_name(name))
+        # --use-sim-time: ROS time from /clock (stamps of unstamped messages, the instant
+        # everything is taken up to); None: the system clock's
+        self.sim = engine.clock if isinstance(engine.clock, SimClock) else None
+        if self.sim is not None:
+            self._follow_clock(self.sim)
+        self._clock_noted = False  # /clock published while on the system clock: said once
         self._string = String
         self.verdicts = self.node.create_publisher(
             String, VERDICT_TOPIC, QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
@@ -324,6 +338,36 @@ class RosIngest:
         self._rosout_logger = logger
         logger.addHandler(self.rosout)
         return self.rosout
+
+    # -- /clock (--use-sim-time) -----------------------------------------------------------
+
+    def _follow_clock(self, sim: SimClock) -> None:
+        """The clock takes /clock (raw, best effort as ROS's TimeSource: it matches any
+        publisher) where time is read; the node's own clock follows it, as a node's with
+        use_sim_time (/diagnostics' and /edgerv/last_verdicts' stamps)."""
+        from rclpy.clock import ROSClock
+        from rclpy.clock_type import ClockType
+        from rclpy.time import Time
+        from rclpy.time_source import TimeSource
+
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=CLOCK_DEPTH,
+            reliability=ReliabilityPolicy.BEST_EFFORT,
+        )
+        sub = self.node.create_subscription(
+            message_class(CLOCK_TYPE), CLOCK_TOPIC, lambda _: None, qos, raw=True
+        )
+        clock, source = self.node.get_clock(), TimeSource()
+        assert isinstance(clock, ROSClock)  # (a node's own clock is ROS time)
+        source.attach_clock(clock)
+        source.ros_time_is_active = True
+        self._time_source = source  # (it holds the node's clock in ROS time)
+
+        def follow(ns: int) -> None:
+            clock.set_ros_time_override(Time(nanoseconds=ns, clock_type=ClockType.ROS_TIME))
+
+        sim.attach(lambda: sub.handle.take_message(sub.msg_type, True), follow)
 
     # -- /diagnostics ----------------------------------------------------------------------
 
@@ -473,8 +517,16 @@ class RosIngest:
             try:
                 self._check_qos()
                 self._learn_deadline_type()
+                self._note_clock()
             except Exception:  # a failed check is retried; it must not stop the handler
                 log.exception("QoS check failed")
+
+    def _note_clock(self) -> None:
+        """In the QoS thread: say once that /clock is published (a simulation, `edgerv
+        replay`) while this handler keeps the system clock."""
+        if self.sim is None and not self._clock_noted and self.node.count_publishers(CLOCK_TOPIC):
+            self._clock_noted = True
+            log.warning(SYSTEM_CLOCK_HINT)
 
     # -- --deadline ------------------------------------------------------------------------
 
@@ -540,7 +592,10 @@ class RosIngest:
             except ValueError:
                 self._bad_message(topic, str(d.msg_type))
                 continue
-            if not window.add(info["source_timestamp"], stamp, taken) and window.unstamped == 1:
+            source = info["source_timestamp"]
+            if self.sim is not None:  # --use-sim-time: the publication in ROS time, as the stamp
+                source = self.sim.published(source)
+            if not window.add(source, stamp, taken) and window.unstamped == 1:
                 log.warning("%s: header.stamp is 0 (nobody stamped it): not measured", topic)
 
     def _apply_resubscriptions(self) -> bool:
@@ -607,6 +662,7 @@ class RosIngest:
         oldest_source: int | None = None
         delivered = 0  # subscriptions that had messages
         lags, lag_cap = self.engine.stamp_lag, int(self.engine.flush_after * 1e9)
+        published = None if self.sim is None else self.sim.published  # ROS time of a source
         for sub in subs:
             topic = sub.route.topic
             handle, reader, cls = sub.subscription.handle, sub.reader, sub.subscription.msg_type
@@ -629,10 +685,11 @@ class RosIngest:
                 except Exception:  # a malformed message is counted and skipped
                     self._bad_message(topic, sub.route.msg_type)
                 else:
-                    if stamp and source - stamp > lag:
-                        lag = source - stamp
+                    at = source if published is None else published(source)
+                    if stamp and at - stamp > lag:
+                        lag = at - stamp
                     # unstamped: 0; the bytes and the routes' version: read again if they change
-                    append((stamp or source, topic, values, raw, version))
+                    append((stamp or at, topic, values, raw, version))
                 left -= 1
                 if not left:  # messages may be left: taken up to this one's publication
                     through = min(through, source)
@@ -712,6 +769,8 @@ class RosIngest:
         """Everything that reached this handler before ``through`` (wall ns) is taken:
         it is in the engine once no older stamp waits in the reorder window. The
         monitors' clocks and a handoff's cut wait for this instant (engine.drained_at)."""
+        if self.sim is not None:  # in ROS time, as the stamps
+            through = self.sim.ros_ns(through)
         if reorder is not None and reorder.pending:
             through = min(through, reorder.pending[0][0])
         drained = self.engine.drained_at
@@ -851,4 +910,6 @@ class RosIngest:
     def close(self) -> None:
         if self.rosout is not None and self._rosout_logger is not None:
             self._rosout_logger.removeHandler(self.rosout)  # before the node goes
+        if self.sim is not None:
+            self.sim.detach()
         self.node.destroy_node()

@@ -5,7 +5,6 @@ subscribers that come late (docs/handler.md, "Typed verdicts")."""
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -58,6 +57,7 @@ class TypedVerdicts:
 
     def __init__(self, node: Any, engine: Engine, verdict_type: Any, array_type: Any) -> None:
         self.engine = engine
+        self.clock = node.get_clock()  # ROS time: /clock's under --use-sim-time
         self.each = node.create_publisher(verdict_type, TYPED_VERDICT_TOPIC, TYPED_VERDICT_QOS)
         self.last = node.create_publisher(array_type, LAST_VERDICTS_TOPIC, LAST_VERDICTS_QOS)
         self._lock = threading.Lock()  # write() and refresh() both change _kept
@@ -134,7 +134,7 @@ class TypedVerdicts:
         if fields == self._published:  # (the same tuples, mostly: compared by identity)
             return False
         encoded = [e or encode_verdict(*f) for e, f in zip(encoded, fields, strict=True)]
-        stamp = time.time_ns() if now_ns is None else now_ns
+        stamp = self.clock.now().nanoseconds if now_ns is None else now_ns
         self.last.publish(encode_verdict_array(stamp, handler, fields, encoded))
         self._published = fields
         self.arrays += 1

@@ -123,6 +123,7 @@ class Parser:
 
     def parse(self, toks: Sequence[Token]) -> Node | None:
         if not self._balanced(toks):
+            self._atoms_only(toks)  # its atoms' errors too: all fixed in one pass
             return None
         self.toks = toks
         i, expect_operand = 0, True
@@ -575,6 +576,22 @@ class Parser:
 
     # -- brackets --------------------------------------------------------------------------
 
+    def _atoms_only(self, toks: Sequence[Token]) -> None:
+        """Where the brackets do not balance, no tree: report what is wrong in the atoms
+        (a comparison, an unknown name) as the parse would have."""
+        i = 0
+        while i < len(toks):
+            found = self.reader.comparison(toks, i)
+            if found is not None:
+                i += found[2]
+                continue
+            t = toks[i]
+            if t.kind == "ident" and not (
+                t.text in self.spec.signals or t.text in self.spec.parameters or _is_word(t.text)
+            ):
+                self.reader.unknown(t)
+            i += 1
+
     def _balanced(self, toks: Sequence[Token]) -> bool:
         """Unbalanced ( ) and { } are reported at the user's own bracket."""
         stack: list[Token] = []
@@ -597,6 +614,16 @@ class Parser:
                       f"add '{close}' where the group ends")  # fmt: skip
             return False
         return True
+
+
+def _is_word(w: str) -> bool:
+    """An operator or constant of the language (``G``, ``until!_``, ``GF``, ``true``)."""
+    return (
+        w in _UNTIL_WORDS or w in _PSL_BINARY or w in _STEP_WORDS or w in _PAST_WORDS
+        or w in ("true", "false", "xor", "age", "always", "never", "eventually!",
+                 "eventually", "first_match")
+        or _COMPACT.fullmatch(w) is not None
+    )  # fmt: skip
 
 
 def _at(t: Token) -> Span:
