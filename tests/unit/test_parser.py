@@ -140,7 +140,7 @@ def formulas(draw: st.DrawFn, depth: int = 4) -> str:
     return f"({text})" if draw(st.integers(0, 3)) == 0 else text
 
 
-@props(300)
+@props(120)
 @given(formulas())
 def test_every_formula_reads_as_spots_parser_reads_it(text: str) -> None:
     expected = spots(text)
@@ -177,7 +177,7 @@ def mutated(draw: st.DrawFn) -> str:
     return " ".join(words)
 
 
-@props(300)
+@props(120)
 @given(mutated())
 def test_what_either_accepts_both_read_alike(text: str) -> None:
     expected = spots(text)
