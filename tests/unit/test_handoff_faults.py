@@ -848,6 +848,9 @@ def test_a_sender_whose_abort_is_lost_is_unsettled_never_stays_and_the_rerun_set
         with pytest.raises(Unsettled) as unsettled:
             migrate(edge, cloud, ["m"], 0.2, 0.2)
         assert unsettled.value.silent == [edge.base] and unsettled.value.names == ["m"]
+        # The driver gives up on the release after 0.2 s; under load the edge may answer
+        # later (its answer is dropped): wait until the gate has carried it (CI, stop 34).
+        faults.quiet()
         assert pair.edge.slots["m"].handoff == "released" and pair.active() == []
         faults.heal()
         moved = migrate(edge, cloud, ["m"], 5.0, 0.2)  # the same command again
