@@ -53,9 +53,11 @@ test: lint
 # Fuzzing, longer than `make test` does: each coverage-guided target of tests/fuzz (atheris:
 # the CDR readers, the snapshot bundle, the assertion parser, the API's requests as bytes)
 # for FUZZ_SECONDS from its seed
-# corpus (new inputs are kept in .fuzz/), then the property tests (hostile input, the
-# assertion grammar) with FUZZ_EXAMPLES random examples each. A crash or a hang is written
-# to tests/fuzz/crashes/<target>/: check it in (the unit tier replays it).
+# corpus (new inputs are kept in .fuzz/), then the random unit tests (hostile input, the
+# assertion grammar, the parser against Spot's, a handoff's faults, timed batches: every
+# one that reads helpers.props or helpers.scaled) with FUZZ_EXAMPLES examples or seeds
+# each. A crash or a hang is written to tests/fuzz/crashes/<target>/: check it in (the
+# unit tier replays it).
 FUZZ_SECONDS ?= 60
 FUZZ_EXAMPLES ?= 1000
 fuzz: install
@@ -67,8 +69,8 @@ fuzz: install
 	    -max_total_time=$(FUZZ_SECONDS) -timeout=10 -print_final_stats=1 \
 	    -artifact_prefix=tests/fuzz/crashes/$$target/ || status=1; \
 	done; \
-	EDGERV_PROPERTY_EXAMPLES=$(FUZZ_EXAMPLES) $(BIN)/pytest -q tests/unit/test_hostile_properties.py \
-	  tests/unit/test_assertion_grammar.py || status=1; \
+	EDGERV_PROPERTY_EXAMPLES=$(FUZZ_EXAMPLES) $(BIN)/pytest -q -n auto \
+	  $$(grep -l 'props(\|scaled(' tests/unit/test_*.py) || status=1; \
 	exit $$status
 
 # The project's test cluster (tests/cluster): Kubernetes built from sources, two nodes.

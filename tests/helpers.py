@@ -171,6 +171,12 @@ def robot_feed(engines: Sequence[Any]) -> Iterator[None]:
 PROPERTY_EXAMPLES = int(os.environ.get("EDGERV_PROPERTY_EXAMPLES", "0"))
 
 
+def scaled(count: int) -> int:
+    """A random test's count of seeds or runs: ``count`` in the unit tier (derandomized),
+    ``$EDGERV_PROPERTY_EXAMPLES`` under ``make fuzz``."""
+    return PROPERTY_EXAMPLES or count
+
+
 def props(examples: int) -> Any:
     """Hypothesis settings of the property tests: ``examples`` derandomized examples (CI),
     or ``$EDGERV_PROPERTY_EXAMPLES`` random ones (``make fuzz``)."""

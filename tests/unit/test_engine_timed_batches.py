@@ -32,7 +32,7 @@ from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import MonitorRuntime
 from edgerv.handler import engine as engine_module
 from edgerv.handler.engine import Engine
-from helpers import PROPERTY_EXAMPLES, compiled
+from helpers import compiled, scaled
 
 MS = 1_000_000
 ATOMS = ["a", "b", "!a", "x < 2", "x >= y", "z == 3", "age(a) < 15ms", "age(x) >= 7ms"]
@@ -143,7 +143,7 @@ def spy_takes(monkeypatch: pytest.MonkeyPatch) -> list[tuple[str, int, int]]:
     return calls
 
 
-@pytest.mark.parametrize("seed", range(PROPERTY_EXAMPLES or 60))  # make fuzz: more
+@pytest.mark.parametrize("seed", range(scaled(60)))  # make fuzz: more
 def test_timed_batches_give_what_one_message_at_a_time_gives(
     seed: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -305,7 +305,7 @@ def _pair(monitor: CompiledMonitor) -> tuple[list[Engine], list[Collect]]:
     return engines, sinks
 
 
-@pytest.mark.parametrize("seed", range(PROPERTY_EXAMPLES or 15))  # make fuzz: more
+@pytest.mark.parametrize("seed", range(scaled(15)))  # make fuzz: more
 def test_handoffs_of_timed_monitors_in_long_batches(seed: int) -> None:
     """Two handlers handing a random timed monitor back and forth (the sender holding its
     events, the receiver holding its own, both in the per-event way with the capacity

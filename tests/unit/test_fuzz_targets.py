@@ -1,6 +1,6 @@
 """The coverage-guided fuzz targets (tests/fuzz/, atheris): bounded runs, and their crashes.
 
-Each target runs here for a couple of thousand inputs from its checked-in seed
+Each target runs here for 500 inputs beyond its checked-in seed
 corpus (``make fuzz`` runs each for ``FUZZ_SECONDS``), and every input a fuzzer
 ever crashed or hung on, checked in under ``tests/fuzz/crashes/<target>/``, is
 replayed through the target in-process: each stays fixed.
@@ -20,7 +20,7 @@ from helpers import bounded
 
 FUZZ = Path(__file__).resolve().parents[1] / "fuzz"
 TARGETS = ["cdr", "bundle", "assertion", "api"]
-RUNS = 2000
+RUNS = 500  # 2000 before stop 35 (the unit tier's minute); make fuzz runs each for FUZZ_SECONDS
 DICTS = {name: [f"-dict={FUZZ / name}.dict"] for name in ("bundle", "assertion", "api")}
 
 
@@ -37,7 +37,7 @@ def inputs(kind: str) -> list[Path]:
 
 
 @pytest.mark.parametrize("name", TARGETS)
-def test_each_fuzz_target_runs_clean_for_a_few_thousand_inputs(name: str, tmp_path: Path) -> None:
+def test_each_fuzz_target_runs_clean_for_a_few_hundred_inputs(name: str, tmp_path: Path) -> None:
     pytest.importorskip("atheris")
     # new inputs go to a scratch corpus (the first directory), never to the checked-in one
     work = tmp_path / "corpus"

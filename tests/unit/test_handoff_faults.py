@@ -66,12 +66,12 @@ from edgerv.handler.migrate import (
     migrate,
     settle,
 )
-from helpers import ManualClock, compiled
+from helpers import ManualClock, compiled, scaled
 
 TIMEOUT = 0.25  # the driver's --timeout under faults (its calls time out after as long)
 GRACE = 0.2
 SETTLE_TIMEOUT = 5.0  # the reruns, faults off
-SEEDS = 40
+SEEDS = scaled(20)  # 40 before stop 35; make fuzz runs $EDGERV_PROPERTY_EXAMPLES
 CONCURRENT = 20  # seeds run at once (each mostly waits: timeouts, partitions)
 NAMES = ("m", "p")
 ROOM = {"bufferCapacity": 1_000_000}  # held events never overflow during a long partition
