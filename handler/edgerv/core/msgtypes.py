@@ -158,6 +158,23 @@ def fielddefs() -> dict[str, Any]:
     return _known
 
 
+_standard_packages: frozenset[str] | None = None
+
+
+def standard_packages() -> frozenset[str]:
+    """The message packages of ROS 2 Jazzy itself (``std_msgs``, ``nav_msgs``, ...), as
+    the installed rosbags knows them: never built from a robot's own definitions."""
+    global _standard_packages
+    if _standard_packages is None:
+        types = _snapshot()
+        if types is None:  # another rosbags release: its own definitions
+            from rosbags.typesys import Stores, get_typestore
+
+            types = get_typestore(Stores.ROS2_JAZZY).fielddefs
+        _standard_packages = frozenset(name.split("/", 1)[0] for name in types)
+    return _standard_packages
+
+
 def typestore() -> Any:
     """rosbags' type store for ROS 2 Jazzy, with every type registered here since: what
     decodes a message whole (a bag's messages in a merged check, a CDR reader's fallback)."""
@@ -198,7 +215,9 @@ def write_snapshot(path: Path = SNAPSHOT) -> None:
     path.write_text(text + "\n", encoding="utf-8")
 
 
-def _definition_dirs() -> list[Path]:
+def definition_dirs() -> list[Path]:
+    """Where .msg and .srv files are looked for: each directory of ``$EDGERV_MSG_PATH``,
+    then ``share/`` of each ROS install prefix (``$AMENT_PREFIX_PATH``, this environment)."""
     dirs = [Path(d) for d in os.environ.get("EDGERV_MSG_PATH", "").split(os.pathsep) if d]
     prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
     dirs += [Path(p) / "share" for p in [*prefixes, sys.prefix]]
@@ -209,7 +228,7 @@ def _find_definition(msg_type: str) -> Path | None:
     """The .msg file of ``pkg/msg/Type``, or the .srv file of ``pkg/srv/Name``."""
     pkg, kind, name = msg_type.split("/")
     suffix = ".srv" if kind == "srv" else ".msg"
-    for d in _definition_dirs():
+    for d in definition_dirs():
         for candidate in (d / pkg / kind / f"{name}{suffix}", d / kind / f"{name}{suffix}"):
             if candidate.is_file() and (candidate.parent.parent.name == pkg or d.name == pkg):
                 return candidate

@@ -158,7 +158,7 @@ class PolicyMemory:
     deadline_shed: dict[str, float] = field(default_factory=dict)
 
 
-def _loaded(h: HandlerReport, c: PolicyConfig) -> bool:
+def is_loaded(h: HandlerReport, c: PolicyConfig) -> bool:
     """Under pressure from its own load: CPU, ingest lag, a monitor that wants to move."""
     return (
         h.cpu >= c.cpu_high
@@ -167,7 +167,7 @@ def _loaded(h: HandlerReport, c: PolicyConfig) -> bool:
     )
 
 
-def _deadline_ratio(h: HandlerReport, c: PolicyConfig) -> float | None:
+def deadline_ratio(h: HandlerReport, c: PolicyConfig) -> float | None:
     """p95 makespan / budget, or None without information (no reading, too few makespans)."""
     d = h.deadline
     if d is None or d.p95 is None or d.count < c.deadline_min_count or d.budget <= 0:
@@ -175,17 +175,17 @@ def _deadline_ratio(h: HandlerReport, c: PolicyConfig) -> float | None:
     return d.p95 / d.budget
 
 
-def _deadline_at_risk(h: HandlerReport, c: PolicyConfig) -> bool:
-    ratio = _deadline_ratio(h, c)
+def deadline_at_risk(h: HandlerReport, c: PolicyConfig) -> bool:
+    ratio = deadline_ratio(h, c)
     return ratio is not None and ratio >= c.deadline_high
 
 
-def _pressured(h: HandlerReport, c: PolicyConfig) -> bool:
-    return _loaded(h, c) or _deadline_at_risk(h, c)
+def is_pressured(h: HandlerReport, c: PolicyConfig) -> bool:
+    return is_loaded(h, c) or deadline_at_risk(h, c)
 
 
-def _calm(h: HandlerReport, c: PolicyConfig) -> bool:
-    ratio = _deadline_ratio(h, c)
+def is_calm(h: HandlerReport, c: PolicyConfig) -> bool:
+    ratio = deadline_ratio(h, c)
     return (
         h.cpu <= c.cpu_low
         and h.ingest_lag <= c.lag_low
@@ -194,7 +194,7 @@ def _calm(h: HandlerReport, c: PolicyConfig) -> bool:
     )
 
 
-def _allowed(tier: str, placement: Placement, c: PolicyConfig) -> bool:
+def tier_allowed(tier: str, placement: Placement, c: PolicyConfig) -> bool:
     budget = placement.max_latency_ms
     return budget is None or c.tier_latency_ms.get(tier, 0.0) <= budget
 
@@ -213,7 +213,7 @@ def _shed_enough(
 def _least_loaded(
     handlers: Sequence[HandlerReport], tier: str, c: PolicyConfig
 ) -> HandlerReport | None:
-    fit = [h for h in handlers if h.tier == tier and not _pressured(h, c)]
+    fit = [h for h in handlers if h.tier == tier and not is_pressured(h, c)]
     return min(fit, key=lambda h: (h.cpu, h.name)) if fit else None
 
 
@@ -230,7 +230,7 @@ def plan(
     for h in handlers:
         if h.tier not in rank:
             raise ValueError(f"handler {h.name} reports tier '{h.tier}', not one of {c.tiers}")
-        if _calm(h, c):
+        if is_calm(h, c):
             memory.calm_since.setdefault(h.name, now)
         else:
             memory.calm_since.pop(h.name, None)
@@ -245,8 +245,8 @@ def plan(
         p = placements.get(m, Placement())
         for tier in c.tiers[rank.get(p.tier or "", 0) :]:
             fit = [h for h in handlers if h.tier == tier and m in h.monitors]
-            if fit and _allowed(tier, p, c):
-                start = min(fit, key=lambda h: (_pressured(h, c), h.cpu, h.name))
+            if fit and tier_allowed(tier, p, c):
+                start = min(fit, key=lambda h: (is_pressured(h, c), h.cpu, h.name))
                 moves.append(Move(m, "", start.name, "start"))
                 moved.add(m)
                 memory.last_move[m] = now
@@ -254,13 +254,13 @@ def plan(
 
     def movable(name: str, tier: str) -> bool:
         p = placements.get(name, Placement())
-        return p.migrate == "auto" and _allowed(tier, p, c) and name not in moved
+        return p.migrate == "auto" and tier_allowed(tier, p, c) and name not in moved
 
     # Up: relieve each handler under pressure.
     for h in sorted(handlers, key=lambda h: (rank[h.tier], h.name)):
-        loaded = _loaded(h, c)
+        loaded = is_loaded(h, c)
         deadline = (
-            _deadline_at_risk(h, c)
+            deadline_at_risk(h, c)
             and now - memory.deadline_shed.get(h.name, float("-inf")) >= c.deadline_wait
         )
         if not (loaded or deadline) or rank[h.tier] + 1 >= len(c.tiers):

@@ -41,13 +41,13 @@ from edgerv.core.placement import (
     PolicyConfig,
     PolicyConfigError,
     PolicyMemory,
-    _allowed,
-    _deadline_at_risk,
-    _deadline_ratio,
-    _loaded,
-    _pressured,
+    deadline_at_risk,
+    deadline_ratio,
+    is_loaded,
+    is_pressured,
     placement_from_json,
     plan,
+    tier_allowed,
 )
 from edgerv.handler.client import ApiError, HandlerClient, address_problem
 from edgerv.handler.migrate import (
@@ -227,7 +227,7 @@ def _verb(names: Sequence[str], one: str, many: str) -> str:
 
 def _deadline_words(h: HandlerReport, c: PolicyConfig) -> str:
     """``p95 makespan 80.0 ms, 64% of its 125 ms budget`` (a reading with information)."""
-    d, ratio = h.deadline, _deadline_ratio(h, c)
+    d, ratio = h.deadline, deadline_ratio(h, c)
     assert d is not None and d.p95 is not None and ratio is not None
     return f"p95 makespan {d.p95 * 1000:.1f} ms, {ratio:.0%} of its {d.budget * 1000:g} ms budget"
 
@@ -242,7 +242,7 @@ def _pressure(h: HandlerReport, c: PolicyConfig) -> list[str]:
     wanting = sorted(m for m, load in h.monitors.items() if load.active and load.migration_wanted)
     if wanting:
         words.append(f"{_names(wanting)} {_verb(wanting, 'wants', 'want')} to migrate")
-    if _deadline_at_risk(h, c):
+    if deadline_at_risk(h, c):
         words.append(f"{_deadline_words(h, c)}, high mark {c.deadline_high:.0%}")
     return words
 
@@ -257,7 +257,7 @@ def _unrest(h: HandlerReport, c: PolicyConfig) -> str:
     wanting = sorted(m for m, load in h.monitors.items() if load.active and load.migration_wanted)
     if wanting:
         words.append(f"{_names(wanting)} {_verb(wanting, 'wants', 'want')} to migrate")
-    ratio = _deadline_ratio(h, c)
+    ratio = deadline_ratio(h, c)
     if ratio is not None and ratio > c.deadline_low:
         words.append(f"{_deadline_words(h, c)}, calm at {c.deadline_low:.0%} or less")
     return "; ".join(words)
@@ -284,7 +284,7 @@ def _stuck(
             ("nothing to shed", *key),
         )
     shed_at = memory.deadline_shed.get(h.name, -math.inf)
-    if not _loaded(h, c) and now - shed_at < c.deadline_wait:
+    if not is_loaded(h, c) and now - shed_at < c.deadline_wait:
         return Idle(
             "hysteresis",
             f"hysteresis holds: {h.name}'s deadline is at risk ({pressure}), but monitors "
@@ -302,7 +302,7 @@ def _stuck(
         )
     up = c.tiers[rank[h.tier] + 1]
     there = sorted(b.name for b in reports if b.tier == up)
-    if not [b for b in reports if b.tier == up and not _pressured(b, c)]:
+    if not [b for b in reports if b.tier == up and not is_pressured(b, c)]:
         which = (
             f"{_names(there)} {_verb(there, 'is', 'are')} under pressure too"
             if there
@@ -318,7 +318,7 @@ def _stuck(
         m
         for m in active
         if placements.get(m, Placement()).migrate == "auto"
-        and _allowed(up, placements.get(m, Placement()), c)
+        and tier_allowed(up, placements.get(m, Placement()), c)
     ]
     if not movable:
         pinned = [m for m in active if placements.get(m, Placement()).migrate == "pinned"]
@@ -338,7 +338,7 @@ def _stuck(
             f"monitors may move up to {up}: {'; '.join(held)}",
             ("pinned", *key),
         )
-    if not _loaded(h, c) and not sum(h.monitors[m].events_per_second for m in movable):
+    if not is_loaded(h, c) and not sum(h.monitors[m].events_per_second for m in movable):
         if h.name in unknown_rates:
             return Idle(
                 "no traffic",
@@ -383,7 +383,7 @@ def _descents(
             p = placements.get(m, Placement())
             if rank[h.tier] <= rank.get(p.tier or "", 0) or m in unsettled:
                 continue
-            if p.migrate == "pinned" or not _allowed(down, p, c):
+            if p.migrate == "pinned" or not tier_allowed(down, p, c):
                 pinned.append(f"{m} on {h.name}")
                 continue
             below = sorted((b for b in reports if b.tier == down), key=lambda b: (b.cpu, b.name))
@@ -508,7 +508,7 @@ def why_nothing_moves(
     if found is not None:
         return found
     timed = sorted((h for h in reports if h.deadline is not None), key=lambda h: h.name)
-    blind = [h for h in timed if _deadline_ratio(h, c) is None]
+    blind = [h for h in timed if deadline_ratio(h, c) is None]
     if blind:
         said = [
             f"{h.name} has {h.deadline.count if h.deadline else 0} makespan(s) in its window, "
@@ -523,7 +523,7 @@ def why_nothing_moves(
         )
     if timed:
         said = [f"{h.name}'s {_deadline_words(h, c)}" for h in timed]
-        if all((_deadline_ratio(h, c) or 0.0) <= c.deadline_low for h in timed):
+        if all((deadline_ratio(h, c) or 0.0) <= c.deadline_low for h in timed):
             met, marks = (
                 "with margin",
                 f"monitors move up at {c.deadline_high:.0%}, --deadline-high",

@@ -193,6 +193,7 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.utilities import try_shutdown
 
+    from edgerv.handler.ros_logs import ros_log_problem
     from edgerv.handler.ros_node import message_class
 
     ClockMsg = message_class("rosgraph_msgs/msg/Clock")
@@ -203,7 +204,10 @@ def run(args: argparse.Namespace) -> int:
             problem = f"the stamp {event.stamp} does not fit a ROS time (int32 seconds)"
             print(Diagnostic(where, problem).render(), file=sys.stderr)
             return 2
-    rclpy.init()
+    no_files = ros_log_problem()
+    if no_files:
+        print(f"edgerv replay: {no_files}", file=sys.stderr)
+    rclpy.init(args=["edgerv", "--ros-args", "--disable-external-lib-logs"] if no_files else None)
     node = rclpy.create_node("edgerv_replay")
     try:
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)

@@ -67,6 +67,7 @@ from edgerv.handler.clock import (
 from edgerv.handler.engine import Engine
 from edgerv.handler.health import Health, Pacer, Reading, Status, read_engine
 from edgerv.handler.reorder import ReorderWindow
+from edgerv.handler.ros_logs import ros_log_problem
 from edgerv.handler.sinks import verdict_record
 from edgerv.handler.verdict_topics import LAST_VERDICTS_SECONDS, LAST_VERDICTS_TOPIC, TypedVerdicts
 
@@ -123,8 +124,12 @@ def init_ros() -> None:
     Python's logging as they always did, and /rosout through the node's logger
     (:class:`RosoutHandler`); ROS's console would print each of them a second time."""
     if not ok():
+        no_files = ros_log_problem()  # (ros_logs: a home rcl cannot write)
+        if no_files:
+            log.warning(no_files)
         rclpy.init(
-            args=["edgerv", "--ros-args", "--disable-stdout-logs"],
+            args=["edgerv", "--ros-args", "--disable-stdout-logs"]
+            + (["--disable-external-lib-logs"] if no_files else []),
             signal_handler_options=SignalHandlerOptions.NO,
         )
 

@@ -317,9 +317,9 @@ def find_root(name: str, known: dict[str, Path] | None = None) -> Path | None:
     environment's own)."""
     if known and name in known:
         return known[name]
-    from edgerv.core.msgtypes import _definition_dirs
+    from edgerv.core.msgtypes import definition_dirs
 
-    for d in _definition_dirs():
+    for d in definition_dirs():
         for candidate in (d / name, d):
             if (candidate is not d or d.name == name) and is_package_dir(candidate):
                 return candidate
@@ -460,10 +460,9 @@ def plan(name: str, known: dict[str, Path] | None = None, cache: Path | None = N
 
 def _standard(package: str) -> bool:
     """``package`` is one of ROS 2 Jazzy's own message packages (rosbags knows it)."""
-    from edgerv.core.msgtypes import _snapshot
+    from edgerv.core.msgtypes import standard_packages
 
-    known = _snapshot() or {}
-    return any(t.startswith(f"{package}/") for t in known)
+    return package in standard_packages()
 
 
 def not_found(package: str, chain: tuple[str, ...] = ()) -> str:
