@@ -92,8 +92,14 @@ def compress(
             value = given[-1]
             values[signal] = value.item() if isinstance(value, np.generic) else value
     if not monitor.timed:
-        return Letters(bits, stamps, values, list(last))
-    return _timed(monitor, stamps, changes, bits, valuation, now, last, values)
+        got: Letters | None = Letters(bits, stamps, values, list(last))
+    else:
+        got = _timed(monitor, stamps, changes, bits, valuation, now, last, values)
+    if got is None or monitor.derived is None:
+        return got
+    # a wide letter: the placeholders the automaton reads, from the atoms' (a clock step's
+    # too: its letter's are computed again, as the scalar path's)
+    return got._replace(letters=monitor.derived.columns(got.letters))
 
 
 def _column(change: Change, before: Any, n: int) -> Any:

@@ -156,6 +156,7 @@ def encode(snap: Snapshot) -> bytes:
             "stamps": len(snap.stamps),
             "clock": None if snap.clock is None else [snap.clock[0], list(snap.clock[1])],
             "past": snap.past,
+            **({"wide": snap.wide} if snap.wide else {}),  # (a wide letter's valuation)
         },
         separators=(",", ":"),
     ).encode()
@@ -433,9 +434,12 @@ def _decode(
         cut, last_released, valuation = h["cut"], h["lastReleased"], h["valuation"]
         if not _stamp(cut) or not _stamp_or_none(last_released):
             raise HandoffError("the cut or the last release is not 64-bit integer nanoseconds")
-        if not (isinstance(valuation, int) and 0 <= valuation < 1 << bits):
+        wide = h.get("wide", 0)
+        if not (isinstance(wide, int) and (wide == 0 or bits < wide <= 63)):
+            raise HandoffError(f"letter width {_shown(wide)} out of range")
+        if not (isinstance(valuation, int) and 0 <= valuation < 1 << (wide or bits)):
             raise HandoffError(
-                f"valuation {_shown(valuation)} does not fit {bits} placeholder bits"
+                f"valuation {_shown(valuation)} does not fit {wide or bits} placeholder bits"
             )
         return Snapshot(
             monitor=str(h["monitor"]),
@@ -453,6 +457,7 @@ def _decode(
             stamps=stamps,
             clock=clock,
             past=h.get("past"),
+            wide=wide,
         )
     except HandoffError:
         raise

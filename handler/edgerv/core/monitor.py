@@ -16,7 +16,7 @@ from edgerv.core.language.atoms import (
     compile_atom,
     compile_atom_columns,
 )
-from edgerv.core.language.past import PastOp
+from edgerv.core.language.past import BoolProgram, Derived, PastOp
 from edgerv.core.language.synthesis import MonitorTable, SynthesisError, synthesize
 
 
@@ -75,6 +75,19 @@ class CompiledMonitor:
     timed: tuple[TimedAtom, ...] = ()  # the atoms time changes: age(x) < 200ms
     past: tuple[PastOp, ...] = ()  # the past operators' placeholders, inner first
     reads: tuple[AtomRead, ...] = ()  # the atoms that are not timed, as a batch reads them
+    # a letter wider than the table takes: what the automaton reads of it (letter >> shift),
+    # computed at each step from the atoms and past operators; None within the table
+    derived: Derived | None = None
+
+    @property
+    def letter_bits(self) -> int:
+        """A letter's width: the placeholders it holds (the table's, or more)."""
+        return self.table.bits if self.derived is None else self.derived.bits
+
+    @property
+    def shift(self) -> int:
+        """Where the placeholders the automaton reads begin in a letter (0: all of it)."""
+        return 0 if self.derived is None else self.derived.shift
 
     @property
     def stateful(self) -> bool:
@@ -99,7 +112,7 @@ def compile_monitor(spec: MonitorSpec) -> CompiledMonitor:
     """Parse, check and synthesize one monitor; raise :class:`InputError` on bad input."""
     parsed = parse_assertion(spec)
     try:
-        table = synthesize(parsed.formula, parsed.constraint, parsed.bits)
+        table = synthesize(*parsed.automaton)
     except SynthesisError as exc:
         loc = spec.locate_assertion(0, len(spec.assertion))
         raise InputError([Diagnostic(loc, str(exc))]) from None
@@ -115,8 +128,12 @@ def compile_monitor(spec: MonitorSpec) -> CompiledMonitor:
         if a.timed
     )
     reads = tuple(_read(i, a, index_of) for i, a in enumerate(atoms) if not a.timed)
+    derived = None
+    if parsed.abstraction is not None:
+        programs = tuple(BoolProgram(part) for part in parsed.abstraction.parts)
+        derived = Derived(parsed.bits, programs)
     return CompiledMonitor(
-        spec, parsed, table, names, funcs, readers, columns, timed, parsed.past, reads
+        spec, parsed, table, names, funcs, readers, columns, timed, parsed.past, reads, derived
     )
 
 

@@ -25,7 +25,7 @@ from operator import add, and_, is_not, itemgetter, lt, ne, sub
 from typing import Any, Literal, NamedTuple
 
 from edgerv.core.documents import QosSpec
-from edgerv.core.language.past import Past
+from edgerv.core.language.past import Derived, Past
 from edgerv.core.monitor import AGE_CMP, EDGES, AtomRead, CompiledMonitor, TimedAtom
 from edgerv.core.msgtypes import ABSENT, ValueKind, make_getter, optional_steps, path_keys
 from edgerv.core.snapshot import HandoffError, Snapshot, deciding_steps, runs_of
@@ -210,8 +210,9 @@ def _listed(values: Any) -> list[Any]:
 
 
 def letter_typecode(bits: int) -> str:
-    """The narrowest array type holding ``bits`` placeholder bits per letter."""
-    return "B" if bits <= 8 else "H" if bits <= 16 else "L"
+    """The narrowest array type holding ``bits`` placeholder bits per letter (a wide
+    letter's, up to 63 bits: a signed 64-bit integer, NumPy's int64)."""
+    return "B" if bits <= 8 else "H" if bits <= 16 else "q"
 
 
 @dataclass
@@ -319,17 +320,20 @@ class MonitorRuntime:
     # ABSENT, no update (the signal holds its value). A monitor with one takes ABSENT out
     # of the updates it is offered (the router's events come without: Router._offer_held).
     held: frozenset[int] = field(init=False)
+    # a wide letter's derived placeholders (what the automaton reads), None for any other
+    derived: Derived | None = field(init=False)
 
     def __post_init__(self) -> None:
         spec = self.monitor.spec
         self.name = spec.name
         m = self.monitor
         self.past = Past(m.past) if m.past else None
+        self.derived = m.derived
         self.clock = Clock(m.timed, [None] * len(m.signal_names), self.past) if m.clocked else None
         if m.stateful:
             self.speculate = False
         self.threshold = spec.sort_threshold
-        self.letters = array(letter_typecode(self.monitor.table.bits))
+        self.letters = array(letter_typecode(m.letter_bits))
         self.stamps = array("q")
         self.ahead_letters = array(self.letters.typecode)
         self.ahead_stamps = array("q")
@@ -864,6 +868,8 @@ class MonitorRuntime:
                 if past is not None:
                     bits = past.step(now, bits)
                     self.past_stepped = True
+                if self.derived is not None:
+                    bits = self.derived(bits)
                 self.valuation = bits
                 letters.append(bits)
                 stamps.append(now)
@@ -937,6 +943,8 @@ class MonitorRuntime:
         with np.errstate(all="ignore"):  # NaN compares false, as in Python
             for atom, compare in enumerate(self.monitor.atom_columns):
                 letters |= np.asarray(compare(columns), dtype=bool).astype(np.int64) << atom
+        if self.monitor.derived is not None:  # what the automaton reads of a wide letter
+            letters = self.monitor.derived.columns(letters)
         self.valuation = int(letters[-1])
         self.letters.frombytes(letters.astype(self.letters.typecode).tobytes())
         self.stamps.frombytes(stamps[first:].tobytes())
@@ -1009,6 +1017,8 @@ class MonitorRuntime:
             self.past_stepped = True
             if clock is not None:
                 clock.deadline = clock.next_deadline()
+        if self.derived is not None:  # what the automaton reads of a wide letter
+            bits = self.derived(bits)
         self.valuation = bits
         letters.append(bits)
         stamps.append(stamp)
@@ -1024,23 +1034,30 @@ class MonitorRuntime:
         letters = self.letters
         if not letters or self.halted:
             return []
+        if self.monitor.derived is not None:  # a wide letter: the automaton reads its top
+            letters = _projected(letters, self.monitor)
         ends = _long_run_ends(letters) if len(letters) >= SHORT_EVALUATION else None
-        state, consumed, verdicts = self._walk_each() if ends is None else self._walk_runs(ends)
+        state, consumed, verdicts = (
+            self._walk_each(letters) if ends is None else self._walk_runs(ends, letters)
+        )
         self.state = state
         self.step += consumed
-        del letters[:]
+        del self.letters[:]
         del self.stamps[:]
         if self.halted:
             self.unspeculate()
             self.events.clear()
         return verdicts
 
-    def _walk_runs(self, ends: list[int]) -> tuple[int, int, list[Verdict]]:
+    def _walk_runs(
+        self,
+        ends: list[int],
+        letters: array,  # type: ignore[type-arg]
+    ) -> tuple[int, int, list[Verdict]]:
         """The automaton over the letters, run by run (``ends``: one past each run): once
         a step stays in the state it left, every step left in the run ends there, a
         verdict each if it is one. Returns the state, the letters consumed (fewer if it
         halted) and the verdicts."""
-        letters = self.letters
         table = self.monitor.table
         rows, bits, live = table.table, table.bits, table.live
         halt = self.monitor.spec.on_verdict == "halt"
@@ -1062,14 +1079,14 @@ class MonitorRuntime:
             start = end
         return state, len(letters), verdicts
 
-    def _walk_each(self) -> tuple[int, int, list[Verdict]]:
+    def _walk_each(self, letters: array) -> tuple[int, int, list[Verdict]]:  # type: ignore[type-arg]
         """:meth:`_walk_runs`, a letter at a time."""
         table = self.monitor.table
         rows, bits, live = table.table, table.bits, table.live
         halt = self.monitor.spec.on_verdict == "halt"
         verdicts: list[Verdict] = []
         state, step = self.state, self.step + 1
-        for i, letter in enumerate(self.letters):
+        for i, letter in enumerate(letters):
             state = rows[(state << bits) | letter]
             if state >= live:
                 kind: VerdictKind = "violated" if state == live else "satisfied"
@@ -1101,7 +1118,11 @@ class MonitorRuntime:
         any more: the monitor belongs to H2 (H1 keeps those events in case it resumes).
         """
         self.cover(cut)
-        stamps, runs = self.stamps, runs_of(self.letters)
+        m = self.monitor
+        # what is left to evaluate: the letters as the automaton reads them (a wide
+        # letter's top; the values, the valuation and the past's state give the rest)
+        letters = self.letters if m.derived is None else _projected(self.letters, m)
+        stamps, runs = self.stamps, runs_of(letters)
         return Snapshot(
             monitor=self.name,
             epoch=epoch,
@@ -1113,12 +1134,13 @@ class MonitorRuntime:
             valuation=self.valuation,
             last_released=self.last_released,
             late_events=self.late_events,
-            bits=self.monitor.table.bits,
-            letters=self.letters[:],
+            bits=m.table.bits,
+            letters=letters[:] if m.derived is None else letters,
             stamps={i: stamps[i] for i in deciding_steps(self.monitor, self.state, runs)},
             clock=None if self.clock is None else self.clock.snapshot(),
             past=None if self.past is None else self.past.save(),
             runs=runs,
+            wide=m.letter_bits if m.derived is not None else 0,
         )
 
     @classmethod
@@ -1130,7 +1152,12 @@ class MonitorRuntime:
         if snap.monitor != monitor.name:
             raise HandoffError(f"snapshot of '{snap.monitor}' given for '{monitor.name}'")
         table = monitor.table
-        if snap.bits != table.bits or len(snap.values) != len(monitor.signal_names):
+        wide = monitor.letter_bits if monitor.derived is not None else 0
+        if (
+            snap.bits != table.bits
+            or snap.wide != wide
+            or len(snap.values) != len(monitor.signal_names)
+        ):
             raise HandoffError(
                 f"snapshot of '{snap.monitor}' does not fit this definition "
                 "(placeholders or signals differ): the handlers disagree on it"
@@ -1166,7 +1193,13 @@ class MonitorRuntime:
         rt.missing = sum(v is None for v in snap.values)
         rt.valuation = snap.valuation
         rt.last_released, rt.late_events = snap.last_released, snap.late_events
-        rt.letters.extend(snap.letters)
+        if monitor.derived is None:
+            rt.letters.extend(snap.letters)
+        else:  # the automaton's letters at the top of wide ones (all that is read of them)
+            import numpy as np
+
+            top = np.frombuffer(snap.letters, snap.letters.typecode).astype(np.int64)
+            rt.letters.frombytes((top << monitor.shift).tobytes())
         base = len(rt.stamps)
         rt.stamps.frombytes(bytes(8 * len(snap.letters)))  # unreported steps need none
         for i, stamp in snap.stamps.items():
@@ -1177,6 +1210,17 @@ class MonitorRuntime:
         if len(rt.events) >= rt.threshold:
             rt.flush()
         return rt
+
+
+def _projected(letters: array, monitor: CompiledMonitor) -> array:  # type: ignore[type-arg]
+    """Wide letters as the automaton reads them: their placeholders from ``shift`` on
+    (edgerv.core.language.past.Derived), in the table's letter type."""
+    import numpy as np  # here: only a monitor with wide letters needs it
+
+    wide = np.frombuffer(letters, dtype=letters.typecode) if len(letters) else np.zeros(0, "q")
+    out = array(letter_typecode(monitor.table.bits))
+    out.frombytes((wide >> monitor.shift).astype(out.typecode).tobytes())
+    return out
 
 
 def _long_run_ends(letters: array) -> list[int] | None:  # type: ignore[type-arg]

@@ -40,6 +40,11 @@ class Snapshot:
     # message on each signal's topic); None for one without
     clock: tuple[int | None, tuple[int | None, ...]] | None = None
     past: Any = None  # its past operators' state (Past.save), None for a monitor without
+    # a monitor whose letter is wider than its table's (more than 16 placeholders: the
+    # automaton reads its top, edgerv.core.language.past.Derived): that width, which
+    # ``valuation`` has, while ``letters`` are what the automaton reads of each, ``bits``
+    # wide; 0 for any other (its letters are its valuations' width)
+    wide: int = 0
     # the letters' runs (runs_of), when the sender computed them already
     runs: Any = field(default=None, compare=False, repr=False)
 

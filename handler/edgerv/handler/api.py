@@ -569,8 +569,12 @@ class ControlApi:
                     )
                 if len(existing) + len(compiled) > self.limits.monitors:
                     return _message(403, self.limits.full(len(existing)))
-                for c in compiled:
-                    e.put(c, active=active)
+                try:
+                    e.refuse_over_budget(compiled)  # all or nothing
+                    for c in compiled:
+                        e.put(c, active=active)
+                except InputError as exc:
+                    return _errors(exc.errors, 403)
             return None
 
         if refused := await self._locked(define):
@@ -594,7 +598,10 @@ class ControlApi:
                 defined = len(e.slots)
                 if name not in e.slots and defined >= self.limits.monitors:
                     return _message(403, self.limits.full(defined))
-                return e.put(compiled[0], active=active)
+                try:
+                    return e.put(compiled[0], active=active)
+                except InputError as exc:  # over the memory budget
+                    return _errors(exc.errors, 403)
 
         try:
             created = await self._locked(define)

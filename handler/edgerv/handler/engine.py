@@ -31,6 +31,7 @@ from edgerv.core.monitor import CompiledMonitor, compile_monitor
 from edgerv.core.pipeline import MonitorRuntime, Router, TopicRoute, Verdict
 from edgerv.core.placement import placement_json
 from edgerv.core.reactions import Reaction
+from edgerv.handler.budget import MemoryBudget, monitor_cost
 from edgerv.handler.clock import Clock, SystemClock
 from edgerv.handler.handoff_steps import HandoffSteps
 from edgerv.handler.payloads import MonitorReport
@@ -55,6 +56,10 @@ WAKE_LETTERS = 512
 # operator, else in lists), shorter ones a message at a time: below it, building the
 # columns costs more than it saves.
 COLUMNS_FROM = 32
+# A scheduler round evaluates monitors until it has this many verdicts, then lets go of
+# the lock and hands them on: the ingest thread takes messages between rounds, and what
+# is in flight stays bounded, however many monitors violate at once (the verdict storm).
+EVALUATE_CHUNK = 4096
 
 
 class VerdictSink(Protocol):
@@ -124,6 +129,8 @@ class Engine(HandoffSteps):
         # a violation is evaluated once, on one handler, so it is reacted to once
         self.reactions_due: list[tuple[Verdict, Reaction]] = []
         self.reactor: Reactor | None = None
+        self.behind = False  # the last round stopped at EVALUATE_CHUNK verdicts: more wait
+        self.budget: MemoryBudget | None = None  # --memory-budget: monitors' buffers count
 
     # -- monitors --------------------------------------------------------------------------
 
@@ -165,6 +172,7 @@ class Engine(HandoffSteps):
         if self.reactor is not None and compiled.spec.on_violation is not None:
             self.reactor.prepare(compiled.spec.on_violation)
         with self.lock:
+            self.refuse_over_budget([compiled])
             old = self.slots.get(compiled.name)
             if old is not None and old.handoff is not None:
                 raise HandoffError(
@@ -184,6 +192,8 @@ class Engine(HandoffSteps):
                 self.router.remove(old.name)
             slot = MonitorSlot(compiled)
             self.slots[compiled.name] = slot
+            if self.budget is not None:
+                self.budget.commit(compiled.name, monitor_cost(compiled.spec))
             if active:
                 self._activate(slot)
             self.routes_version += 1
@@ -197,8 +207,33 @@ class Engine(HandoffSteps):
             self.in_handoff.pop(name, None)
             if slot.runtime is not None:
                 self.router.remove(name)
+            if self.budget is not None:
+                self.budget.forget(name)
             self.routes_version += 1
             return True
+
+    def refuse_over_budget(self, monitors: Sequence[CompiledMonitor]) -> None:
+        """Raise InputError, at the first monitor's definition, when these monitors (new,
+        or replacing those of their names) would pass the memory budget together."""
+        if self.budget is None or not monitors:
+            return
+        costs = {c.name: monitor_cost(c.spec) for c in monitors}
+        problem = self.budget.problem(costs)
+        if problem is None:
+            return
+        self.budget.refused += len(monitors)
+        first = monitors[0].spec
+        names = ", ".join(f"'{c.name}'" for c in monitors)
+        what = f"monitor {names}" if len(monitors) == 1 else f"monitors {names} together"
+        raise InputError(
+            [
+                Diagnostic(
+                    first.location,
+                    f"spec.bufferCapacity: {what} would pass this handler's memory budget: "
+                    f"{problem}",
+                )
+            ]
+        )
 
     def set_active(self, name: str, active: bool) -> None:
         with self.lock:
@@ -402,11 +437,14 @@ class Engine(HandoffSteps):
         with self.lock:
             return self._evaluate()
 
-    def _evaluate(self) -> list[Verdict]:
-        """Evaluate the letters of the monitors that have some (not all monitors: cheap)."""
+    def _evaluate(self, most: int | None = None) -> list[Verdict]:
+        """Evaluate the letters of the monitors that have some (not all monitors: cheap);
+        given ``most``, stop after the monitor that brings the verdicts to it: the others
+        wait first in line for the next round (:attr:`behind` is then True)."""
         verdicts: list[Verdict] = []
         waiting, self.waiting = self.waiting, {}
-        for name, rt in waiting.items():
+        items = iter(waiting.items())
+        for name, rt in items:
             slot = self.slots.get(name)
             if slot is None or slot.runtime is not rt:
                 continue  # removed or redefined since
@@ -417,6 +455,13 @@ class Engine(HandoffSteps):
                 reaction = slot.compiled.spec.on_violation
                 if reaction is not None and v.verdict == "violated":
                     self.reactions_due.append((v, reaction))
+            if most is not None and len(verdicts) >= most:
+                break
+        rest = dict(items)
+        self.behind = bool(rest)
+        if rest:
+            rest.update(self.waiting)  # (those that came meanwhile: after them)
+            self.waiting = rest
         return verdicts
 
     def advance_clocks(self, wall_ns: int) -> None:
@@ -479,7 +524,7 @@ class Engine(HandoffSteps):
                     slot.full_since = None
                     if fill < LOW_WATER:
                         slot.migration_wanted = False
-            return self._evaluate()
+            return self._evaluate(EVALUATE_CHUNK)
 
     def emit(self, verdicts: Sequence[Verdict]) -> None:
         """Hand verdicts to the sinks, and the violations due a reaction to the reactor
@@ -504,11 +549,12 @@ class Engine(HandoffSteps):
         next_tick = time.monotonic()
         while not stop.is_set():
             with self.lock:
-                self.dozing = not self.waiting and not self.in_handoff
-                doze = max(0.0, next_tick - time.monotonic())
-                self.ready.wait(timeout=doze if self.dozing else SCHEDULE_SECONDS)
-                self.dozing = False
-                verdicts = self._evaluate()
+                if not self.behind:  # (else more wait from the last round: at once)
+                    self.dozing = not self.waiting and not self.in_handoff
+                    doze = max(0.0, next_tick - time.monotonic())
+                    self.ready.wait(timeout=doze if self.dozing else SCHEDULE_SECONDS)
+                    self.dozing = False
+                verdicts = self._evaluate(EVALUATE_CHUNK)
                 if self.in_handoff:
                     self._precompress()
             if time.monotonic() >= next_tick:
@@ -516,16 +562,34 @@ class Engine(HandoffSteps):
                 next_tick = time.monotonic() + period
             self.emit(verdicts)
 
-    def drain(self) -> None:
-        """At shutdown: release every buffer and evaluate it, so no accepted event is lost."""
+    def drain(self, until: float | None = None) -> int:
+        """At shutdown: release every buffer and evaluate it, so no accepted event is
+        lost; a round at a time, until ``until`` (monotonic) at most. Returns the letters
+        left unevaluated when the time ran out (logged: their verdicts are not reached)."""
         with self.lock:
             for slot in self.slots.values():
                 if slot.runtime is not None and slot.active:  # not what is held for the other side
                     slot.runtime.flush()
                     self.waiting[slot.name] = slot.runtime
                     slot.pending_since = None
-            verdicts = self._evaluate()
-        self.emit(verdicts)
+        while True:
+            with self.lock:
+                verdicts = self._evaluate(EVALUATE_CHUNK)
+                more = self.behind
+            self.emit(verdicts)
+            if not more:
+                return 0
+            if until is not None and time.monotonic() >= until:
+                with self.lock:
+                    waiting, self.waiting = self.waiting, {}
+                    left = sum(len(rt.letters) for rt in waiting.values())
+                log.error(
+                    "stopping: %d letters of %d monitors not evaluated within the stop time "
+                    "(their verdicts are in no sink; each monitor's verdicts before them are)",
+                    left,
+                    len(waiting),
+                )
+                return left
 
     def load(self) -> dict[str, Any]:
         """The load report the orchestrator reads (``GET /v1/load``): counters, not rates;

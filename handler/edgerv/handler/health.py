@@ -125,6 +125,8 @@ class Reading:
     incompatible: Mapping[str, int] = field(default_factory=dict)  # publishers, bad QoS
     bad: Mapping[str, int] = field(default_factory=dict)  # topic -> unreadable messages
     rosout_failures: int = 0  # log lines that could not be sent to /rosout
+    # verdict sink -> verdicts it got only as a burst's count (it fell behind: outbox.py)
+    coalesced: Mapping[str, int] = field(default_factory=dict)
 
 
 def read_engine(
@@ -133,6 +135,7 @@ def read_engine(
     incompatible: Mapping[str, int] | None = None,
     bad: Mapping[str, int] | None = None,
     rosout_failures: int = 0,
+    coalesced: Mapping[str, int] | None = None,
 ) -> Reading:
     """A :class:`Reading` of ``engine``. The lock is held for at most READ_CHUNK monitors
     at a time: the ingest and scheduler threads wait for it no longer than that."""
@@ -190,6 +193,7 @@ def read_engine(
         dict(incompatible or {}),
         dict(bad or {}),
         rosout_failures,
+        dict(coalesced or {}),
     )
 
 
@@ -230,6 +234,7 @@ class _Sample(NamedTuple):
     lost: Mapping[str, int]
     bad: Mapping[str, int]
     monitors: Mapping[str, tuple[int, int, int]]  # name -> (instance, events, dropped)
+    coalesced: Mapping[str, int] = {}
 
 
 class Health:
@@ -302,6 +307,7 @@ class Health:
             reading.lost,
             reading.bad,
             {m.name: (m.instance, m.events, m.dropped) for m in reading.monitors},
+            reading.coalesced,
         )
         samples, period = self._samples, self.config.period
         while len(samples) > 1 and samples[1].at <= now - period:
@@ -365,6 +371,20 @@ class Health:
                         f"{sum(grew.values())} messages {what} in the last {span:.1f} s ({topics})",
                     )
                 )
+        grew = {
+            sink: n - base.coalesced.get(sink, 0)
+            for sink, n in reading.coalesced.items()
+            if n > base.coalesced.get(sink, 0)
+        }
+        if grew:
+            sinks = ", ".join(f"{s} {n}" for s, n in sorted(grew.items()))
+            problems.append(
+                (
+                    Level.WARN,
+                    f"verdict sinks fell behind: {sum(grew.values())} verdicts coalesced in the "
+                    f"last {span:.1f} s ({sinks}; each monitor's count, first and last go out)",
+                )
+            )
         d = reading.deadline
         if d is not None and d["p95Ms"] is not None and d["p95Ms"] >= d["budgetMs"]:
             problems.append(
@@ -474,6 +494,7 @@ class Health:
             ("messages lost", str(sum(reading.lost.values()))),
             ("bad messages", str(sum(reading.bad.values()))),
             ("log lines not sent to /rosout", str(reading.rosout_failures)),
+            ("verdicts coalesced", str(sum(reading.coalesced.values()))),
         ]
         d = reading.deadline
         if d is not None:

@@ -31,16 +31,36 @@ from edgerv.core.diagnostics import Diagnostic, InputError, Location
 from edgerv.core.documents import MonitorSpec, read_monitors
 from edgerv.core.language.spot_worker import add_budget_argument, worker
 from edgerv.handler import ros_types
+from edgerv.handler.budget import (
+    MemoryBudget,
+    container_limit,
+    default_budget,
+    parse_size,
+    physical_memory,
+    resident_bytes,
+    size_text,
+)
 from edgerv.handler.clock import SimClock
 from edgerv.handler.engine import Engine, VerdictSink
 from edgerv.handler.health import DiagnosticsConfig, Health
 from edgerv.handler.limits import Limits
+from edgerv.handler.outbox import ITEM_BYTES, QUEUED, Outbox, ReactionLane
 from edgerv.handler.sinks import VerdictLog, ViolationLines
 from edgerv.handler.tls import is_loopback, server_context
 from edgerv.handler.token import Token, TokenFile
 
 log = logging.getLogger("edgerv.handler")
 EXIT_INPUT = 2
+EXIT_INTERNAL = 70
+# After SIGTERM (and --drain's wait): what was taken is evaluated for EVALUATE_SECONDS at
+# most, the verdicts queued are written until STOP_SECONDS, the reactor's calls get their
+# own 5 s (reactor.CLOSE_SECONDS); past STOP_WATCHDOG the process exits 70 whatever holds
+# it. The chart's grace period is --drain + 15 s.
+EVALUATE_SECONDS = 4.0
+STOP_SECONDS = 6.0
+STOP_WATCHDOG = 14.0
+LANES = 5  # verdict log, violation lines, ROS topics, /diagnostics, reactions
+VERDICT_BYTES = 160  # a verdict queued: its tuple, its strings shared with the monitor
 
 
 def settle_memory() -> None:
@@ -205,6 +225,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "minus stamp) against DURATION (e.g. /cmd_vel=125ms) and report it in /v1/load",
     )
     add_budget_argument(p)
+    p.add_argument(
+        "--memory-budget",
+        type=parse_size,
+        metavar="SIZE",
+        help="the memory this handler may take, e.g. 1GiB: the process itself, its "
+        "verdict queues, request bodies, a snapshot bundle, and every monitor's buffers "
+        "as they will fill; a monitor that would pass it is refused (default: half the "
+        "container's memory limit, else of the machine's memory, at least 512 MiB)",
+    )
     given = Limits()
     p.add_argument(
         "--max-monitors",
@@ -352,6 +381,33 @@ def drain(engine: Engine, seconds: float, hurry: threading.Event) -> None:
         hurry.wait(DRAIN_LINGER)  # whoever moved them reads their final counts meanwhile
 
 
+def memory_budget(args: argparse.Namespace) -> MemoryBudget:
+    """--memory-budget, else the default from the container's limit, shared out."""
+    if args.memory_budget is not None:
+        total, origin = args.memory_budget, "--memory-budget"
+    else:
+        limit = container_limit()
+        total = default_budget(limit, physical_memory())
+        where = "the container's" if limit is not None else "the machine's"
+        origin = f"the default: half {where} memory, at least 512 MiB"
+    queues = LANES * QUEUED * (ITEM_BYTES + VERDICT_BYTES)
+    return MemoryBudget.plan(total, Limits(), queues, resident_bytes(), origin)
+
+
+def watchdog(at: float) -> None:
+    """A thread that ends the process (exit 70: an internal error, never 0 or 1) if the
+    ordered shutdown has not ended by ``at`` (monotonic): a pod's grace period is
+    bounded, and SIGKILL would lose the verdict log's last lines without a word."""
+
+    def wait() -> None:
+        time.sleep(max(0.0, at - time.monotonic()))
+        log.error("stopping took longer than %g s: exiting now", STOP_WATCHDOG)
+        logging.shutdown()
+        os._exit(EXIT_INTERNAL)
+
+    threading.Thread(target=wait, name="edgerv-stop-watchdog", daemon=True).start()
+
+
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(
         level=args.log_level.upper(),
@@ -404,10 +460,15 @@ def run(args: argparse.Namespace) -> int:
 
     ros_types.configure(args.types_cache)  # types of the robot's own, built at first use
     ros_node.init_ros()
-    sinks: list[VerdictSink] = []
+    budget = memory_budget(args)
+    if (problem := budget.startup_problem()) is not None:
+        print(f"edgerv handler: error: {budget.origin}: {problem}", file=sys.stderr)
+        return EXIT_INPUT
+    outbox = Outbox(args.name)  # each sink a lane: a bounded queue and a thread
+    sinks: list[VerdictSink] = [outbox]
     verdict_log = VerdictLog(args.verdict_log) if args.verdict_log else None
     if verdict_log:
-        sinks.append(verdict_log)
+        outbox.add("verdict-log", verdict_log, exact=True)  # every verdict: never coalesced
     window = max(0.0, args.reorder_window)
     clock = SimClock(args.flush_after) if args.use_sim_time else None  # else the system's
     engine = Engine(
@@ -424,23 +485,38 @@ def run(args: argparse.Namespace) -> int:
         lines = ViolationLines(
             lambda m: s.compiled.spec.topics if (s := engine.slots.get(m)) else ()
         )
-        engine.sinks.append(lines)
+        outbox.add("violation-lines", lines)
     health = Health(
         args.name,
         DiagnosticsConfig(args.diagnostics_period, args.diagnostics_hold, args.diagnostics_stale),
     )
     ros = ros_node.RosIngest(engine, args.name, reorder_window=window, health=health)
     ros.forward_logs(logging.getLogger("edgerv"))  # /rosout, besides stderr
-    engine.sinks.append(ros)
+    outbox.add("ros-topics", ros)  # /edgerv/verdicts and /edgerv/verdict
+    ros.outbox = outbox
     if ros.health is not None:
-        engine.sinks.append(health)  # notes violations as they come: published at once
+        outbox.add("diagnostics", health)  # notes violations as they come: published at once
     engine.matched = ros.matched
     from edgerv.handler.reactor import Reactor
 
-    reactor = engine.reactor = Reactor(args.name, engine.note_reaction)  # spec.onViolation
+    reactor = Reactor(args.name, engine.note_reaction)  # spec.onViolation
+    reactions = ReactionLane(reactor, args.name)
+    engine.reactor = reactions
+    engine.budget = budget
     diagnostics += load(engine, specs, active, args.max_monitors)
     for d in diagnostics:
         print(d.render(), file=sys.stderr)
+    if budget.refused:  # the monitors given do not fit: a configuration to fix, not to run
+        print(
+            f"edgerv handler: error: {budget.refused} monitor(s) of --monitors do not fit "
+            f"the memory budget ({size_text(budget.total)}, {budget.origin}): not starting",
+            file=sys.stderr,
+        )
+        reactions.close(time.monotonic())
+        reactor.close()
+        outbox.close(time.monotonic())
+        ros.close()
+        return EXIT_INPUT
     if any(d.severity == "error" for d in diagnostics):
         log.error(
             "%d problem(s) above: those monitors are not loaded; the others run",
@@ -471,16 +547,18 @@ def run(args: argparse.Namespace) -> int:
     if args.listen:
         api = ControlApi(
             engine,
-            build_registry(engine, lambda: dict(ros.qos_problems)),
+            build_registry(engine, lambda: dict(ros.qos_problems), outbox, budget),
             token,
             on_change=on_change,
             on_routes=ros.wake,
-            limits=Limits(
-                connections=args.api_max_connections,
-                pending=args.api_max_pending,
-                read_seconds=args.api_read_timeout,
-                idle_seconds=args.api_idle_timeout,
-                monitors=args.max_monitors,
+            limits=budget.limits(
+                Limits(
+                    connections=args.api_max_connections,
+                    pending=args.api_max_pending,
+                    read_seconds=args.api_read_timeout,
+                    idle_seconds=args.api_idle_timeout,
+                    monitors=args.max_monitors,
+                )
             ),
         )
         try:
@@ -492,7 +570,9 @@ def run(args: argparse.Namespace) -> int:
                 f"{exc.strerror}",
                 file=sys.stderr,
             )
+            reactions.close(time.monotonic())
             reactor.close()
+            outbox.close(time.monotonic())
             ros.close()
             return EXIT_INPUT
     scheduler_stop = threading.Event()
@@ -514,12 +594,19 @@ def run(args: argparse.Namespace) -> int:
         pass
     if args.drain > 0 and api is not None and not ros.failed:
         drain(engine, args.drain, hurry)
-    # Ordered shutdown: take nothing more, evaluate everything taken, then close the outputs.
+    # Ordered shutdown: take nothing more, evaluate what was taken, then close the outputs;
+    # each within its time, whatever is queued (a verdict storm's backlog included).
+    stopping = time.monotonic()
+    watchdog(stopping + STOP_WATCHDOG)
+    evaluated_by, written_by = stopping + EVALUATE_SECONDS, stopping + STOP_SECONDS
+    outbox.until = evaluated_by  # the verdict log's lane: the scheduler waits no longer
     ros.stop()
     scheduler_stop.set()
     engine.wake()
-    scheduler.join(timeout=10)
-    engine.drain()
+    scheduler.join(timeout=max(0.1, evaluated_by - time.monotonic()))
+    engine.drain(evaluated_by)
+    reactions.close(written_by)
+    outbox.close(written_by)
     if lines is not None:
         lines.close()  # the violations held back that no line followed
     reactor.close()  # after the last violations' reactions

@@ -9,13 +9,23 @@ from prometheus_client import CollectorRegistry, ProcessCollector
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 
+from edgerv.handler.budget import MemoryBudget
 from edgerv.handler.engine import Engine
+from edgerv.handler.outbox import Outbox
 
 
 class EngineCollector(Collector):
-    def __init__(self, engine: Engine, qos_problems: Callable[[], dict[str, int]]) -> None:
+    def __init__(
+        self,
+        engine: Engine,
+        qos_problems: Callable[[], dict[str, int]],
+        outbox: Outbox | None = None,
+        budget: MemoryBudget | None = None,
+    ) -> None:
         self.engine = engine
         self.qos_problems = qos_problems  # topic -> publishers with incompatible QoS
+        self.outbox = outbox
+        self.budget = budget
 
     def collect(self) -> Iterator[Metric]:
         e = self.engine
@@ -93,6 +103,52 @@ class EngineCollector(Collector):
             value=lag,
         )
         yield from self.deadline()
+        yield from self.sinks()
+        yield from self.memory()
+
+    def sinks(self) -> Iterator[Metric]:
+        """The verdict lanes (outbox.py): what each sink got only as a count."""
+        if self.outbox is None:
+            return
+        coalesced = CounterMetricFamily(
+            "edgerv_verdicts_coalesced",
+            "Verdicts a sink got only as a burst's count (it fell behind: each monitor's "
+            "first and last verdict of the burst went out)",
+            labels=["sink"],
+        )
+        queued = GaugeMetricFamily(
+            "edgerv_verdict_queue", "Items waiting in a sink's queue", labels=["sink"]
+        )
+        unwritten = CounterMetricFamily(
+            "edgerv_verdicts_unwritten",
+            "Verdicts still queued for a sink when the handler's stop time ran out",
+            labels=["sink"],
+        )
+        for sink, (c, q, u) in self.outbox.counts().items():
+            coalesced.add_metric([sink], c)
+            queued.add_metric([sink], q)
+            unwritten.add_metric([sink], u)
+        yield from (coalesced, queued, unwritten)
+
+    def memory(self) -> Iterator[Metric]:
+        """--memory-budget: the budget, what is committed of it, and the refusals."""
+        b = self.budget
+        if b is None:
+            return
+        yield GaugeMetricFamily(
+            "edgerv_memory_budget_bytes", "The handler's memory budget", value=b.total
+        )
+        yield GaugeMetricFamily(
+            "edgerv_memory_committed_bytes",
+            "The budget committed: the process at start, the verdict queues, request "
+            "bodies, a bundle, and the monitors' buffers as they will fill",
+            value=b.committed(),
+        )
+        yield CounterMetricFamily(
+            "edgerv_monitors_refused_budget",
+            "Monitors refused because they would pass the memory budget",
+            value=b.refused,
+        )
 
     def deadline(self) -> Iterator[Metric]:
         """--deadline: the robot's real-time task (nothing without the option)."""
@@ -130,8 +186,13 @@ class EngineCollector(Collector):
         yield from (budget, p95, misses, measured)
 
 
-def build_registry(engine: Engine, qos_problems: Callable[[], dict[str, int]]) -> CollectorRegistry:
+def build_registry(
+    engine: Engine,
+    qos_problems: Callable[[], dict[str, int]],
+    outbox: Outbox | None = None,
+    budget: MemoryBudget | None = None,
+) -> CollectorRegistry:
     registry = CollectorRegistry()
-    registry.register(EngineCollector(engine, qos_problems))
+    registry.register(EngineCollector(engine, qos_problems, outbox, budget))
     ProcessCollector(namespace="edgerv", registry=registry)  # edgerv_process_cpu_seconds_total
     return registry

@@ -66,6 +66,7 @@ from edgerv.handler.clock import (
 )
 from edgerv.handler.engine import Engine
 from edgerv.handler.health import Health, Pacer, Reading, Status, read_engine
+from edgerv.handler.outbox import Burst, Outbox
 from edgerv.handler.reorder import ReorderWindow
 from edgerv.handler.ros_logs import ros_log_problem
 from edgerv.handler.sinks import verdict_record
@@ -286,6 +287,7 @@ class RosIngest:
         self.typed = self._typed_verdicts()
         self._last_verdicts_thread: threading.Thread | None = None
         self._last_verdicts_failures = 0
+        self.outbox: Outbox | None = None  # the verdicts' lanes (main's): /diagnostics says
 
     # -- verdicts out ----------------------------------------------------------------------
 
@@ -316,6 +318,20 @@ class RosIngest:
             self.verdicts.publish(self._string(data=json.dumps(verdict_record(handler, v))))
         if self.typed is not None:
             self.typed.write(handler, verdicts)
+
+    def write_bursts(self, handler: str, bursts: Sequence[Burst[Verdict]]) -> None:
+        """Bursts a lane coalesced (this sink fell behind): on /edgerv/verdicts each one's
+        first verdict, and its last with ``"coalesced": N``, the monitor's verdicts between
+        them that are not published; typed, the first and the last."""
+        string, publish = self._string, self.verdicts.publish
+        for b in bursts:
+            publish(string(data=json.dumps(verdict_record(handler, b.first))))
+            if b.count > 1:
+                last = verdict_record(handler, b.last)
+                last["coalesced"] = b.between
+                publish(string(data=json.dumps(last)))
+        if self.typed is not None:
+            self.typed.write(handler, [v for b in bursts for v in b.ends])
 
     def _last_verdicts_loop(self, typed: TypedVerdicts) -> None:
         """The /edgerv/last_verdicts thread: a look every LAST_VERDICTS_SECONDS (nothing
@@ -389,6 +405,7 @@ class RosIngest:
             incompatible=dict(self.qos_problems),
             bad=dict(self.bad_messages),
             rosout_failures=self.rosout.failures if self.rosout else 0,
+            coalesced=self.outbox.coalesced() if self.outbox is not None else None,
         )
 
     def diagnose(self, health: Health, update: bool) -> list[Status] | None:
@@ -842,7 +859,7 @@ class RosIngest:
                 # handler has taken everything (the monitors' clocks wait for that).
                 subs, taking = list(self.subs.values()), self._version
                 batch, through = self._take_all(subs)
-                while batch:  # keep taking while messages keep coming, then wait again
+                while batch and not self._stop.is_set():  # while messages keep coming
                     if reorder is not None and (several or reorder.pending):
                         taken(batch)  # a monitor being received learns its cut sooner
                         ingest(reorder.add(batch, time.monotonic()))

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from edgerv.core.pipeline import Verdict
+from edgerv.handler.outbox import Burst
 
 violations_log = logging.getLogger("edgerv.handler.violations")
 LINE_SECONDS = 1.0  # at most one violation line per monitor this often
@@ -36,9 +37,24 @@ class VerdictLog:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = self.path.open("a", encoding="utf-8")
         self._lock = threading.Lock()
+        self._names: dict[str, str] = {}  # monitor -> its name as JSON
 
     def write(self, handler: str, verdicts: Sequence[Verdict]) -> None:
-        text = "".join(json.dumps(verdict_record(handler, v)) + "\n" for v in verdicts)
+        # json.dumps(verdict_record(...)) byte for byte, each name escaped once (a verdict
+        # storm writes hundreds of thousands a second: the log is its exact sink)
+        names, h = self._names, json.dumps(handler)
+        if len(names) > 100_000:
+            names.clear()
+        parts = []
+        for v in verdicts:
+            m = names.get(v.monitor)
+            if m is None:
+                m = names[v.monitor] = json.dumps(v.monitor)
+            parts.append(
+                f'{{"monitor": {m}, "verdict": "{v.verdict}", "stamp": {v.stamp}, '
+                f'"step": {v.step}, "handler": {h}}}\n'
+            )
+        text = "".join(parts)
         with self._lock:
             self._file.write(text)
             self._file.flush()
@@ -75,6 +91,12 @@ class PerKeyLimit:
             return None
         suppressed, held.last, held.suppressed = held.suppressed, now, 0
         return suppressed
+
+    def hold_back(self, key: str, n: int) -> None:
+        """Count ``n`` more held back for ``key`` (a burst's violations between its ends)."""
+        held = self._held.get(key)
+        if held is not None:
+            held.suppressed += n
 
     def pending(self) -> dict[str, int]:
         """The keys with lines held back since their last one, and how many."""
@@ -142,6 +164,17 @@ class ViolationLines:
                 self.limit.forget(now)
         for line in lines:
             self.log.warning("%s", line)
+
+    def write_bursts(self, handler: str, bursts: Sequence[Burst[Verdict]]) -> None:
+        """Bursts its lane coalesced: the first and last violation of each, as verdicts,
+        and those between counted as held back (said in the monitor's next line)."""
+        for b in bursts:
+            self.write(handler, [b.first])
+            if b.between and b.first.verdict == "violated":
+                with self._lock:
+                    self.limit.hold_back(b.monitor, b.between)
+            if b.count > 1:
+                self.write(handler, [b.last])
 
     def close(self) -> None:
         """Say the violations held back that no line followed."""

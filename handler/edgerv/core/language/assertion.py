@@ -40,11 +40,18 @@ from edgerv.core.documents import MonitorSpec
 from edgerv.core.language.atoms import Atom, feasible_letters
 from edgerv.core.language.comparisons import AtomReader
 from edgerv.core.language.formula import Lowering
-from edgerv.core.language.lexer import check_size, tokenize
+from edgerv.core.language.lexer import Fail, check_size, tokenize
 from edgerv.core.language.parser import Parser
-from edgerv.core.language.past import PastOp
+from edgerv.core.language.past import MAX_LETTER_BITS, PastOp
 from edgerv.core.language.spot_worker import BudgetExceeded, worker
+from edgerv.core.language.synthesis import (
+    MAX_PLACEHOLDERS,
+    Abstraction,
+    SynthesisError,
+    abstract,
+)
 from edgerv.core.language.timed import TimedReading
+from edgerv.core.language.tree import Node, Prop, postorder
 
 
 @dataclass(frozen=True)
@@ -56,11 +63,22 @@ class ParsedAssertion:
     constraint: Any  # spot.formula: the letters that can occur (see feasible_letters)
     warnings: tuple[Diagnostic, ...]
     past: tuple[PastOp, ...] = ()  # derived placeholders p<len(atoms)>..., inner first
+    # past MAX_PLACEHOLDERS: what the automaton reads of a letter (its placeholders
+    # p<bits>... computed from the ones below); None within it
+    abstraction: Abstraction | None = None
 
     @property
     def bits(self) -> int:
         """Placeholders in a letter: the atoms', then the past operators'."""
         return len(self.atoms) + len(self.past)
+
+    @property
+    def automaton(self) -> tuple[Any, Any, int]:
+        """The formula the automaton is built for, its constraint and its letter width."""
+        a = self.abstraction
+        if a is None:
+            return self.formula, self.constraint, self.bits
+        return a.formula, a.constraint, a.bits
 
 
 def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
@@ -83,6 +101,9 @@ def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
     stop_on_errors()
     assert tree is not None  # no error: a tree
     atoms = tuple(reader.atoms)
+    if len(atoms) >= MAX_LETTER_BITS - 1:
+        _too_many_atoms(tree, fail)
+        stop_on_errors()
     lowering = Lowering(spec.assertion, fail, len(atoms))
     formula = lowering.lower(tree)
     stop_on_errors()
@@ -91,7 +112,13 @@ def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
         formula = reading.read(formula)
         stop_on_errors()
     constraint = feasible_letters(spec, atoms)
-    warnings = _vacuity_warnings(spec, formula, constraint)  # past placeholders range free
+    past = tuple(lowering.past)
+    abstraction = None
+    if len(atoms) + len(past) > MAX_PLACEHOLDERS:  # what the automaton reads of its letters
+        abstraction = _abstract(spec, formula, constraint, len(atoms) + len(past))
+    # past placeholders range free; over an abstraction's, the same letters can occur
+    seen = (formula, constraint) if abstraction is None else abstraction.automaton
+    warnings = _vacuity_warnings(spec, *seen)
     if reading.anchored and spec.on_verdict == "reset":
         warnings.append(
             Diagnostic(
@@ -104,8 +131,36 @@ def parse_assertion(spec: MonitorSpec) -> ParsedAssertion:
             )
         )
     return ParsedAssertion(
-        spec, formula, atoms, str(formula), constraint, tuple(warnings), tuple(lowering.past)
+        spec, formula, atoms, str(formula), constraint, tuple(warnings), past, abstraction
     )
+
+
+def _too_many_atoms(tree: Node, fail: Fail) -> None:
+    """Refuse an assertion with more distinct atoms than a letter holds, at the first
+    atom past the limit."""
+    limit = MAX_LETTER_BITS - 1
+    first = next(n for n in postorder(tree) if isinstance(n, Prop) and n.index >= limit - 1)
+    start, end = first.at
+    fail(start, max(1, end - start), f"more than {limit - 1} distinct atoms in one assertion "
+         f"(a letter holds {MAX_LETTER_BITS} bits, one at least for what its automaton "
+         "reads: docs/semantics.md, Limits)", "split it into several monitors")  # fmt: skip
+
+
+def _abstract(spec: MonitorSpec, formula: Any, constraint: Any, raw: int) -> Abstraction:
+    """What the automaton reads of a letter wider than its table takes (synthesis.abstract),
+    refused where it reads more than the table or the letter holds."""
+    loc = spec.locate_assertion(0, len(spec.assertion.rstrip()))
+    try:
+        abstraction = abstract(formula, constraint)
+    except SynthesisError as exc:
+        raise InputError([Diagnostic(loc, str(exc))]) from None
+    if raw + abstraction.bits > MAX_LETTER_BITS:
+        raise InputError([Diagnostic(
+            loc, f"a letter of this assertion needs {raw + abstraction.bits} bits: {raw} for "
+            f"its atoms and past or time-bounded operators, {abstraction.bits} for what its "
+            f"automaton reads; at most {MAX_LETTER_BITS} (docs/semantics.md, Limits)",
+            hint="split the assertion into several monitors")])  # fmt: skip
+    return abstraction
 
 
 @lru_cache(maxsize=4096)

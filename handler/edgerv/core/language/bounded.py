@@ -50,7 +50,7 @@ from typing import Any, Literal
 
 import spot
 
-from edgerv.core.language.past import PastKind, PastOp, compile_boolean
+from edgerv.core.language.past import PastKind, PastOp, check_bit, compile_boolean
 
 BoundedKind = Literal["F", "G", "U", "W", "R", "M"]
 
@@ -78,6 +78,7 @@ def as_past(ob: Obligation, first_bit: int) -> tuple[Any, list[PastOp]]:
 
     def past(kind: Any, operands: tuple[Any, ...], window: tuple[int, int], what: str) -> Any:
         bit = first_bit + len(ops)
+        check_bit(bit)
         funcs = tuple(compile_boolean(o) for o in operands)
         ops.append(PastOp(kind, bit, funcs, window, what))
         return f.ap(f"p{bit}")

@@ -18,7 +18,7 @@ import spot
 
 from edgerv.core.language.bounded import UNTIMED, Cut, CutKind
 from edgerv.core.language.lexer import Fail
-from edgerv.core.language.past import PastError, PastKind, PastOp, compile_boolean
+from edgerv.core.language.past import PastError, PastKind, PastOp, check_bit, compile_boolean
 from edgerv.core.language.tree import (
     UNBOUNDED,
     Binary,
@@ -79,6 +79,7 @@ class Lowering:
         """A derived placeholder for a past operator over boolean ``operands``: its
         proposition (raises PastError for an operand it cannot compute)."""
         bit = self.next_bit
+        check_bit(bit)
         funcs = tuple(compile_boolean(o) for o in operands)
         self.past.append(PastOp(kind, bit, funcs, window, text, delay))
         return f.ap(f"p{bit}")

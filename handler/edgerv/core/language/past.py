@@ -43,20 +43,37 @@ class PastOp:
     delay: int = 0  # "until" only: it reads ``f U[lo..hi] g`` this long ago
 
 
-MAX_TABLE_BITS = 16  # an operand reads placeholders p0..p15 at most (synthesis' limit)
+MAX_TABLE_BITS = 16  # an operand reading placeholders p0..p15 only is a truth table
+# A letter's raw bits: atoms, past operators, and the automaton's derived placeholders
+# (edgerv.core.language.synthesis.abstract), in one signed 64-bit integer (NumPy's int64
+# in the column path, array typecode 'q'): bits 0..62.
+MAX_LETTER_BITS = 63
+
+
+def check_bit(bit: int) -> None:
+    """Raise :class:`PastError` when placeholder ``bit`` is past a letter's width (the
+    atoms and past operators before it take the rest)."""
+    if bit >= MAX_LETTER_BITS - 1:  # (and one at least for what the automaton reads)
+        raise PastError(
+            f"more than {MAX_LETTER_BITS - 1} atoms and past or time-bounded operators in "
+            f"one assertion (a letter holds {MAX_LETTER_BITS} bits: docs/semantics.md, "
+            "Limits): split it into several monitors"
+        )
 
 
 def compile_boolean(formula: Any) -> BitsFunction:
     """A Spot boolean formula over placeholders ``p<i>`` as a function of the bits: a
-    lookup in its truth table over the bits up to the highest it reads.
+    lookup in its truth table over the bits up to the highest it reads, or, past
+    :data:`MAX_TABLE_BITS`, a :class:`BoolProgram` (no table of 2^17 entries or more).
 
     The table is built bottom-up over Spot's tree with an explicit stack, as integers
     of one bit per letter, so an operand nested thousands deep is no deeper a
     computation (no recursion, no generated source); raises :class:`PastError` for a
-    formula that is not boolean over placeholders, or reads more than
-    :data:`MAX_TABLE_BITS` of them."""
+    formula that is not boolean over placeholders."""
     if not formula.is_boolean():
         raise PastError(f"'{formula}' is not a boolean formula")
+    if _highest(formula) >= MAX_TABLE_BITS:
+        return BoolProgram(formula)
     table = _truth_table(str(formula))
     mask = len(table) - 1
     function = lambda b: table[b & mask]  # noqa: E731 (it carries its table: Past reads it)
@@ -69,17 +86,7 @@ def _truth_table(text: str) -> tuple[bool, ...]:
     """The truth of the boolean formula ``text`` for each letter ``0 .. 2^n - 1``, n one
     more than the highest placeholder it reads (monitors with one operand share it)."""
     formula = spot.formula(text)
-    highest = -1
-    for ap in spot.atomic_prop_collect(formula):
-        name = ap.ap_name()
-        if not (name.startswith("p") and name[1:].isdigit()):
-            raise PastError(f"unknown proposition '{name}'")
-        highest = max(highest, int(name[1:]))
-    if highest >= MAX_TABLE_BITS:
-        raise PastError(
-            f"it reads placeholder p{highest}: at most {MAX_TABLE_BITS} atoms and past or "
-            "time-bounded operators are supported"
-        )
+    highest = _highest(formula)
     size = 1 << (highest + 1)
     ones = (1 << size) - 1
     value: dict[int, int] = {}  # a subformula's id: its truth table (bit j: letter j)
@@ -97,6 +104,180 @@ def _truth_table(text: str) -> tuple[bool, ...]:
     table = value[formula.id()]
     bits = format(table, f"0{size}b")[::-1]  # bit j of the table is letter j
     return tuple(c == "1" for c in bits)
+
+
+def _placeholder(ap: Any) -> int:
+    """The bit of placeholder ``p<i>`` (raises :class:`PastError` for another name)."""
+    name = ap.ap_name()
+    if not (name.startswith("p") and name[1:].isdigit()):
+        raise PastError(f"unknown proposition '{name}'")
+    bit = int(name[1:])
+    if bit >= MAX_LETTER_BITS:
+        raise PastError(f"placeholder '{name}' is past a letter's {MAX_LETTER_BITS} bits")
+    return bit
+
+
+def _highest(formula: Any) -> int:
+    """The highest placeholder bit ``formula`` reads (-1: none)."""
+    return max((_placeholder(ap) for ap in spot.atomic_prop_collect(formula)), default=-1)
+
+
+# BoolProgram's instructions, each writing one register (its index in the program)
+_VAR, _NOT, _AND, _OR, _XOR, _EQUIV, _CONST = range(7)
+
+
+class BoolProgram:
+    """A boolean formula over placeholders as data: a list of instructions over the bits
+    of a letter, evaluated in order, no truth table (any of a letter's 63 bits), no
+    generated source. Conjunctions and disjunctions test their literal operands with two
+    masks at once (``a & !b & c``: one test); the others read registers.
+
+    Called with a letter (an int) it gives the formula's truth there; :meth:`columns`
+    gives it for a NumPy array of letters at once (the column path)."""
+
+    __slots__ = ("code", "reads")
+
+    def __init__(self, formula: Any) -> None:
+        if not formula.is_boolean():
+            raise PastError(f"'{formula}' is not a boolean formula")
+        code: list[tuple[Any, ...]] = []
+        reg: dict[int, int] = {}  # a subformula's id: its register
+        reads = 0
+        stack = [(formula, False)]
+        while stack:  # leaves first, each shared subformula once, without recursion
+            f, expanded = stack.pop()
+            if f.id() in reg:
+                continue
+            k = f.kind()
+            kids = [g for g in f if not (k in (spot.op_And, spot.op_Or) and _literal(g))]
+            if not expanded and kids:
+                stack.append((f, True))
+                stack.extend((g, False) for g in kids if g.id() not in reg)
+                continue
+            if k == spot.op_ap:
+                bit = _placeholder(f)
+                reads |= 1 << bit
+                code.append((_VAR, bit))
+            elif k in (spot.op_tt, spot.op_ff):
+                code.append((_CONST, k == spot.op_tt))
+            elif k == spot.op_Not:
+                code.append((_NOT, reg[f[0].id()]))
+            elif k in (spot.op_And, spot.op_Or):
+                pos = neg = 0
+                for g in f:
+                    if _literal(g):
+                        bit = _placeholder(g if g.kind() == spot.op_ap else g[0])
+                        reads |= 1 << bit
+                        if g.kind() == spot.op_ap:
+                            pos |= 1 << bit
+                        else:
+                            neg |= 1 << bit
+                regs = tuple(reg[g.id()] for g in kids)
+                code.append((_AND if k == spot.op_And else _OR, pos, neg, regs))
+            elif k in (spot.op_Xor, spot.op_Equiv):
+                code.append((_XOR if k == spot.op_Xor else _EQUIV, reg[f[0].id()], reg[f[1].id()]))
+            elif k == spot.op_Implies:  # !a | b
+                code.append((_NOT, reg[f[0].id()]))
+                code.append((_OR, 0, 0, (len(code) - 1, reg[f[1].id()])))
+            else:
+                raise PastError(f"'{f}' is not a boolean formula")
+            reg[f.id()] = len(code) - 1
+        self.code = tuple(code)
+        self.reads = reads  # the bits it reads
+
+    def __call__(self, bits: int) -> bool:
+        regs: list[bool] = []
+        put = regs.append
+        for ins in self.code:
+            op = ins[0]
+            if op == _AND:
+                _, pos, neg, kids = ins
+                put(bits & pos == pos and not bits & neg and all(regs[k] for k in kids))
+            elif op == _OR:
+                _, pos, neg, kids = ins
+                put(bool(bits & pos) or bool(~bits & neg) or any(regs[k] for k in kids))
+            elif op == _VAR:
+                put(bool(bits >> ins[1] & 1))
+            elif op == _NOT:
+                put(not regs[ins[1]])
+            elif op == _XOR:
+                put(regs[ins[1]] != regs[ins[2]])
+            elif op == _EQUIV:
+                put(regs[ins[1]] == regs[ins[2]])
+            else:
+                put(ins[1])
+        return regs[-1]
+
+    def columns(self, letters: Any) -> Any:
+        """The truth for each letter of an int64 NumPy array: a bool array."""
+        import numpy as np  # here: only the column path takes it
+
+        regs: list[Any] = []
+        put = regs.append
+        for ins in self.code:
+            op = ins[0]
+            if op in (_AND, _OR):
+                _, pos, neg, kids = ins
+                if op == _AND:
+                    out = ((letters & pos) == pos) & ((letters & neg) == 0)
+                    for k in kids:
+                        out = out & regs[k]
+                else:
+                    out = ((letters & pos) != 0) | ((~letters & neg) != 0)
+                    for k in kids:
+                        out = out | regs[k]
+                put(out)
+            elif op == _VAR:
+                put((letters >> ins[1] & 1) != 0)
+            elif op == _NOT:
+                put(~regs[ins[1]])
+            elif op == _XOR:
+                put(regs[ins[1]] ^ regs[ins[2]])
+            elif op == _EQUIV:
+                put(~(regs[ins[1]] ^ regs[ins[2]]))
+            else:
+                put(np.full(len(letters), ins[1], bool))
+        return regs[-1]
+
+
+def _literal(g: Any) -> bool:
+    """A placeholder or its negation: a conjunction or disjunction tests it by its mask."""
+    return bool(g.kind() == spot.op_ap or (g.kind() == spot.op_Not and g[0].kind() == spot.op_ap))
+
+
+@dataclass(frozen=True)
+class Derived:
+    """The placeholders an automaton reads when its assertion's letter is wider than its
+    table takes (edgerv.core.language.synthesis.abstract): placeholder ``shift + j`` is
+    ``programs[j]`` of the bits below ``shift`` (the atoms' and the past operators'),
+    computed at every step after them. The automaton reads ``letter >> shift``."""
+
+    shift: int
+    programs: tuple[BoolProgram, ...]
+
+    @property
+    def bits(self) -> int:
+        """The letter's whole width: the raw bits and the derived ones."""
+        return self.shift + len(self.programs)
+
+    def __call__(self, bits: int) -> int:
+        """``bits`` with the derived placeholders set from the bits below ``shift``."""
+        bits &= (1 << self.shift) - 1
+        one = 1 << self.shift
+        for program in self.programs:
+            if program(bits):
+                bits |= one
+            one <<= 1
+        return bits
+
+    def columns(self, letters: Any) -> Any:
+        """The same over an int64 NumPy array of letters (a new array)."""
+        import numpy as np
+
+        out = letters & ((1 << self.shift) - 1)
+        for j, program in enumerate(self.programs):
+            out |= program.columns(out).astype(np.int64) << (self.shift + j)
+        return out
 
 
 def _combine(f: Any, parts: list[int], size: int, ones: int) -> int:

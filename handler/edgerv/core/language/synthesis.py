@@ -26,9 +26,10 @@ from typing import Any
 import spot
 from spot import buddy
 
+from edgerv.core.language.bounded import substitute
 from edgerv.core.language.spot_worker import BudgetExceeded, worker
 
-MAX_PLACEHOLDERS = 16
+MAX_PLACEHOLDERS = 16  # the automaton's letter: a table row has 2^16 columns at most
 MAX_TABLE_ENTRIES = 1 << 22
 
 
@@ -184,11 +185,119 @@ def synthesize(formula: Any, constraint: Any, bits: int) -> MonitorTable:
     """The LTL3 monitor table of ``formula`` over ``bits`` placeholders under ``constraint``."""
     if bits > MAX_PLACEHOLDERS:
         raise SynthesisError(
-            f"the assertion needs {bits} placeholders (its distinct atoms, then its past "
-            "operators and time-bounded ones as they are read: docs/semantics.md, Limits); at "
+            f"the automaton reads {bits} placeholders (docs/semantics.md, Limits); at "
             f"most {MAX_PLACEHOLDERS} are supported: split it into several monitors"
         )
     try:
         return worker.call(_synthesize_cached, str(formula), str(constraint), bits)
     except BudgetExceeded as exc:
         raise SynthesisError(f"{exc}; {exc.hint}") from None
+
+
+# -- propositional abstraction: what the automaton reads of a wide letter -----------------
+
+
+@dataclass(frozen=True)
+class Abstraction:
+    """A formula over more placeholders than a table takes, as the automaton reads it:
+    each maximal boolean subformula under its temporal operators (the boolean operands
+    of one conjunction or disjunction together) is one placeholder ``p<j>`` of
+    ``formula``, whose truth is ``parts[j]`` over the letter's placeholders (computed at
+    every step: edgerv.core.language.past.Derived); ``constraint`` says which of its
+    letters can occur: those with a letter of the assertion's own placeholders that the
+    assertion's constraint admits (an existential projection, so the automaton's
+    verdicts are those of the formula over its own placeholders)."""
+
+    formula: Any
+    constraint: Any
+    parts: tuple[Any, ...]
+
+    @property
+    def bits(self) -> int:
+        return len(self.parts)
+
+    @property
+    def automaton(self) -> tuple[Any, Any]:
+        return self.formula, self.constraint
+
+
+def abstract(formula: Any, constraint: Any) -> Abstraction:
+    """``formula`` (under ``constraint``) with each maximal boolean subformula as one
+    placeholder; raises :class:`SynthesisError` if the automaton would still read more
+    than :data:`MAX_PLACEHOLDERS` (distinct ones: a subformula and its negation share
+    one). Walks Spot's tree with an explicit stack."""
+    f = spot.formula
+    parts: list[Any] = []
+    index: dict[int, int] = {}
+
+    def placeholder(g: Any) -> Any:
+        negated = g.kind() == spot.op_Not
+        h = g[0] if negated else g
+        if h.id() not in index:
+            index[h.id()] = len(parts)
+            parts.append(h)
+        ap = f.ap(f"p{index[h.id()]}")
+        return f.Not(ap) if negated else ap
+
+    built: dict[int, Any] = {}
+    stack = [(formula, False)]
+    while stack:
+        g, expanded = stack.pop()
+        if g.id() in built:
+            continue
+        if g.kind() in (spot.op_tt, spot.op_ff):
+            built[g.id()] = g
+            continue
+        if g.is_boolean():
+            built[g.id()] = placeholder(g)
+            continue
+        junction = g.kind() in (spot.op_And, spot.op_Or)
+        kids = [h for h in g if not (junction and h.is_boolean())]
+        if not expanded:
+            stack.append((g, True))
+            stack.extend((h, False) for h in kids)
+            continue
+        if junction:
+            booleans = [h for h in g if h.is_boolean()]
+            join = f.And if g.kind() == spot.op_And else f.Or
+            rest = [built[h.id()] for h in kids]
+            if booleans:
+                rest.insert(0, placeholder(join(booleans)))
+            built[g.id()] = join(rest)
+        else:
+            built[g.id()] = g.map(lambda h: built[h.id()])
+    if len(parts) > MAX_PLACEHOLDERS:
+        raise SynthesisError(
+            f"the automaton reads {len(parts)} boolean subformulas under temporal operators "
+            f"(each one placeholder of its letter); at most {MAX_PLACEHOLDERS} are "
+            "supported (docs/semantics.md, Limits): split the assertion into several "
+            "monitors"
+        )
+    texts = tuple(str(p) for p in parts)
+    try:
+        projected = worker.call(_projected, str(constraint), texts)
+    except BudgetExceeded as exc:
+        raise SynthesisError(f"{exc}; {exc.hint}") from None
+    return Abstraction(built[formula.id()], spot.formula(projected), tuple(parts))
+
+
+@lru_cache(maxsize=1024)
+def _projected(constraint_text: str, parts: tuple[str, ...]) -> str:
+    """The letters over ``p0..p<k-1>`` (``p<j>`` the truth of ``parts[j]``) that some
+    letter satisfying ``constraint_text`` gives: exists the assertion's placeholders,
+    with BDDs."""
+    d = spot.make_bdd_dict()
+    owner = spot.make_twa_graph(d)
+    fresh = [spot.formula.ap(f"q{j}") for j in range(len(parts))]
+    relation = spot.formula.And(
+        [spot.formula(constraint_text)]
+        + [spot.formula.Equiv(q, spot.formula(p)) for q, p in zip(fresh, parts, strict=True)]
+    )
+    whole = spot.formula_to_bdd(relation, d, owner)  # (registers every proposition)
+    keep = buddy.bddtrue
+    for q in fresh:  # each q<j> is in it: parts[j] is no constant
+        keep = keep & buddy.bdd_ithvar(d.varnum(q))
+    image = spot.bdd_to_formula(buddy.bdd_existcomp(whole, keep), d)
+    d.unregister_all_my_variables(owner)  # (Spot crashes at exit otherwise)
+    names = {f"q{j}": spot.formula.ap(f"p{j}") for j in range(len(parts))}
+    return str(substitute(image, lambda ap: names.get(ap.ap_name())))
