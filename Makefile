@@ -55,7 +55,7 @@ test: lint
 # for FUZZ_SECONDS from its seed
 # corpus (new inputs are kept in .fuzz/), then the random unit tests (hostile input, the
 # assertion grammar, the parser against Spot's, a handoff's faults, timed batches: every
-# one that reads helpers.props or helpers.scaled) with FUZZ_EXAMPLES examples or seeds
+# one that reads kit.counts' props or scaled) with FUZZ_EXAMPLES examples or seeds
 # each. A crash or a hang is written to tests/fuzz/crashes/<target>/: check it in (the
 # unit tier replays it).
 FUZZ_SECONDS ?= 60

@@ -16,14 +16,14 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests" / "unit"))
-
-from test_cli import MONITORS, write_mcap  # noqa: E402
+sys.path.insert(0, str(ROOT / "tests"))  # the tests' kit: the speed-limit run and its writer
 
 from edgerv.core.checker import CheckRun  # noqa: E402
 from edgerv.core.documents import load_monitors_text  # noqa: E402
 from edgerv.core.monitor import compile_monitor  # noqa: E402
 from edgerv.core.traces import Trace  # noqa: E402
+from kit.speed_run import MONITORS, TYPES  # noqa: E402
+from kit.traces import write_mcap  # noqa: E402
 
 EVENTS = 200_000
 
@@ -74,7 +74,7 @@ def main() -> list[dict[str, Any]]:
         jsonl.write_text(
             "".join(json.dumps({"topic": t, "stamp": s, "msg": m}) + "\n" for t, s, m in rows)
         )
-        mcap = write_mcap(Path(tmp) / "run.mcap", rows)
+        mcap = write_mcap(Path(tmp) / "run.mcap", rows, TYPES)
         for label, path in (("JSON Lines", jsonl), ("MCAP bag", mcap)):
 
             def bare(path: Path = path) -> int:

@@ -25,7 +25,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from edgerv.core.pipeline import MonitorRuntime
-from helpers import compiled
+from kit.documents import compiled
 
 STEPS = 300_000
 TOOL_STEPS = 30_000  # RTAMT and Reelay are slower: fewer steps, rates compare per step

@@ -39,8 +39,8 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
+from kit.pki import NAME, shared_pki  # noqa: E402
 from netlab import Lab, available  # noqa: E402
-from pki import NAME, shared_pki  # noqa: E402
 
 DELAY_MS = 20.0
 COUNTS = tuple(int(x) for x in sys.argv[1:]) or (1, 10, 150)

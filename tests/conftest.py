@@ -4,7 +4,7 @@ from typing import Any
 
 import pytest
 
-# tests/helpers.py and tests/reference.py are imported by name from every tier
+# the kit (tests/kit: kit.documents, kit.ros, ...) is imported by name from every tier
 sys.path.insert(0, str(Path(__file__).parent))
 
 

@@ -21,8 +21,8 @@ import uuid
 from typing import Any
 
 import yaml
-from kube import Cluster
-from test_chart_and_operator import (
+
+from kit.chart import (
     CHART,
     TOKEN,
     apply,
@@ -36,6 +36,7 @@ from test_chart_and_operator import (
     unfinalize,
     until,
 )
+from kit.kube import Cluster
 
 CRDS = ("monitors.edgerv.io", "kopfpeerings.kopf.dev", "clusterkopfpeerings.kopf.dev")
 

@@ -33,8 +33,9 @@ from typing import Any
 
 import pytest
 import yaml
-from kube import Cluster
-from test_chart_and_operator import CHART, ROOT, helm
+
+from kit.chart import CHART, ROOT, helm
+from kit.kube import Cluster
 
 VALUE_SETS: dict[str, list[str]] = {
     "defaults": [],

@@ -5,25 +5,12 @@ only (helm as tests/cluster/build.sh builds it, or $HELM)."""
 
 from __future__ import annotations
 
-import os
-import shutil
 import subprocess
-from pathlib import Path
 from typing import Any
 
-import pytest
 import yaml
 
-ROOT = Path(__file__).resolve().parents[2]
-CHART = ROOT / "helm" / "edgerv"
-
-
-def helm() -> str:
-    own = ROOT / ".cluster" / "bin" / "helm"
-    found = os.environ.get("HELM") or (str(own) if own.exists() else shutil.which("helm"))
-    if not found:
-        pytest.skip("helm is not installed (set HELM)")
-    return found
+from kit.chart import CHART, helm
 
 
 def template(*values: str) -> subprocess.CompletedProcess[str]:

@@ -7,7 +7,8 @@ import time
 import uuid
 
 import pytest
-from kube import Cluster
+
+from kit.kube import Cluster
 
 pytestmark = pytest.mark.e2e
 

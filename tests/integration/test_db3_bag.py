@@ -18,10 +18,12 @@ from typing import Any
 
 import pytest
 
+from kit.speed_run import MONITORS, RUN, TYPES
+from kit.traces import write_jsonl
+
 pytestmark = pytest.mark.integration
 
 import rclpy.serialization as rclpy_serialization  # noqa: E402  (real ROS 2 is installed)
-from test_cli import MONITORS, RUN, TYPES, write_jsonl  # noqa: E402  (tests/unit: see conftest.py)
 
 
 def ros_message(msg_type: str, fields: dict[str, Any]) -> Any:

@@ -10,7 +10,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from rosprocs import HandlerProcess, ros_env, wait_for
+
+from kit.ros import HandlerProcess, ros_env, wait_for
 
 pytestmark = pytest.mark.integration
 

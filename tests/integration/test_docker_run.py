@@ -4,7 +4,7 @@ their first lines' values changed: directories, the container's name, the port),
 a real rclpy publisher on the host; the verdicts in the log on the mounted volume equal
 ``edgerv check`` on the messages published.
 
-The image is built from this working tree (dockerimage.py: on the test cluster's
+The image is built from this working tree (kit/dockerimage.py: on the test cluster's
 debootstrap base, docker's cache making a rebuild of unchanged sources quick). Skipped
 only where Docker cannot run at all (no docker, no daemon and no root to start one).
 
@@ -26,12 +26,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-import dockerimage
 import pytest
-from robotrun import MONITORS, https, log_verdicts, messages_taken, publish_run
-from rosprocs import free_port, offline_verdicts, wait_for
 
-from pki import shared_pki
+from kit import dockerimage
+from kit.odom_run import MONITORS
+from kit.pki import shared_pki
+from kit.robotrun import https, log_verdicts, messages_taken, publish_run
+from kit.ros import free_port, offline_verdicts, robot_env, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -134,14 +135,7 @@ def test_the_documented_docker_run_gives_the_verdicts_of_edgerv_check(
 
         # the robot's run
         trace = tmp_path / "run.jsonl"
-        robot_env = {
-            **os.environ,
-            "ROS_DOMAIN_ID": str(domain),
-            "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET",
-            "PYTHONUNBUFFERED": "1",
-        }
-        robot_env.pop("FASTDDS_BUILTIN_TRANSPORTS", None)  # the robot's own: Fast DDS's default
-        published = publish_run(trace, robot_env)
+        published = publish_run(trace, robot_env(domain, "SUBNET"))
         taken = wait_for(
             lambda: (t := messages_taken(port, certs.ca)) == published and t, timeout=30
         )

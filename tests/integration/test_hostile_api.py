@@ -18,9 +18,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-import rosprocs as ros
-from test_api_limits import closed_after  # tests/unit
-from test_handler import MONITORS, SPEED, random_trace, write
+
+from kit import ros
+from kit.documents import write
+from kit.odom_run import MONITORS, SPEED, random_trace
+from kit.sockets import closed_after
 
 pytestmark = pytest.mark.integration
 

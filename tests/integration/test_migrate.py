@@ -14,42 +14,21 @@ import time
 from pathlib import Path
 
 import pytest
-from rosprocs import (
+
+from kit.documents import write
+from kit.odom_run import MONITORS, random_trace
+from kit.ros import (
     TOKEN,
     HandlerProcess,
     live_verdicts,
+    migrate,
     offline_verdicts,
     replay_command,
     ros_env,
     wait_for,
 )
-from test_handler import MONITORS, random_trace, write
 
 pytestmark = pytest.mark.integration
-
-
-def migrate(
-    src: HandlerProcess, dst: HandlerProcess, monitor: str, domain: int
-) -> subprocess.CompletedProcess[str]:
-    env = ros_env(domain) | {"EDGERV_TOKEN": TOKEN}
-    return subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "edgerv",
-            "migrate",
-            "--from",
-            f"127.0.0.1:{src.port}",
-            "--to",
-            f"127.0.0.1:{dst.port}",
-            "--monitor",
-            monitor,
-        ],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
 
 
 def test_migrating_mid_stream_loses_and_repeats_nothing(tmp_path: Path, domain: int) -> None:

@@ -26,7 +26,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from rosprocs import (
+
+from kit.documents import write
+from kit.odom_run import MONITORS, random_trace
+from kit.pki import NAME, shared_pki
+from kit.ros import (
     TOKEN,
     HandlerProcess,
     live_verdicts,
@@ -34,10 +38,7 @@ from rosprocs import (
     replay_command,
     wait_for,
 )
-from test_handler import MONITORS, random_trace, write
-
 from netlab import Lab, available
-from pki import NAME, shared_pki
 
 DELAY_MS = 20.0
 # A window far larger than the default 20 ms: on this 2-core machine, under the load of

@@ -26,9 +26,9 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
-from rosprocs import HandlerProcess, own_node, ros_env, wait_for  # noqa: E402
 
 from edgerv.handler import ros_types  # noqa: E402
+from kit.ros import HandlerProcess, check_verdicts, own_node, ros_env, wait_for  # noqa: E402
 
 pytestmark = pytest.mark.integration
 
@@ -223,22 +223,6 @@ def write_bag(path: Path, recorded: list[tuple[bytes, int]]) -> None:
         for i, (raw, at) in enumerate(recorded):
             writer.add_message(channel, log_time=at, data=raw, publish_time=at, sequence=i)
         writer.finish()
-
-
-def check_verdicts(monitors: Path, bag: Path) -> list[tuple[str, str, int, int]]:
-    """(monitor, verdict, step, stamp) of `edgerv check` on the bag, sorted."""
-    done = subprocess.run(
-        [sys.executable, "-m", "edgerv", "check", str(monitors), str(bag), "--json"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert done.returncode in (0, 1), done.stderr
-    return sorted(
-        (m["name"], v["verdict"], v["step"], v["stamp"])
-        for m in json.loads(done.stdout)["monitors"]
-        for v in m["verdicts"]
-    )
 
 
 def test_live_verdicts_on_a_custom_package_built_at_first_use_equal_edgerv_check(

@@ -26,37 +26,30 @@ from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from edgerv_msgs.msg import Verdict  # noqa: E402
 from geometry_msgs.msg import Twist  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from rosprocs import HandlerProcess, own_node, publisher, wait_for  # noqa: E402
 from std_srvs.srv import SetBool  # noqa: E402
-from test_migrate import migrate  # noqa: E402
+
+from kit.documents import monitors_yaml, speed_monitor  # noqa: E402
+from kit.ros import HandlerProcess, migrate, own_node, publisher, wait_for  # noqa: E402
 
 pytestmark = pytest.mark.integration
 ERROR = bytes([2])  # diagnostic_msgs/DiagnosticStatus.ERROR (a byte, as rclpy gives it)
 
-STOP = """\
-apiVersion: edgerv.io/v1alpha1
-kind: Monitor
-metadata: {name: speed-cap}
-spec:
-  assertion: "always (speed < 100)"
-  signals:
-    speed: {topic: /speed, type: std_msgs/msg/Float64}
-  sortThreshold: SORT
-  onViolation:
-    publish:
-      topic: /cmd_vel
-      type: geometry_msgs/msg/Twist
-      message: {linear: {x: 0}, angular: {z: 0.5}}
-    call: {service: /estop, type: std_srvs/srv/SetBool, request: {data: true}}
----
-apiVersion: edgerv.io/v1alpha1
-kind: Monitor
-metadata: {name: quiet-cap}
-spec:
-  assertion: "always (speed < 100)"
-  signals:
-    speed: {topic: /speed, type: std_msgs/msg/Float64}
-"""
+
+def stop_monitors(sort: int) -> str:
+    """speed-cap, which stops the robot when violated (a Twist on /cmd_vel, /estop called),
+    its sort window ``sort``; and quiet-cap, the same cap with no reaction."""
+    stop = {
+        "publish": {
+            "topic": "/cmd_vel",
+            "type": "geometry_msgs/msg/Twist",
+            "message": {"linear": {"x": 0}, "angular": {"z": 0.5}},
+        },
+        "call": {"service": "/estop", "type": "std_srvs/srv/SetBool", "request": {"data": True}},
+    }
+    return monitors_yaml(
+        speed_monitor("speed-cap", sortThreshold=sort, onViolation=stop),
+        speed_monitor("quiet-cap"),
+    )
 
 
 @dataclass
@@ -114,7 +107,7 @@ def robot(domain: int) -> Iterator[Robot]:
 
 def monitors(tmp: Path, sort: int = 1) -> Path:
     path = tmp / "monitors.yaml"
-    path.write_text(STOP.replace("SORT", str(sort)))
+    path.write_text(stop_monitors(sort))
     return path
 
 
@@ -207,17 +200,12 @@ def test_a_monitor_moved_between_its_violation_and_its_evaluation_reacts_once_th
     assert robot.counts() == (1, 1)
 
 
-UNANSWERED = """\
-apiVersion: edgerv.io/v1alpha1
-kind: Monitor
-metadata: {name: nobody-answers}
-spec:
-  assertion: "always (speed < 100)"
-  signals:
-    speed: {topic: /speed, type: std_msgs/msg/Float64}
-  onViolation:
-    call: {service: /nobody, type: std_srvs/srv/Trigger, timeoutMs: 600000}
-"""
+UNANSWERED = speed_monitor(
+    "nobody-answers",
+    onViolation={
+        "call": {"service": "/nobody", "type": "std_srvs/srv/Trigger", "timeoutMs": 600000}
+    },
+)
 
 
 def test_a_handler_stopping_gives_its_calls_seconds_not_their_timeouts(

@@ -17,7 +17,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from rosprocs import HandlerProcess, ros_env, wait_for
+
+from kit.ros import HandlerProcess, check_verdicts, ros_env, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -92,22 +93,6 @@ def trace_with_gaps(path: Path) -> tuple[Path, int]:
     lines.append({"topic": "/robot_state", "stamp": BASE + 4300 * MS, "msg": {"data": "end"}})
     path.write_text("".join(json.dumps(line) + "\n" for line in lines))
     return path, BASE + 2000 * MS  # the last beat before the gap at 1.0 s, plus 1 s
-
-
-def check_verdicts(monitors: Path, trace: Path) -> list[tuple[str, str, int, int]]:
-    """(monitor, verdict, step, stamp) that `edgerv check` gives, sorted."""
-    done = subprocess.run(
-        [sys.executable, "-m", "edgerv", "check", str(monitors), str(trace), "--json"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert done.returncode in (0, 1), done.stderr
-    return sorted(
-        (m["name"], v["verdict"], v["step"], v["stamp"])
-        for m in json.loads(done.stdout)["monitors"]
-        for v in m["verdicts"]
-    )
 
 
 def live(handler: HandlerProcess) -> list[tuple[str, str, int, int]]:

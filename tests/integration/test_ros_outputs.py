@@ -24,7 +24,6 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # n
 from rcl_interfaces.msg import Log  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.serialization import deserialize_message  # noqa: E402
-from rosprocs import HandlerProcess, own_node, publisher, wait_for  # noqa: E402
 
 from edgerv.core.documents import load_monitors_text  # noqa: E402
 from edgerv.core.monitor import compile_monitor  # noqa: E402
@@ -32,31 +31,18 @@ from edgerv.handler.cdr_out import encode_diagnostic_array  # noqa: E402
 from edgerv.handler.engine import Engine  # noqa: E402
 from edgerv.handler.health import DiagnosticsConfig, Health, Level, read_engine  # noqa: E402
 from edgerv.handler.ros_node import RosoutHandler  # noqa: E402
+from kit.documents import monitor_yaml, speed_monitor  # noqa: E402
+from kit.ros import HandlerProcess, own_node, publisher, wait_for  # noqa: E402
 
 pytestmark = pytest.mark.integration
 
-SPEED_CAP = """\
-apiVersion: edgerv.io/v1alpha1
-kind: Monitor
-metadata: {name: speed-cap}
-spec:
-  assertion: "always (speed < 100)"
-  signals:
-    speed: {topic: /speed, type: std_msgs/msg/Float64}
-  sortThreshold: 1
-"""
-
-SPEED_OK = SPEED_CAP.replace("speed-cap", "speed-ok").replace("speed < 100", "speed < 1e9")
-
-NOBODY = """\
-apiVersion: edgerv.io/v1alpha1
-kind: Monitor
-metadata: {name: nobody-publishes}
-spec:
-  assertion: "always (x < 1)"
-  signals:
-    x: {topic: /nobody, type: std_msgs/msg/Float64}
-"""
+SPEED_CAP = speed_monitor("speed-cap", sortThreshold=1)
+SPEED_OK = speed_monitor("speed-ok", "always (speed < 1e9)", sortThreshold=1)
+NOBODY = monitor_yaml(
+    "nobody-publishes",
+    "always (x < 1)",
+    {"x": {"topic": "/nobody", "type": "std_msgs/msg/Float64"}},
+)
 
 BAD = """\
 apiVersion: edgerv.io/v1alpha1

@@ -11,7 +11,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from rosprocs import HandlerProcess, ros_env, wait_for
+
+from kit.ros import HandlerProcess, ros_env, wait_for
 
 pytestmark = pytest.mark.integration
 

@@ -12,8 +12,6 @@ executor, as a ROS node takes sim time).
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -29,7 +27,8 @@ from rcl_interfaces.msg import Log  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
-from rosprocs import HandlerProcess, own_node, wait_for  # noqa: E402
+
+from kit.ros import HandlerProcess, check_verdicts, own_node, wait_for  # noqa: E402
 
 pytestmark = pytest.mark.integration
 
@@ -104,21 +103,6 @@ class Simulation:
         msg = Clock()
         msg.clock.sec, msg.clock.nanosec = divmod(ns, 10**9)
         self.pub.publish(msg)
-
-
-def check_verdicts(monitors: Path, trace: Path) -> list[tuple[str, str, int, int]]:
-    done = subprocess.run(
-        [sys.executable, "-m", "edgerv", "check", str(monitors), str(trace), "--json"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert done.returncode in (0, 1), done.stderr
-    return sorted(
-        (m["name"], v["verdict"], v["step"], v["stamp"])
-        for m in json.loads(done.stdout)["monitors"]
-        for v in m["verdicts"]
-    )
 
 
 def test_timed_monitors_follow_a_clock_at_twice_real_time(tmp_path: Path, domain: int) -> None:

@@ -32,12 +32,13 @@ import sys
 import time
 from pathlib import Path
 
-import dockerimage
 import pytest
-from robotrun import MONITORS, ROBOT, https, log_verdicts, messages_taken, publish_run
-from rosprocs import free_port, offline_verdicts, wait_for
 
-from pki import shared_pki
+from kit import dockerimage
+from kit.odom_run import MONITORS
+from kit.pki import shared_pki
+from kit.robotrun import ROBOT, https, log_verdicts, messages_taken, publish_run
+from kit.ros import free_port, offline_verdicts, robot_env, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -186,13 +187,6 @@ def install_files(tmp: Path, domain: int, listen: str, discovery: str) -> Path:
     shutil.copy(certs.key, etc / "tls.key")
     shutil.copy(work / "monitors" / "robot.yaml", etc / "monitors" / "robot.yaml")
     return work
-
-
-def robot_env(domain: int, discovery: str) -> dict[str, str]:
-    env = {**os.environ, "ROS_DOMAIN_ID": str(domain), "PYTHONUNBUFFERED": "1"}
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = discovery
-    env.pop("FASTDDS_BUILTIN_TRANSPORTS", None)  # the robot's own: Fast DDS's default
-    return env
 
 
 # -- 1. systemd-analyze ------------------------------------------------------------------------

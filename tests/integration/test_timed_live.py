@@ -23,7 +23,8 @@ from typing import Any
 
 import pytest
 import yaml
-from rosprocs import HandlerProcess, ros_env
+
+from kit.ros import HandlerProcess, ros_env
 
 pytestmark = pytest.mark.integration
 

@@ -27,12 +27,13 @@ from edgerv_msgs.msg import Verdict, VerdictArray  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
-from rosprocs import HandlerProcess, publisher, wait_for  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
 from edgerv.core.cdr import compile_reader  # noqa: E402
 from edgerv.core.msgtypes import field_kind, typestore  # noqa: E402
 from edgerv.handler.cdr_out import encode_verdict_array, encode_verdict_message  # noqa: E402
+from kit.documents import monitors_yaml, speed_monitor  # noqa: E402
+from kit.ros import HandlerProcess, publisher, wait_for  # noqa: E402
 
 pytestmark = pytest.mark.integration
 
@@ -48,43 +49,12 @@ LAST_VERDICTS_QOS = QoSProfile(
 
 # Three monitors that reach verdicts on /speed (each resets after one: several each), and
 # one that never does. The values: where each reaches its verdicts is in VALUES' comment.
-MONITORS = """\
-apiVersion: edgerv.io/v1alpha1
-kind: Monitor
-metadata: {name: cap}
-spec:
-  assertion: "always (speed < 100)"
-  signals:
-    speed: {topic: /speed, type: std_msgs/msg/Float64}
-  sortThreshold: 1
----
-apiVersion: edgerv.io/v1alpha1
-kind: Monitor
-metadata: {name: floor}
-spec:
-  assertion: "always (speed > 0)"
-  signals:
-    speed: {topic: /speed, type: std_msgs/msg/Float64}
-  sortThreshold: 1
----
-apiVersion: edgerv.io/v1alpha1
-kind: Monitor
-metadata: {name: reach}
-spec:
-  assertion: "eventually! (speed > 150)"
-  signals:
-    speed: {topic: /speed, type: std_msgs/msg/Float64}
-  sortThreshold: 1
----
-apiVersion: edgerv.io/v1alpha1
-kind: Monitor
-metadata: {name: quiet}
-spec:
-  assertion: "always (speed < 1e9)"
-  signals:
-    speed: {topic: /speed, type: std_msgs/msg/Float64}
-  sortThreshold: 1
-"""
+MONITORS = monitors_yaml(
+    speed_monitor("cap", sortThreshold=1),
+    speed_monitor("floor", "always (speed > 0)", sortThreshold=1),
+    speed_monitor("reach", "eventually! (speed > 150)", sortThreshold=1),
+    speed_monitor("quiet", "always (speed < 1e9)", sortThreshold=1),
+)
 ASSERTIONS = {
     "cap": "always (speed < 100)",
     "floor": "always (speed > 0)",
@@ -132,7 +102,7 @@ class Listener:
 
 @pytest.fixture
 def listener(domain: int, monkeypatch: pytest.MonkeyPatch) -> Iterator[Listener]:
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")  # as rosprocs' processes
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")  # as kit.ros' processes
     context = rclpy.context.Context()
     rclpy.init(context=context, domain_id=domain)
     node = rclpy.create_node("typed_verdicts_listener", context=context)
@@ -215,7 +185,7 @@ def test_a_late_subscriber_gets_the_last_verdict_of_every_monitor(
     is the last verdict of every monitor (a monitor without one is in none), and
     /edgerv/verdict the history (all 9 of the edge's: fewer than its depth of 100)."""
     # the cloud's monitor on a topic of its own: each publisher waits for its handler
-    other = MONITORS.replace("name: cap}", "name: cloud-cap}").split("---")[0]
+    other = speed_monitor("cloud-cap", sortThreshold=1)
     other = other.replace("topic: /speed,", "topic: /speed2,")
     edge = HandlerProcess(tmp_path, monitors(tmp_path), domain, name="edge")
     (tmp_path / "cloud").mkdir()

@@ -9,7 +9,7 @@ import json
 from pathlib import Path
 
 import pytest
-from rosprocs import HandlerProcess, publisher, wait_for
+from kit.ros import HandlerProcess, publisher, wait_for
 
 MONITOR = """\
 apiVersion: edgerv.io/v1alpha1

@@ -13,7 +13,7 @@ import threading
 import time
 from pathlib import Path
 
-from rosprocs import HandlerProcess, ros_env, wait_for
+from kit.ros import HandlerProcess, ros_env, wait_for
 
 MONITORS = 2000
 MESSAGES = 6000  # at 1,000 a second: 12 million verdicts reached, at most

@@ -25,8 +25,8 @@ from edgerv.handler.client import HandlerClient
 from edgerv.handler.engine import Engine
 from edgerv.handler.limits import Limits
 from edgerv.handler.tls import ClientTls, server_context
-from helpers import compiled
-from pki import make_pki
+from kit.documents import compiled
+from kit.pki import make_pki
 
 TOKEN = "admission-token"
 LIMITS = Limits(connections=4, pending=24, read_seconds=3.0, idle_seconds=6.0, monitors=10)

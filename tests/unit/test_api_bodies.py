@@ -35,7 +35,7 @@ from edgerv.handler.api import MAX_BODY, MAX_EPOCH, ControlApi
 from edgerv.handler.client import HandlerClient
 from edgerv.handler.engine import Engine
 from edgerv.handler.limits import Limits
-from helpers import compiled, monitor_doc
+from kit.documents import compiled, monitor_doc
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fuzz"))
 import fuzz_bundle  # tests/fuzz: real events, and swollen snapshots

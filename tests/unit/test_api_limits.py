@@ -21,7 +21,8 @@ from edgerv.handler.client import HandlerClient
 from edgerv.handler.engine import Engine
 from edgerv.handler.limits import Limits
 from edgerv.handler.main import add_arguments, load
-from helpers import monitor_doc, spec_of
+from kit.documents import monitor_doc, spec_of
+from kit.sockets import closed_after
 
 TOKEN = "limits-token"
 # idle longer than read: an idle connection is closed when no request came for that long
@@ -44,31 +45,6 @@ def client(api: ControlApi) -> HandlerClient:
 
 def connect(api: ControlApi) -> socket.socket:
     return socket.create_connection(("127.0.0.1", api.port or 0), timeout=10)
-
-
-def closed_after(
-    sock: socket.socket, data: bytes, every: float, at_once: int = 0
-) -> tuple[float, bytes]:
-    """Send ``data`` (its first ``at_once`` bytes at once) a byte at a time, ``every``
-    seconds apart, until the server answers or closes the connection: the seconds from the
-    first byte until then, and its answer."""
-    start, answer = time.monotonic(), b""
-    sock.sendall(data[:at_once])
-    sock.settimeout(every)
-    for i in range(at_once, len(data)):
-        try:
-            sock.sendall(data[i : i + 1])
-            answer = sock.recv(4096)  # waits a pace's time: an answer, or b"" at the end
-        except TimeoutError:
-            continue
-        except OSError:
-            pass  # reset
-        break
-    took = time.monotonic() - start
-    sock.settimeout(5)
-    while answer and (more := sock.recv(4096)):
-        answer += more
-    return took, answer
 
 
 def answers_meanwhile(api: ControlApi, stop: threading.Event, statuses: list[int]) -> None:

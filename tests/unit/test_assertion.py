@@ -7,7 +7,7 @@ import spot
 
 from edgerv.core.diagnostics import InputError
 from edgerv.core.language.assertion import parse_assertion
-from helpers import spec_of
+from kit.documents import spec_of
 
 SIGNALS = {"a": "bool", "b": "bool", "c": "bool", "speed": "float", "n": "int", "mode": "string"}
 

@@ -44,7 +44,10 @@ from edgerv.core.documents import MonitorSpec, Value
 from edgerv.core.language.lexer import duration_ns
 from edgerv.core.language.spot_worker import worker
 from edgerv.core.monitor import CompiledMonitor, compile_monitor
-from helpers import bounded, events, props, run, spec_of
+from kit.bounded import bounded
+from kit.counts import props
+from kit.checks import events, run
+from kit.documents import spec_of
 
 BUDGET = 3.0  # seconds of Spot per monitor: past it the monitor is refused (an InputError)
 
@@ -654,7 +657,7 @@ import dataclasses, sys
 sys.path.insert(0, {tests!r})
 from edgerv.core.diagnostics import InputError
 from edgerv.core.monitor import compile_monitor
-from helpers import spec_of
+from kit.documents import spec_of
 spec = spec_of("a", {{"a": "bool", "b": "bool"}})
 for depth in (20_000, 40_000):
     text = "always (" + "".join(f"{{'ab'[i % 2]}} {{'&|'[i % 2]}} (" for i in range(depth))

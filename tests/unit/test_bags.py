@@ -23,7 +23,11 @@ from typing import Any
 import pytest
 import yaml
 import zstandard
-from test_cli import DEFS, MONITORS, RUN, TYPES, edgerv, write_jsonl, write_mcap
+
+from kit.cli import edgerv
+from kit.documents import speed_monitor
+from kit.speed_run import MONITORS, RUN, TYPES
+from kit.traces import ROS_DEFS, write_jsonl, write_mcap
 
 QOS_IN_FILE = "- history: 3\n  depth: 0\n  reliability: 1\n  durability: 2\n"
 QOS_IN_METADATA = (  # as another rosbag2 version wrote the same profile
@@ -32,7 +36,7 @@ QOS_IN_METADATA = (  # as another rosbag2 version wrote the same profile
 )
 
 
-def cdr(msgtype: str, msg: dict[str, Any], defs: dict[str, str] = DEFS) -> bytes:
+def cdr(msgtype: str, msg: dict[str, Any], defs: dict[str, str] = ROS_DEFS) -> bytes:
     from mcap_ros2._dynamic import serialize_dynamic
 
     return bytes(serialize_dynamic(msgtype, defs[msgtype])[msgtype](msg))
@@ -49,7 +53,7 @@ def write_db3(
     definitions: bool = False,
     compress: bool = False,
     types: dict[str, str] = TYPES,
-    defs: dict[str, str] = DEFS,
+    defs: dict[str, str] = ROS_DEFS,
 ) -> Path:
     """A sqlite3 file in rosbag2's layout, written with sqlite3 alone."""
     con = sqlite3.connect(path)
@@ -283,7 +287,7 @@ Channel = tuple[str, str, str, str, bytes]
 
 
 def channels_of(types: dict[str, str]) -> list[Channel]:
-    return [(t, "cdr", ty, "ros2msg", DEFS[ty].encode()) for t, ty in types.items()]
+    return [(t, "cdr", ty, "ros2msg", ROS_DEFS[ty].encode()) for t, ty in types.items()]
 
 
 def raw_mcap(
@@ -397,12 +401,7 @@ def test_a_truncated_mcap_gives_the_verdicts_up_to_the_cut(tmp_path: Path) -> No
     """A recording cut by a crash: no summary, no end magic, its last chunk cut. The
     verdicts cover every message of the chunks before the cut."""
     doc = tmp_path / "speed.yaml"
-    doc.write_text(
-        "apiVersion: edgerv.io/v1alpha1\nkind: Monitor\nmetadata: {name: speed}\nspec:\n"
-        '  assertion: "always (speed < 100)"\n'
-        "  signals: {speed: {topic: /speed, type: std_msgs/msg/Float64}}\n"
-        "  onVerdict: halt\n"
-    )
+    doc.write_text(speed_monitor("speed", onVerdict="halt"))
     # 99 up to the 300th message, then 500: violated at step 301
     rows: Rows = [("/speed", 1000 + i, {"data": 99.0 if i < 300 else 500.0}) for i in range(400)]
     from mcap_ros2.writer import Writer
@@ -452,7 +451,7 @@ def test_nothing_read_is_never_a_pass(monitors: Path, tmp_path: Path) -> None:
     assert code == 2 and "nothing was checked" in err
     assert all(m["state"] == "pending" for m in out["monitors"])
     assert "it has no such topic; it has /ignored" in err
-    bag = write_mcap(tmp_path / "other.mcap", rows)
+    bag = write_mcap(tmp_path / "other.mcap", rows, TYPES)
     code, _, err = check(monitors, bag)
     assert code == 2 and "nothing was checked" in err
 
@@ -489,7 +488,7 @@ def test_fields_read_from_cdr_give_what_decoded_messages_give(tmp_path: Path) ->
     from edgerv.core.traces import Trace
 
     monitors = [compile_monitor(s) for s in load_monitors_text("m.yaml", MONITORS)]
-    bag = write_mcap(tmp_path / "run.mcap", RUN)
+    bag = write_mcap(tmp_path / "run.mcap", RUN, TYPES)
 
     def verdicts(cdr: bool) -> list[list[tuple[str, int, int]]]:
         run = CheckRun(monitors)

@@ -10,15 +10,12 @@ here against the way it replaced, on random and on hostile input.
 from __future__ import annotations
 
 import json
-import math
 import random
-import re
 from array import array
 from pathlib import Path
 from typing import Any
 
 import pytest
-from test_past import random_mixed
 
 from edgerv.core import traces
 from edgerv.core.checker import CheckRun, MonitorResult
@@ -27,72 +24,11 @@ from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import MonitorRuntime, Verdict
 from edgerv.core.traces import Trace, TraceEvent, chunks_of
 from edgerv.report import to_json
-from helpers import compiled
+from kit.documents import compiled
+from kit.randomruns import SIGNALS, random_assertion, random_events
+from kit.sidebyside import outcome, state_of
 
 MS = 1_000_000
-SIGNALS: dict[str, Any] = {
-    "a": {"topic": "/a", "type": "std_msgs/msg/Bool"},
-    "b": {"topic": "/b", "type": "std_msgs/msg/Bool", "initial": False},
-    "x": {"topic": "/x", "type": "std_msgs/msg/Float64"},
-    "y": {"topic": "/y", "type": "std_msgs/msg/Float64", "initial": 1.0},
-    "z": {"topic": "/x", "type": "std_msgs/msg/Float64", "field": "data"},  # x's topic too
-}
-ATOMS = ["a", "b", "x < 2", "x >= y", "z == 3", "age(a) < 15ms", "age(x) >= 7ms", "!b"]
-SHAPES = [
-    "always {f}",
-    "always (a -> {f})",
-    "{f}",
-    "always (b -> F[0..30ms] x < 2) && always {f}",
-    "always (a -> (b U[5ms..20ms] x >= y))",
-    "always (x < 2 -> G[0..10ms] !a) && always {f}",
-]
-
-
-def random_assertion(rng: random.Random) -> str:
-    """A formula of past operators (timed or not, nested) over random atoms, in a shape."""
-    formula = re.sub(
-        r"\b[ab]\b", lambda _: f"({rng.choice(ATOMS)})", random_mixed(rng, rng.randint(0, 3))
-    )
-    return rng.choice(SHAPES).format(f=formula)
-
-
-def random_events(rng: random.Random, n: int) -> list[TraceEvent]:
-    """Messages on /a, /b, /x, /y: long runs of one value (a run of equal letters), ties,
-    gaps that let timed operators change by the clock alone, now and then one late."""
-    stamp, out = 0, []
-    held = {"/a": False, "/b": True, "/x": 1.0, "/y": 2.0}
-    for i in range(n):
-        stamp += rng.choice([0, 1, 2 * MS, 2 * MS, 5 * MS, 11 * MS, 40 * MS])
-        late = stamp - rng.randint(1, 20 * MS) if rng.random() < 0.04 else stamp
-        topic = rng.choice(["/a", "/b", "/x", "/x", "/y"])
-        if rng.random() < 0.2:  # a new value; else the one held
-            held[topic] = (
-                rng.random() < 0.5
-                if topic in ("/a", "/b")
-                else rng.choice([0.0, 1.0, 2.0, 3.0, math.nan, 5])
-            )
-        out.append(TraceEvent(topic, late, {"data": held[topic]}, Location("t", i + 1)))
-    return out
-
-
-def state_of(rt: MonitorRuntime) -> tuple[Any, ...]:
-    clock = rt.clock
-    return (
-        [repr(v) for v in rt.values],
-        rt.valuation,
-        rt.missing,
-        rt.state,
-        rt.step,
-        rt.halted,
-        rt.last_released,
-        None if clock is None else (clock.snapshot(), clock.deadline),
-        None if rt.past is None else json.dumps(rt.past.save()),
-    )
-
-
-def outcome(result: MonitorResult, late: bool) -> tuple[Any, ...]:
-    verdicts = [(v.verdict, v.stamp, v.step) for v in result.verdicts]
-    return (verdicts, result.state, result.steps, result.late_events if late else None)
 
 
 @pytest.mark.parametrize("seed", range(120))

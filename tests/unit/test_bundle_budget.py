@@ -28,7 +28,7 @@ from edgerv.core.handoff import (
     unbundle,
 )
 from edgerv.core.pipeline import MonitorRuntime
-from helpers import compiled
+from kit.documents import compiled
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fuzz"))
 import fuzz_bundle  # tests/fuzz: real events, and swollen snapshots

@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from test_cli import edgerv
+from kit.cli import edgerv
 
 ROOT = Path(__file__).parents[2]
 ROBOT = ROOT / "examples/robot"

@@ -14,23 +14,7 @@ import pytest
 
 from edgerv.core.cdr import compile_reader
 from edgerv.core.msgtypes import field_kind, make_getter, typestore
-
-_NP = {
-    "bool": np.bool_,
-    "byte": np.uint8,
-    "char": np.uint8,
-    "octet": np.uint8,
-    "int8": np.int8,
-    "uint8": np.uint8,
-    "int16": np.int16,
-    "uint16": np.uint16,
-    "int32": np.int32,
-    "uint32": np.uint32,
-    "int64": np.int64,
-    "uint64": np.uint64,
-    "float32": np.float32,
-    "float64": np.float64,
-}
+from kit.ros_numpy import NUMPY_TYPES
 
 
 def random_value(node: tuple[Any, Any], rng: random.Random) -> Any:
@@ -45,15 +29,15 @@ def random_value(node: tuple[Any, Any], rng: random.Random) -> Any:
             return rng.randint(-128, 127)
         if base.startswith("float"):
             return float(np.float32(rng.uniform(-1e3, 1e3)))
-        info = np.iinfo(_NP[base])
+        info = np.iinfo(NUMPY_TYPES[base])
         return rng.randint(max(int(info.min), -1000), min(int(info.max), 1000))
     if kind == 2:
         return random_message(payload, rng)
     elem, count = payload
     n = count if kind == 3 else rng.randint(0, 5)
     values = [random_value(elem, rng) for _ in range(n)]
-    if int(elem[0]) == 1 and elem[1][0] in _NP:
-        return np.array(values, dtype=_NP[elem[1][0]])
+    if int(elem[0]) == 1 and elem[1][0] in NUMPY_TYPES:
+        return np.array(values, dtype=NUMPY_TYPES[elem[1][0]])
     return values
 
 

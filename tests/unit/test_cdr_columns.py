@@ -20,11 +20,11 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
-from test_cdr import _NP
 
 from edgerv.core.cdr import MALFORMED, compile_reader
 from edgerv.core.cdr_columns import ColumnReader, Columns, compile_column_reader
 from edgerv.core.msgtypes import parse_field_path, register_definition, typestore
+from kit.ros_numpy import NUMPY_TYPES
 
 PKG = "edgerv_columns_test/msg/"
 DEFINITIONS = {
@@ -180,8 +180,10 @@ def _scalar(base: str, rng: random.Random) -> Any:
     if base in ("float32", "float64"):
         if rng.random() < 0.8:
             return float(np.float32(rng.uniform(-1e6, 1e6)))
-        return float(np.frombuffer(rng.randbytes(_NP[base]().itemsize), _NP[base])[0])
-    info = np.iinfo(_NP[base])
+        return float(
+            np.frombuffer(rng.randbytes(NUMPY_TYPES[base]().itemsize), NUMPY_TYPES[base])[0]
+        )
+    info = np.iinfo(NUMPY_TYPES[base])
     return rng.randint(int(info.min), int(info.max))
 
 
@@ -196,8 +198,8 @@ def _value(node: tuple[Any, Any], rng: random.Random, fewest: int) -> Any:
     elem, count = payload
     n = count if kind == 3 else rng.randint(fewest, fewest + 6)
     values = [_value(elem, rng, fewest) for _ in range(n)]
-    if int(elem[0]) == 1 and elem[1][0] in _NP:
-        dtype = np.uint8 if elem[1][0] == "byte" else _NP[elem[1][0]]
+    if int(elem[0]) == 1 and elem[1][0] in NUMPY_TYPES:
+        dtype = np.uint8 if elem[1][0] == "byte" else NUMPY_TYPES[elem[1][0]]
         return np.array([v & 0xFF if elem[1][0] == "byte" else v for v in values], dtype=dtype)
     return values
 

@@ -1,147 +1,27 @@
 """``edgerv check`` as a user runs it: exit codes, the exact JSON, errors, bags.
 
 Most tests here (and in test_bags, test_trace_set, test_service_events, ...) run the
-command in this process (:func:`edgerv`: edgerv.cli.main, its exit code, stdout and
+command in this process (:func:`kit.cli.edgerv`: edgerv.cli.main, its exit code, stdout and
 stderr); what only a process of its own shows (the exit codes 0, 1 and 2 through
 os._exit, input that overflowed a parser's stack, the progress bar on a terminal) runs
-it as one (:func:`edgerv_process`)."""
+it as one (:func:`kit.cli.edgerv_process`). The run is kit.speed_run's."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
-import logging
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 
-from edgerv.cli import EXIT_INTERNAL, main
-from edgerv.core import cdr, cdr_columns, msgtypes
-from edgerv.core.language.spot_worker import worker
+from edgerv.cli import main
+from kit.cli import edgerv, edgerv_process
+from kit.speed_run import MONITORS, RUN, TYPES
+from kit.traces import write_jsonl, write_mcap
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "speed-limit.yaml"
-
-MONITORS = """\
-apiVersion: edgerv.io/v1alpha1
-kind: Monitor
-metadata: {name: speed-limit}
-spec:
-  assertion: "always (running -> (speed < limit until stop))"
-  signals:
-    running: {topic: /running, type: std_msgs/msg/Bool}
-    speed: {topic: /speed, type: std_msgs/msg/Float64}
-    stop: {topic: /stop, type: std_msgs/msg/Bool, initial: false}
-  parameters: {limit: 100}
-  sortThreshold: 2
----
-apiVersion: edgerv.io/v1alpha1
-kind: Monitor
-metadata: {name: target-reached}
-spec:
-  assertion: "eventually! (px > 9.5)"
-  signals:
-    px: {topic: /target, type: geometry_msgs/msg/PointStamped, field: point.x}
-  onVerdict: halt
-"""
-
-# (topic, log time, message): /target carries a header whose stamp differs from the log time
-RUN: list[tuple[str, int, dict[str, Any]]] = [
-    ("/running", 100, {"data": True}),
-    ("/speed", 110, {"data": 50.0}),
-    (
-        "/target",
-        115,
-        {
-            "header": {"stamp": {"sec": 0, "nanosec": 90}, "frame_id": "map"},
-            "point": {"x": 3.0, "y": 0.0, "z": 0.0},
-        },
-    ),
-    ("/speed", 130, {"data": 120.0}),
-    ("/speed", 120, {"data": 80.0}),
-    ("/stop", 140, {"data": True}),
-    (
-        "/target",
-        150,
-        {
-            "header": {"stamp": {"sec": 0, "nanosec": 145}, "frame_id": "map"},
-            "point": {"x": 10.0, "y": 0.0, "z": 0.0},
-        },
-    ),
-    ("/speed", 160, {"data": 150.0}),
-    ("/ignored", 170, {"data": "not monitored"}),
-]
-
-
-def write_jsonl(path: Path, rows: list[tuple[str, int, dict[str, Any]]]) -> Path:
-    path.write_text(
-        "".join(json.dumps({"topic": t, "stamp": s, "msg": m}) + "\n" for t, s, m in rows)
-    )
-    return path
-
-
-def edgerv_process(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    """``edgerv ARGS`` as a user runs it: a process of its own (its exit code through
-    os._exit, what reaches its stdout and stderr before it, a crash as a signal)."""
-    return subprocess.run(
-        [sys.executable, "-m", "edgerv", *map(str, args)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-
-
-def edgerv(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    """``edgerv ARGS`` run here, by edgerv.cli.main, as a new process would run it (the
-    message types it knows start as the built-in ones; what it registers, its synthesis
-    budget and a logging handler it adds are undone after): its exit code, stdout and
-    stderr, without the 0.3 s of a new interpreter and its imports. An internal error
-    (exit 70, its traceback by --debug) fails the test. The process itself (os._exit,
-    a crash, a terminal) is :func:`edgerv_process`'s."""
-    argv = ["--debug", *(str(a) for a in args)]
-    out, err = io.StringIO(), io.StringIO()
-    with (
-        _as_a_new_process(),
-        contextlib.redirect_stdout(out),
-        contextlib.redirect_stderr(err),
-    ):
-        try:
-            code = main(argv)
-        except SystemExit as exc:  # argparse: a usage error, --version
-            if exc.code is None or isinstance(exc.code, int):
-                code = exc.code or 0
-            else:  # as the interpreter does with sys.exit("text")
-                print(exc.code, file=sys.stderr)
-                code = 1
-    if code == EXIT_INTERNAL:
-        raise AssertionError(f"edgerv failed inside:\n{err.getvalue()}")
-    return subprocess.CompletedProcess(["edgerv", *argv[1:]], code, out.getvalue(), err.getvalue())
-
-
-def _forget_types() -> None:
-    msgtypes._known = msgtypes._store = None  # fielddefs()/typestore() start over
-    cdr._message_min_size.cache_clear()  # (their caches are by type name)
-    cdr_columns._fixed_message.cache_clear()
-
-
-@contextlib.contextmanager
-def _as_a_new_process() -> Iterator[None]:
-    saved = msgtypes._known, msgtypes._store, worker.budget
-    root = logging.getLogger()
-    handlers, level = root.handlers[:], root.level
-    _forget_types()
-    try:
-        yield
-    finally:
-        _forget_types()
-        msgtypes._known, msgtypes._store, worker.budget = saved
-        root.handlers[:] = handlers
-        root.setLevel(level)
 
 
 @pytest.fixture
@@ -278,49 +158,9 @@ def test_warnings_do_not_fail_the_check(tmp_path: Path, capsys: pytest.CaptureFi
     assert json.loads(out)["monitors"][0]["verdicts"][0]["verdict"] == "satisfied"
 
 
-SEP = "=" * 80 + "\n"
-# the run's message types and their definitions (ros2msg, as rosbag2 writes them in MCAP)
-TYPES = {
-    "/running": "std_msgs/msg/Bool",
-    "/stop": "std_msgs/msg/Bool",
-    "/speed": "std_msgs/msg/Float64",
-    "/target": "geometry_msgs/msg/PointStamped",
-    "/ignored": "std_msgs/msg/String",
-}
-DEFS = {
-    "std_msgs/msg/Bool": "bool data",
-    "std_msgs/msg/Float64": "float64 data",
-    "std_msgs/msg/String": "string data",
-    "geometry_msgs/msg/PointStamped": (
-        f"std_msgs/Header header\ngeometry_msgs/Point point\n{SEP}MSG: std_msgs/Header\n"
-        f"builtin_interfaces/Time stamp\nstring frame_id\n{SEP}MSG: builtin_interfaces/Time\n"
-        f"int32 sec\nuint32 nanosec\n{SEP}MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z"
-    ),
-}
-
-
-def write_mcap(path: Path, rows: list[tuple[str, int, dict[str, Any]]]) -> Path:
-    """A rosbag2 MCAP file written by mcap-ros2-support, not by the library edgerv reads with."""
-    from mcap_ros2.writer import Writer
-
-    with path.open("wb") as f:
-        writer = Writer(f)
-        schemas = {name: writer.register_msgdef(name, text) for name, text in DEFS.items()}
-        for topic, stamp, msg in rows:
-            writer.write_message(
-                topic=topic,
-                schema=schemas[TYPES[topic]],
-                message=msg,
-                log_time=stamp,
-                publish_time=stamp,
-            )
-        writer.finish()
-    return path
-
-
 def test_mcap_bag_gives_the_same_verdicts_as_jsonl(monitors: Path, tmp_path: Path) -> None:
     jsonl = edgerv("check", monitors, write_jsonl(tmp_path / "run.jsonl", RUN), "--json")
-    bag = edgerv("check", monitors, write_mcap(tmp_path / "run.mcap", RUN), "--json")
+    bag = edgerv("check", monitors, write_mcap(tmp_path / "run.mcap", RUN, TYPES), "--json")
     assert bag.returncode == jsonl.returncode == 1, bag.stderr
     assert json.loads(bag.stdout) == json.loads(jsonl.stdout)
     assert json.loads(bag.stdout)["monitors"][1]["verdicts"][0]["stamp"] == 145  # header.stamp
@@ -328,7 +168,7 @@ def test_mcap_bag_gives_the_same_verdicts_as_jsonl(monitors: Path, tmp_path: Pat
 
 def test_bag_with_another_type_for_a_topic(monitors: Path, tmp_path: Path) -> None:
     rows = [("/ignored" if t == "/speed" else t, s, m) for t, s, m in RUN]
-    bag = write_mcap(tmp_path / "run.mcap", rows)
+    bag = write_mcap(tmp_path / "run.mcap", rows, TYPES)
     doc = tmp_path / "m.yaml"
     doc.write_text(MONITORS.replace("topic: /speed", "topic: /ignored"))
     proc = edgerv("check", doc, bag)
@@ -340,7 +180,7 @@ def test_bag_with_another_type_for_a_topic(monitors: Path, tmp_path: Path) -> No
 
 
 def test_damaged_bag(monitors: Path, tmp_path: Path) -> None:
-    bag = write_mcap(tmp_path / "run.mcap", RUN)
+    bag = write_mcap(tmp_path / "run.mcap", RUN, TYPES)
     data = bag.read_bytes()
     bag.write_bytes(data[: len(data) // 4])  # in its one chunk (the second half is indexes)
     proc = edgerv("check", monitors, bag)

@@ -11,59 +11,22 @@ ties, gaps that the clock steps through).
 
 from __future__ import annotations
 
-import math
 import random
 from typing import Any
 
 import numpy as np
 import pytest
-from test_batches import SIGNALS, outcome, random_assertion, state_of
 
 from edgerv.core import columns
 from edgerv.core.checker import CheckRun
-from edgerv.core.diagnostics import Location
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.traces import EventChunk, TraceEvent, chunks_of
-from helpers import compiled
+from kit.documents import compiled
+from kit.randomruns import SIGNALS, random_assertion, random_run, random_untimed_past_free
+from kit.sidebyside import outcome, state_of
 
 MS = 1_000_000
 TOPICS = ["/a", "/b", "/x", "/y"]
-AGES = [
-    f"age({s}) {op} {d}ms" for s in "axy" for op in ("<", "<=", ">", ">=", "==") for d in (0, 2, 7)
-]
-UNTIMED = ["a", "b", "!a", "x < 2", "x >= y", "z == 3", "y != 1", "x > -0.5", "y <= 2"]
-
-
-def random_untimed_past_free(rng: random.Random) -> str:
-    """An assertion of future operators over random atoms, ages among them."""
-    atoms = [rng.choice(AGES if rng.random() < 0.4 else UNTIMED) for _ in range(rng.randint(1, 4))]
-    body = f" {rng.choice(['&', '|', '->'])} ".join(f"({a})" for a in atoms)
-    return rng.choice(
-        [
-            "always ({f})",
-            "always ((a) -> ({f}))",
-            "eventually! ({f})",
-            "always ((b) -> F[0..30ms] ({f}))",
-            "always (({f}) -> next (x < 2))",
-        ]
-    ).format(f=body)
-
-
-def random_run(rng: random.Random, n: int, late: float) -> list[TraceEvent]:
-    stamp, out = rng.randint(0, 3) * MS, []
-    held: dict[str, Any] = {"/a": False, "/b": True, "/x": 1.0, "/y": 2.0}
-    for i in range(n):
-        stamp += rng.choice([0, 1, MS, 2 * MS, 2 * MS - 1, 7 * MS, 7 * MS + 1, 11 * MS, 40 * MS])
-        at = stamp - rng.randint(1, 20 * MS) if rng.random() < late else stamp
-        topic = rng.choice(["/a", "/b", "/x", "/x", "/y"])
-        if rng.random() < 0.3:
-            held[topic] = (
-                rng.random() < 0.5
-                if topic in ("/a", "/b")
-                else rng.choice([0.0, 1.0, 2.0, 3.0, math.nan, 5.0, -1.0])
-            )
-        out.append(TraceEvent(topic, at, {"data": held[topic]}, Location("t", i + 1)))
-    return out
 
 
 def column_chunk(events: list[TraceEvent], first: int) -> EventChunk:

@@ -6,12 +6,12 @@ import json
 from pathlib import Path
 
 import pytest
-from test_cli import edgerv
 
 from edgerv.core.cdr import compile_reader
 from edgerv.core.diagnostics import InputError
 from edgerv.core.documents import load_monitors_text
 from edgerv.core.msgtypes import field_kind, typestore
+from kit.cli import edgerv
 
 STATUS = "float64 battery\nstring mode\ngeometry_msgs/Point target\nmy_robot_msgs/Wheel[] wheels\n"
 WHEEL = "float32 rpm\nbool slipping\n"

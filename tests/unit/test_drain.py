@@ -12,7 +12,7 @@ import pytest
 
 from edgerv.handler.engine import Engine
 from edgerv.handler.main import add_arguments, drain
-from helpers import compiled
+from kit.documents import compiled
 
 
 def engine_with(active: bool) -> Engine:

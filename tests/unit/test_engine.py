@@ -8,7 +8,7 @@ from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import Verdict
 from edgerv.handler import engine as engine_module
 from edgerv.handler.engine import Engine
-from helpers import compiled
+from kit.documents import compiled
 
 
 class Collect:

@@ -13,7 +13,7 @@ from edgerv.core.pipeline import Verdict
 from edgerv.core.reactions import Reaction
 from edgerv.handler.engine import Engine
 from edgerv.handler.handoff_state import HandoffState, HandoffStateError, check_transition
-from helpers import compiled
+from kit.documents import compiled
 
 
 class Collect:

@@ -22,9 +22,6 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import pytest
-from test_batches import SIGNALS, random_assertion, random_events, state_of
-from test_columns import random_run
-from test_engine_columns import Collect, messages
 
 from edgerv.core.diagnostics import InputError
 from edgerv.core.handoff import decode_frames, encode
@@ -32,7 +29,10 @@ from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import MonitorRuntime
 from edgerv.handler import engine as engine_module
 from edgerv.handler.engine import Engine
-from helpers import compiled, scaled
+from kit.counts import scaled
+from kit.documents import compiled
+from kit.randomruns import SIGNALS, random_assertion, random_events, random_run
+from kit.sidebyside import Collect, messages, state_of
 
 MS = 1_000_000
 ATOMS = ["a", "b", "!a", "x < 2", "x >= y", "z == 3", "age(a) < 15ms", "age(x) >= 7ms"]
@@ -61,7 +61,7 @@ def random_nested(rng: random.Random, depth: int) -> str:
 
 def random_monitor(rng: random.Random, name: str) -> CompiledMonitor:
     """A monitor of timed past operators (nested, with untimed ones and prev, in the
-    shapes of test_batches) or of nested time-bounded operators, under always or at the
+    shapes of kit.randomruns) or of nested time-bounded operators, under always or at the
     top; a sort window now and then, a buffer small enough to fill now and then."""
     threshold = rng.choice([1, 1, 1, 1, 2, 3, 7])
     capacity = rng.choice([4096, rng.randint(max(threshold, 2), 30), rng.randint(30, 200)])

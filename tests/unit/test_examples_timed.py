@@ -10,7 +10,7 @@ import pytest
 
 from edgerv.core.documents import load_monitors
 from edgerv.core.monitor import compile_monitor
-from helpers import events, run, verdicts
+from kit.checks import events, run, verdicts
 
 EXAMPLES = Path(__file__).parents[2] / "examples" / "timed.yaml"
 MS = 1_000_000

@@ -16,7 +16,7 @@ from types import ModuleType
 
 import pytest
 
-from helpers import bounded
+from kit.bounded import bounded
 
 FUZZ = Path(__file__).resolve().parents[1] / "fuzz"
 TARGETS = ["cdr", "bundle", "assertion", "api"]

@@ -25,7 +25,7 @@ from edgerv.core.handoff import (
 )
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import MonitorRuntime, Verdict
-from helpers import compiled
+from kit.documents import compiled
 
 ASSERTIONS = [
     "always (a -> x < 5)",

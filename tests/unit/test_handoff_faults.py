@@ -1,7 +1,7 @@
 """Fault injection between `edgerv migrate` and both handlers' APIs (issue 13's acceptance).
 
 Two engines behind their real HTTP APIs, fed the same stream by a thread (as the `Pair` of
-test_migrate_http.py), and a reference engine fed it too, with no handoff. The driver talks
+kit/handoff_pair.py), and a reference engine fed it too, with no handoff. The driver talks
 to each API through a `FaultyGate`: a TCP forwarder that reads whole HTTP messages and, per
 request, draws its fate from the seed's `random.Random`:
 
@@ -51,7 +51,6 @@ from typing import Any
 
 import pytest
 from prometheus_client import CollectorRegistry
-from test_migrate_http import TOKEN, Pair, pair  # noqa: F401  (pair: a fixture)
 
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import Verdict
@@ -66,7 +65,10 @@ from edgerv.handler.migrate import (
     migrate,
     settle,
 )
-from helpers import ManualClock, compiled, scaled
+from kit.counts import scaled
+from kit.documents import compiled
+from kit.engines import ManualClock
+from kit.handoff_pair import TOKEN, Pair
 
 TIMEOUT = 0.25  # the driver's --timeout under faults (its calls time out after as long)
 GRACE = 0.2
@@ -622,7 +624,7 @@ def test_faults_never_make_two_copies_nor_lose_or_double_an_event() -> None:
 
 
 def test_a_settle_after_the_receiver_moved_the_monitor_on_commits_the_sender(
-    pair: Pair,  # noqa: F811  (the fixture)
+    pair: Pair,  # the fixture of conftest.py
 ) -> None:
     """What the fault test found (seeds 22 and 45 of a run before the fix), minimized: the
     adoption's answer is lost (unsettled: the cloud runs the monitor, the edge holds it
@@ -650,7 +652,7 @@ def test_a_settle_after_the_receiver_moved_the_monitor_on_commits_the_sender(
 
 
 def test_a_settle_after_the_monitor_moved_on_to_a_third_handler_commits_the_sender(
-    pair: Pair,  # noqa: F811  (the fixture)
+    pair: Pair,  # the fixture of conftest.py
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """As above, but the cloud moved it on to a third handler (successfully): asked about
@@ -698,7 +700,7 @@ class Late(Net):
 
 @pytest.mark.parametrize("step", ["hold", "receive"])
 def test_a_hold_or_receive_that_lands_after_the_abort_is_fenced(
-    pair: Pair,  # noqa: F811  (the fixture)
+    pair: Pair,  # the fixture of conftest.py
     step: str,
 ) -> None:
     """The driver gave up on a late hold (or receive) and aborted both sides; the abort
@@ -837,7 +839,7 @@ class Lose(Net):
     ids=["release-answer", "adoption"],
 )
 def test_a_sender_whose_abort_is_lost_is_unsettled_never_stays_and_the_rerun_settles(
-    pair: Pair,  # noqa: F811  (the fixture)
+    pair: Pair,  # the fixture of conftest.py
     net: Callable[[], Cut | Lose],
 ) -> None:
     """Issue 13's left-over: the edge released m, the driver did not get the snapshot (its

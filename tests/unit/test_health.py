@@ -25,7 +25,8 @@ from edgerv.handler.health import (
     worst,
 )
 from edgerv.handler.main import add_arguments
-from helpers import ManualClock, compiled
+from kit.documents import compiled
+from kit.engines import ManualClock
 
 S = 1_000_000_000  # ns
 

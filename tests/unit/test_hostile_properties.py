@@ -72,7 +72,9 @@ from edgerv.handler import api as api_module
 from edgerv.handler.api import ControlApi
 from edgerv.handler.engine import Engine
 from edgerv.handler.limits import Limits
-from helpers import Hang, bounded, compiled, props, spec_of
+from kit.bounded import Hang, bounded
+from kit.counts import props
+from kit.documents import compiled, spec_of
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fuzz"))
 import fuzz_bundle  # tests/fuzz: the events and the run a restored monitor takes

@@ -8,103 +8,20 @@ same migration again settles what a lost answer left held.
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import socket
 import threading
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass
 
 import pytest
 import yaml
-from prometheus_client import CollectorRegistry
 
-from edgerv.handler.api import ControlApi
 from edgerv.handler.client import Conflict, HandlerClient
 from edgerv.handler.engine import Engine
 from edgerv.handler.handoff_steps import HANDOFF_EXPIRES
 from edgerv.handler.migrate import MigrationFailed, Unsettled, migrate
-from helpers import ManualClock, compiled, monitor_doc, robot_feed
-
-TOKEN = "test-token"
-
-
-class Gate:
-    """A TCP forwarder to ``port`` on loopback. ``mode``: ``pass``; ``mute`` (requests
-    go through, answers are dropped: the receiver acts, the driver never hears);
-    ``black`` (nothing goes through)."""
-
-    def __init__(self, port: int) -> None:
-        self.target = port
-        self.mode = "pass"
-        self.server = socket.create_server(("127.0.0.1", 0))
-        self.port = self.server.getsockname()[1]
-        self.sockets: list[socket.socket] = []
-        threading.Thread(target=self._accept, daemon=True).start()
-
-    def _accept(self) -> None:
-        while True:
-            try:
-                client, _ = self.server.accept()
-            except OSError:
-                return
-            upstream = socket.create_connection(("127.0.0.1", self.target))
-            self.sockets += [client, upstream]
-            threading.Thread(
-                target=self._pump, args=(client, upstream, "request"), daemon=True
-            ).start()
-            threading.Thread(
-                target=self._pump, args=(upstream, client, "answer"), daemon=True
-            ).start()
-
-    def _pump(self, src: socket.socket, dst: socket.socket, what: str) -> None:
-        with contextlib.suppress(OSError):
-            while data := src.recv(65536):
-                if self.mode == "pass" or (self.mode == "mute" and what == "request"):
-                    dst.sendall(data)
-
-    def close(self) -> None:
-        self.server.close()
-        for s in self.sockets:
-            with contextlib.suppress(OSError):
-                s.close()
-
-
-@dataclass
-class Pair:
-    edge: Engine
-    cloud: Engine
-    apis: list[ControlApi]
-    gate: Gate
-
-    def source(self) -> HandlerClient:
-        return HandlerClient(f"127.0.0.1:{self.apis[0].port}", TOKEN)
-
-    def destination(self) -> HandlerClient:  # through the gate
-        return HandlerClient(f"127.0.0.1:{self.gate.port}", TOKEN)
-
-    def active(self) -> list[str]:
-        return [e.name for e in (self.edge, self.cloud) if e.slots["m"].active]
-
-
-@pytest.fixture
-def pair() -> Iterator[Pair]:
-    edge, cloud = Engine("edge", flush_after=1e9), Engine("cloud", flush_after=1e9)
-    monitor = compiled("always (a -> x < 5)", {"a": "bool", "x": "float"})
-    edge.put(monitor, active=True)
-    cloud.put(monitor, active=False)
-    apis = []
-    for e in (edge, cloud):
-        api = ControlApi(e, CollectorRegistry(), TOKEN, on_change=lambda: None)
-        api.start("127.0.0.1", 0)
-        apis.append(api)
-    gate = Gate(apis[1].port)
-    with robot_feed([edge, cloud]):  # both hosts hear the robot's two topics
-        yield Pair(edge, cloud, apis, gate)
-    gate.close()
-    for api in apis:
-        api.stop()
+from kit.documents import compiled, monitor_doc
+from kit.engines import ManualClock
+from kit.handoff_pair import TOKEN, Gate, Pair
 
 
 def test_each_handler_records_the_handoffs_it_took_part_in(

@@ -1,6 +1,6 @@
 """`edgerv migrate` against handlers it cannot use as given (docs/handler.md, "Moving
 monitors"): real handler APIs on real sockets, real TLS with certificates made by
-``openssl`` (tests/pki.py), engines fed directly (no ROS).
+``openssl`` (tests/kit/pki.py), engines fed directly (no ROS).
 
 What is checked: a handler that speaks HTTPS called over plain HTTP, or the reverse, or
 whose certificate is not trusted, or whose host is not known, ends the command with exit 1
@@ -24,7 +24,6 @@ from pathlib import Path
 
 import pytest
 from prometheus_client import CollectorRegistry
-from test_migrate_http import Gate
 
 from edgerv.cli import main as cli_main
 from edgerv.handler.api import ControlApi
@@ -32,10 +31,10 @@ from edgerv.handler.client import HandlerClient, Unreachable, WrongScheme
 from edgerv.handler.engine import Engine
 from edgerv.handler.migrate import NotMoved, migrate
 from edgerv.handler.tls import ClientTls, server_context
-from helpers import compiled, robot_feed
-from pki import NAME, Pki, shared_pki
-
-TOKEN = "test-token"
+from kit.documents import compiled
+from kit.engines import robot_feed
+from kit.handoff_pair import TOKEN, Gate, edge_and_cloud
+from kit.pki import NAME, Pki, shared_pki
 
 
 @pytest.fixture(scope="module")
@@ -69,10 +68,7 @@ class Pair:
 
 
 def pair_of(pki: Pki, https: bool) -> Iterator[Pair]:
-    edge, cloud = Engine("edge", flush_after=1e9), Engine("cloud", flush_after=1e9)
-    monitor = compiled("always (a -> x < 5)", {"a": "bool", "x": "float"})
-    edge.put(monitor, active=True)
-    cloud.put(monitor, active=False)
+    edge, cloud = edge_and_cloud()
     apis = []
     for e in (edge, cloud):
         api = ControlApi(e, CollectorRegistry(), TOKEN, on_change=lambda: None)

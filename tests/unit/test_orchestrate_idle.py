@@ -26,7 +26,7 @@ from edgerv.handler import orchestrate
 from edgerv.handler.api import ControlApi
 from edgerv.handler.engine import Engine
 from edgerv.handler.orchestrate import Idle, Orchestrator, Target, why_nothing_moves
-from helpers import compiled
+from kit.documents import compiled
 
 CONFIG = PolicyConfig(tiers=("edge", "cloud"), tier_latency_ms={"edge": 0.0, "cloud": 40.0})
 

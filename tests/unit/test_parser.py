@@ -25,7 +25,8 @@ from edgerv.core.language.comparisons import AtomReader
 from edgerv.core.language.formula import Lowering
 from edgerv.core.language.lexer import tokenize
 from edgerv.core.language.parser import Parser
-from helpers import props, spec_of
+from kit.counts import props
+from kit.documents import spec_of
 
 SIGNALS = {"a": "bool", "b": "bool", "c": "bool"}
 

@@ -22,7 +22,9 @@ import spot
 from edgerv.core.diagnostics import InputError
 from edgerv.core.language.assertion import parse_assertion
 from edgerv.core.pipeline import MonitorRuntime
-from helpers import compiled, events, run, spec_of, truth_at, verdicts
+from kit.checks import events, run, truth_at, verdicts
+from kit.documents import compiled, spec_of
+from kit.randomruns import random_mixed
 
 MS = 1_000_000
 BOOLS = {"a": {"topic": "/a", "type": "std_msgs/msg/Bool", "initial": False},
@@ -486,30 +488,6 @@ def _nodes(tree: Any) -> list[Any]:
         if isinstance(child, tuple):
             out += _nodes(child)
     return out
-
-
-def random_mixed(rng: random.Random, depth: int) -> str:
-    """Every operator, timed or not, nested at random."""
-    if depth == 0 or rng.random() < 0.2:
-        return rng.choice("ab")
-    kind = rng.choice(["not", "and", "or", "once", "hist", "since", "prev", "once_t", "hist_t",
-                       "once_t", "hist_t", "since_t", "since_t"])  # fmt: skip
-    x = random_mixed(rng, depth - 1)
-    if kind == "since_t":
-        lo = rng.choice([0, 0, 10, 20]) * MS
-        hi = lo + rng.choice([5, 20, 40]) * MS
-        return f"({x} since[{lo}ns..{hi}ns] {random_mixed(rng, depth - 1)})"
-    if kind in ("and", "or", "since"):
-        op = {"and": "&", "or": "|", "since": "since"}[kind]
-        return f"({x} {op} {random_mixed(rng, depth - 1)})"
-    if kind == "not":
-        return f"(!{x})"
-    word = {"once": "once", "hist": "historically", "prev": "prev"}.get(kind)
-    if word:
-        return f"({word} {x})"
-    lo = rng.choice([0, 0, 10, 20]) * MS
-    hi = lo + rng.choice([5, 20, 40]) * MS
-    return f"({'once' if kind == 'once_t' else 'historically'}[{lo}ns..{hi}ns] {x})"
 
 
 @pytest.mark.parametrize("seed", range(40))

@@ -1,5 +1,5 @@
 """Past operators nested in any way (docs/semantics.md, "Past"; "Time", "Nesting"),
-against Reelay's dense-time monitors and the brute-force references of tests/dense.py.
+against Reelay's dense-time monitors and the brute-force references of tests/kit/dense.py.
 
 * Reelay: random formulas over a and b in which once, historically and since, each
   timed (``[lo..hi]`` in milliseconds, point windows included) or untimed, nest in each
@@ -30,7 +30,8 @@ from typing import Any
 
 import pytest
 
-from dense import (
+from kit.checks import events, run, step_truths, truth_at, verdicts
+from kit.dense import (
     BINARY,
     CONNECTIVES,
     PAST,
@@ -45,7 +46,7 @@ from dense import (
     text,
     valid,
 )
-from helpers import compiled, events, run, step_truths, truth_at, verdicts
+from kit.documents import compiled
 
 MS = 1_000_000
 BOOLS = {n: {"topic": f"/{n}", "type": "std_msgs/msg/Bool", "initial": False} for n in "ab"}

@@ -15,12 +15,14 @@ from typing import Any
 
 import pytest
 import spot
-from test_batches import SIGNALS, random_assertion, random_events, state_of
 
 from edgerv.core.checker import CheckRun
 from edgerv.core.language.past import Past, PastOp, _Runs, compile_boolean
 from edgerv.core.pipeline import MonitorRuntime
-from helpers import compiled, events
+from kit.checks import events
+from kit.documents import compiled
+from kit.randomruns import SIGNALS, random_assertion, random_events
+from kit.sidebyside import state_of
 
 
 def every_step(rt: MonitorRuntime) -> None:

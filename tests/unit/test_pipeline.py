@@ -19,8 +19,9 @@ import spot
 
 from edgerv.core.pipeline import MonitorRuntime
 from edgerv.core.traces import TraceEvent
-from helpers import compiled, events, run, verdicts
-from reference import ReferenceMonitor
+from kit.checks import events, run, verdicts
+from kit.documents import compiled
+from kit.reference import ReferenceMonitor
 
 # Atoms over: x (float64 on /x), y (int32 on /y), b (bool on /b), with their Python meaning.
 ATOMS: list[tuple[str, Callable[[dict[str, Any]], bool]]] = [

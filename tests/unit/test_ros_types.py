@@ -19,7 +19,6 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from test_cli import edgerv
 
 from edgerv.handler import ros_types
 from edgerv.handler.ros_types import (
@@ -32,6 +31,7 @@ from edgerv.handler.ros_types import (
     plan,
     read_package,
 )
+from kit.cli import edgerv
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -34,8 +34,6 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
-from test_batches import outcome, state_of
-from test_cli import edgerv, write_jsonl
 
 from edgerv.core import msgtypes
 from edgerv.core.cdr import MALFORMED, compile_reader
@@ -46,7 +44,10 @@ from edgerv.core.documents import load_monitors_text
 from edgerv.core.monitor import compile_monitor, compile_monitors
 from edgerv.core.msgtypes import ABSENT, field_kind
 from edgerv.core.traces import EventChunk, Trace, TraceEvent
-from helpers import spec_of
+from kit.cli import edgerv
+from kit.documents import monitor_yaml, spec_of, write
+from kit.sidebyside import outcome, state_of
+from kit.traces import write_jsonl
 
 SEP = "=" * 80 + "\n"
 SHARE = Path(sys.prefix) / "share"  # the environment's ROS packages (lifecycle_msgs, ...)
@@ -695,19 +696,27 @@ def test_a_monitor_of_request_and_response_steps_on_every_event(
         assert got == want, trace
 
 
+# x: the second parameter of a SetParameters request (a request of one has none)
+SECOND_PARAMETER = monitor_yaml(
+    "p",
+    "always (x < 10)",
+    {
+        "x": {
+            "topic": "/p/_service_event",
+            "type": "rcl_interfaces/srv/SetParameters_Event",
+            "field": "request[0].parameters[1].value.integer_value",
+        }
+    },
+)
+
+
 def test_an_index_past_a_sequence_inside_an_optional_is_an_input_error(
     tmp_path: Path,
 ) -> None:
     """Inside a request that is there, ``parameters[1]`` of a request of one parameter is an
     input error at its message (not a held value); a response event, whose request is
     empty, holds."""
-    doc = tmp_path / "p.yaml"
-    doc.write_text(
-        "apiVersion: edgerv.io/v1alpha1\nkind: Monitor\nmetadata: {name: p}\nspec:\n"
-        '  assertion: "always (x < 10)"\n  signals:\n'
-        "    x: {topic: /p/_service_event, type: rcl_interfaces/srv/SetParameters_Event,"
-        ' field: "request[0].parameters[1].value.integer_value"}\n'
-    )
+    doc = write(tmp_path, "p.yaml", SECOND_PARAMETER)
 
     def parameter(name: str, value: int) -> dict[str, Any]:
         return {"name": name, "value": {"type": 2, "integer_value": value}}
@@ -736,13 +745,7 @@ def test_an_index_past_a_sequence_inside_an_optional_is_an_input_error(
 def test_an_index_past_a_sequence_inside_an_optional_in_a_bag(tmp_path: Path) -> None:
     """The same in an MCAP bag as Jazzy records it: the error at its message, after the
     verdicts of those before it."""
-    doc = tmp_path / "p.yaml"
-    doc.write_text(
-        "apiVersion: edgerv.io/v1alpha1\nkind: Monitor\nmetadata: {name: p}\nspec:\n"
-        '  assertion: "always (x < 10)"\n  signals:\n'
-        "    x: {topic: /p/_service_event, type: rcl_interfaces/srv/SetParameters_Event,"
-        ' field: "request[0].parameters[1].value.integer_value"}\n'
-    )
+    doc = write(tmp_path, "p.yaml", SECOND_PARAMETER)
     msg = (SHARE / "rcl_interfaces" / "msg").joinpath
     service = Service(
         "rcl_interfaces/srv/SetParameters",
@@ -1007,7 +1010,7 @@ def test_the_live_handlers_long_batches_hold_alike(probe: Service, seed: int) ->
     batches of 32 messages or more reach the monitors a column at a time (arrays of
     ABSENT and values), the others one message at a time through the router: the same
     verdicts, state, counts and drops as one message at a time."""
-    from test_engine_columns import engine_with, run_side_by_side
+    from kit.sidebyside import engine_with, run_side_by_side
 
     rng = random.Random(seed)
     monitors = [random_monitor(rng, f"m{i}") for i in range(rng.randint(1, 3))]

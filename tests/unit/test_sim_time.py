@@ -18,7 +18,7 @@ from edgerv.core.monitor import compile_monitor
 from edgerv.handler.clock import NO_TIME, ClockSamples, SimClock, clock_ns
 from edgerv.handler.engine import Engine
 from edgerv.handler.replay import Schedule
-from helpers import ManualClock
+from kit.engines import ManualClock
 
 S = 1_000_000_000
 MS = 1_000_000

@@ -13,7 +13,7 @@ import pytest
 from edgerv.core.diagnostics import InputError
 from edgerv.core.language.spot_worker import BudgetExceeded, SpotWorker, worker
 from edgerv.core.language.synthesis import _synthesize_cached
-from helpers import compiled
+from kit.documents import compiled
 
 SIGNALS = {"a": "bool", "b": "bool"}
 

@@ -1,4 +1,4 @@
-"""Synthesized monitors against the independent reference (tests/reference.py).
+"""Synthesized monitors against the independent reference (tests/kit/reference.py).
 
 Formulas: Spot's pattern families (DAC, EH, SB) and random LTL. Each is written
 as an assertion over bool signals, goes through edgerv's front end and
@@ -17,8 +17,8 @@ import spot.gen as sg
 
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import MonitorRuntime
-from helpers import compiled
-from reference import ReferenceMonitor
+from kit.documents import compiled
+from kit.reference import ReferenceMonitor
 
 NAMES = "abcdefghij"
 

@@ -5,7 +5,7 @@ edgerv's deadlines: every instant at which some atom could change (each message
 time, and each message time plus a duration, plus one nanosecond) is examined
 directly from the definition of age, a clock step is kept where the letter
 changes, and the letters go through the independent LTL3 reference
-(tests/reference.py) over the letters that values and ages can make.
+(tests/kit/reference.py) over the letters that values and ages can make.
 """
 
 from __future__ import annotations
@@ -19,14 +19,15 @@ from typing import Any
 
 import pytest
 import spot
-from test_cli import edgerv
 
 from edgerv.core.diagnostics import InputError
 from edgerv.core.language.assertion import parse_assertion
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import MonitorRuntime
-from helpers import compiled, events, run, spec_of, verdicts
-from reference import ReferenceMonitor
+from kit.checks import events, run, verdicts
+from kit.cli import edgerv
+from kit.documents import compiled, spec_of
+from kit.reference import ReferenceMonitor
 
 MS = 1_000_000
 SIGNALS = {"a": "bool", "b": "bool", "speed": "float"}

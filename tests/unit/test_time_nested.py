@@ -16,7 +16,10 @@ import random
 import pytest
 import spot
 
-from dense import (
+from edgerv.core.diagnostics import InputError
+from edgerv.core.pipeline import MonitorRuntime
+from kit.checks import events, run, verdicts
+from kit.dense import (
     BINARY,
     SIGNALS,
     Formula,
@@ -30,10 +33,8 @@ from dense import (
     timed,
     valid,
 )
-from edgerv.core.diagnostics import InputError
-from edgerv.core.pipeline import MonitorRuntime
-from helpers import compiled, events, run, verdicts
-from reference import ReferenceMonitor
+from kit.documents import compiled
+from kit.reference import ReferenceMonitor
 
 
 def nested_bodies(seed: int, count: int) -> list[Formula]:

@@ -52,7 +52,8 @@ import pytest
 
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import MonitorRuntime
-from helpers import compiled, events, run, truth_at, verdicts
+from kit.checks import events, run, truth_at, verdicts
+from kit.documents import compiled
 
 MS = 1_000_000
 SIGNALS = {

@@ -40,7 +40,8 @@ from edgerv.core.documents import MonitorSpec, load_monitors_text
 from edgerv.core.language.spot_worker import worker
 from edgerv.core.monitor import CompiledMonitor, compile_monitor
 from edgerv.core.traces import Trace
-from helpers import ROS_DEFS, events, run, write_db3, write_jsonl, write_mcap
+from kit.checks import events, run
+from kit.traces import ROS_DEFS, write_db3, write_jsonl, write_mcap
 
 EXAMPLES = Path(__file__).parents[2] / "examples" / "timed.yaml"
 MS = 1_000_000

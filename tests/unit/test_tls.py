@@ -35,8 +35,9 @@ from edgerv.handler.limits import Limits
 from edgerv.handler.main import add_arguments, serving_tls
 from edgerv.handler.migrate import migrate
 from edgerv.handler.tls import ClientTls, server_context
-from helpers import compiled, robot_feed
-from pki import NAME, Pki, make_pki
+from kit.documents import compiled
+from kit.engines import robot_feed
+from kit.pki import NAME, Pki, make_pki
 
 TOKEN = "test-token"
 

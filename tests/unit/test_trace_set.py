@@ -12,7 +12,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from test_cli import MONITORS, edgerv, write_jsonl, write_mcap
+
+from kit.cli import edgerv
+from kit.speed_run import MONITORS, TYPES
+from kit.traces import write_jsonl, write_mcap
 
 Row = tuple[str, int, dict[str, Any]]
 
@@ -69,14 +72,14 @@ def test_traces_split_by_topic_and_by_time_give_the_verdicts_of_the_whole(
         mine = [r for r in rows if r[0] == topic]
         name = topic.strip("/")
         if rng.random() < 0.5:
-            parts.append(write_mcap(tmp_path / f"{name}.mcap", mine))
+            parts.append(write_mcap(tmp_path / f"{name}.mcap", mine, TYPES))
         else:
             parts.append(write_jsonl(tmp_path / f"{name}.jsonl", mine))
     rng.shuffle(parts)  # the order named matters only between equal stamps: none here
     assert check(monitors, *parts) == whole
     # by time: consecutive recordings, named in any order
     cut = len(rows) // 3
-    first = write_mcap(tmp_path / "first.mcap", rows[:cut])
+    first = write_mcap(tmp_path / "first.mcap", rows[:cut], TYPES)
     second = write_jsonl(tmp_path / "second.jsonl", rows[cut:])
     assert check(monitors, second, first) == whole
 
@@ -89,7 +92,7 @@ def test_a_directory_of_bags_is_checked_as_one_run(monitors: Path, tmp_path: Pat
     for i, topic in enumerate(["/running", "/speed", "/stop"]):
         bag = recordings / f"rosbag2_{i}"
         bag.mkdir()
-        write_mcap(bag / f"rosbag2_{i}_0.mcap", [r for r in rows if r[0] == topic])
+        write_mcap(bag / f"rosbag2_{i}_0.mcap", [r for r in rows if r[0] == topic], TYPES)
     write_jsonl(recordings / "target.jsonl", [r for r in rows if r[0] == "/target"])
     (recordings / "notes.txt").write_text("not a trace: left alone\n")
     assert check(monitors, recordings) == whole
@@ -127,7 +130,7 @@ def test_a_topic_recorded_as_two_types_is_an_error_naming_both(
             topic="/speed", schema=schema, message={"data": 3}, log_time=5, publish_time=5
         )
         writer.finish()
-    mine = write_mcap(tmp_path / "mine.mcap", random_run(1))
+    mine = write_mcap(tmp_path / "mine.mcap", random_run(1), TYPES)
     code, out, err = check(monitors, mine, other)
     assert code == 2 and out is None
     assert "/speed is recorded as std_msgs/msg/Int32 here and as std_msgs/msg/Float64" in err
@@ -139,7 +142,7 @@ def test_what_no_trace_has_is_named_once_and_strict_refuses_it(
 ) -> None:
     rows = [r for r in random_run(2) if r[0] in ("/running", "/speed")]
     a = write_jsonl(tmp_path / "a.jsonl", [r for r in rows if r[0] == "/running"])
-    b = write_mcap(tmp_path / "b.mcap", [r for r in rows if r[0] == "/speed"])
+    b = write_mcap(tmp_path / "b.mcap", [r for r in rows if r[0] == "/speed"], TYPES)
     code, out, err = check(monitors, a, b)
     assert code in (0, 1) and out is not None
     assert err.count("no message on /target was read from any of the 2 traces") == 1, err
@@ -152,7 +155,7 @@ def test_bad_input_among_several_traces_is_named_at_its_place(
     monitors: Path, tmp_path: Path
 ) -> None:
     rows = random_run(3)
-    good = write_mcap(tmp_path / "good.mcap", [r for r in rows if r[0] != "/speed"])
+    good = write_mcap(tmp_path / "good.mcap", [r for r in rows if r[0] != "/speed"], TYPES)
     speeds = [r for r in rows if r[0] == "/speed"]
     bad = tmp_path / "speed.jsonl"
     lines = [json.dumps({"topic": t, "stamp": s, "msg": m}) for t, s, m in speeds]

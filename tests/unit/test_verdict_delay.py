@@ -3,7 +3,7 @@ section 6, "When each construct reports").
 
 The earliest certain instant comes from a brute-force reference that tries every instant:
 the first T at which the run up to T (every signal unknown after it) decides the formula,
-by three-valued evaluation of the definitions (tests/dense.py). Kleene's logic can leave
+by three-valued evaluation of the definitions (tests/kit/dense.py). Kleene's logic can leave
 undecided what a cleverer reading would decide (``x | !x``); the formulas here are ones
 whose verdict it decides in time. The contract checked: a nested formula's verdict comes
 at most its horizon H after that instant, never before it. ``python
@@ -21,7 +21,8 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from dense import (
+from kit.checks import events, run, verdicts
+from kit.dense import (
     SIGNALS,
     Formula,
     evaluator,
@@ -33,7 +34,7 @@ from dense import (
     text,
     timed,
 )
-from helpers import compiled, events, run, verdicts
+from kit.documents import compiled
 
 Case = tuple[str, Formula, list[tuple[str, int, bool]]]
 

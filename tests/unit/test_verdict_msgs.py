@@ -10,11 +10,11 @@ import json
 from pathlib import Path
 
 import pytest
-from test_cli import edgerv
 
 from edgerv.core.cdr import compile_reader
 from edgerv.core.documents import load_monitors_text
 from edgerv.core.msgtypes import field_kind, typestore
+from kit.cli import edgerv
 
 INTERFACES = Path(__file__).parents[2] / "interfaces"
 MSG = INTERFACES / "edgerv_msgs" / "msg"

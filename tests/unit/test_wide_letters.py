@@ -5,7 +5,7 @@ operators, computed at each step from the atoms and past operators (a letter of 
 63 bits); the verdicts must be those of the assertion itself. The references share
 nothing with that abstraction: Spot's monitors of the unabstracted formula over the
 atoms' own truth values (computed here from the run), and the dense-time brute force of
-tests/dense.py for past and time-bounded operators. Offline (one event at a time, a
+tests/kit/dense.py for past and time-bounded operators. Offline (one event at a time, a
 check's chunks, columns), live (Engine.ingest) and across a snapshot's wire form.
 """
 
@@ -19,7 +19,7 @@ import pytest
 import spot
 from spot import buddy
 
-from dense import Formula, evaluator, horizon, text
+from kit.dense import Formula, evaluator, horizon, text
 from edgerv.core.checker import CheckRun
 from edgerv.core.diagnostics import InputError, Location
 from edgerv.core.handoff import decode, encode
@@ -27,7 +27,10 @@ from edgerv.core.language.past import BoolProgram
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import MonitorRuntime
 from edgerv.core.traces import EventChunk, TraceEvent
-from helpers import ManualClock, compiled, events, run, scaled, verdicts
+from kit.checks import events, run, verdicts
+from kit.counts import scaled
+from kit.documents import compiled
+from kit.engines import ManualClock
 
 MS = 1_000_000
 
@@ -79,7 +82,7 @@ class _Live:
 
 
 class SpotReference:
-    """LTL3 verdicts of a formula over named atoms, with reset (tests/reference.py's
+    """LTL3 verdicts of a formula over named atoms, with reset (tests/kit/reference.py's
     construction, its letters as BDD cubes: 2^40 letters are not enumerated)."""
 
     def __init__(self, formula: str) -> None:

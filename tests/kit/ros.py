@@ -1,4 +1,7 @@
-"""Processes for integration tests: an ``edgerv handler`` and small ROS 2 publishers.
+"""The ROS process harness of the integration tests (and the benches): an ``edgerv
+handler`` process, small ROS 2 publishers, ``edgerv replay`` and ``edgerv migrate`` as
+processes, a node of the test's own, and :func:`ros_env`, the one environment builder of
+every ROS 2 process they start.
 
 Every process gets a ROS domain of its test's own and discovery limited to
 localhost, so tests neither see each other nor send anything off this machine.
@@ -21,7 +24,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from pki import NAME, shared_pki
+from kit.pki import NAME, shared_pki
 
 TOKEN = "integration-secret"
 
@@ -56,11 +59,24 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def ros_env(domain: int) -> dict[str, str]:
-    env = dict(os.environ)
-    env.update(
-        ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1"
-    )
+def ros_env(domain: int | str, discovery: str = "LOCALHOST", **extra: str) -> dict[str, str]:
+    """The environment of a ROS 2 process: this one's, in the ROS domain ``domain``, with
+    discovery over ``discovery`` (LOCALHOST: nothing leaves this machine), unbuffered
+    output, and ``extra`` on top (EDGERV_TOKEN=..., say)."""
+    return {
+        **os.environ,
+        "ROS_DOMAIN_ID": str(domain),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": discovery,
+        "PYTHONUNBUFFERED": "1",
+        **extra,
+    }
+
+
+def robot_env(domain: int, discovery: str) -> dict[str, str]:
+    """The environment of a robot's own process (not the tests' harness): :func:`ros_env`
+    with Fast DDS's default transports (the robot's own, whatever this machine's are)."""
+    env = ros_env(domain, discovery)
+    env.pop("FASTDDS_BUILTIN_TRANSPORTS", None)
     return env
 
 
@@ -245,6 +261,23 @@ def offline_verdicts(monitors: Path, trace: Path) -> list[tuple[str, str, int]]:
     )
 
 
+def check_verdicts(monitors: Path, trace: Path) -> list[tuple[str, str, int, int]]:
+    """(monitor, verdict, step, stamp) that `edgerv check` gives on the trace (JSON Lines
+    or a bag), sorted; it must exit 0 or 1 (no error)."""
+    done = subprocess.run(
+        [sys.executable, "-m", "edgerv", "check", str(monitors), str(trace), "--json"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode in (0, 1), done.stderr
+    return sorted(
+        (m["name"], v["verdict"], v["step"], v["stamp"])
+        for m in json.loads(done.stdout)["monitors"]
+        for v in m["verdicts"]
+    )
+
+
 def live_verdicts(*handlers: HandlerProcess) -> list[tuple[str, str, int]]:
     """(monitor, verdict, step) from the handlers' verdict logs, sorted."""
     return sorted((v["monitor"], v["verdict"], v["step"]) for h in handlers for v in h.verdicts())
@@ -311,4 +344,29 @@ def publisher(
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+    )
+
+
+def migrate(
+    src: HandlerProcess, dst: HandlerProcess, monitor: str, domain: int
+) -> subprocess.CompletedProcess[str]:
+    """``edgerv migrate`` of ``monitor`` from ``src`` to ``dst``, as a process."""
+    env = ros_env(domain, EDGERV_TOKEN=TOKEN)
+    return subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "edgerv",
+            "migrate",
+            "--from",
+            f"127.0.0.1:{src.port}",
+            "--to",
+            f"127.0.0.1:{dst.port}",
+            "--monitor",
+            monitor,
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
     )

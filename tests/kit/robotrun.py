@@ -1,7 +1,7 @@
 """A robot's run for the tests of the handler as installed on a robot
-(test_docker_run.py, test_systemd_unit.py): monitors on three topics, a real rclpy node
-that publishes a random run on them and records it for ``edgerv check``, and the
-handler's API called over TLS as a client on another machine would."""
+(test_docker_run.py, test_systemd_unit.py): a real rclpy node that publishes a random run
+on the three topics of kit.odom_run's monitors and records it for ``edgerv check``, and
+the handler's API called over TLS as a client on another machine would."""
 
 from __future__ import annotations
 
@@ -14,30 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from pki import NAME
-
-MONITORS = """\
-apiVersion: edgerv.io/v1alpha1
-kind: Monitor
-metadata: {name: speed-limit}
-spec:
-  assertion: "always (running -> (speed < limit until stop))"
-  signals:
-    running: {topic: /running, type: std_msgs/msg/Bool}
-    speed: {topic: /odom, type: nav_msgs/msg/Odometry, field: twist.twist.linear.x}
-    stop: {topic: /stop, type: std_msgs/msg/Bool, initial: false}
-  parameters: {limit: 100}
-  sortThreshold: 2
----
-apiVersion: edgerv.io/v1alpha1
-kind: Monitor
-metadata: {name: no-stop-while-fast}
-spec:
-  assertion: "always (speed > 90 -> next !stop)"
-  signals:
-    speed: {topic: /odom, type: nav_msgs/msg/Odometry, field: twist.twist.linear.x}
-    stop: {topic: /stop, type: std_msgs/msg/Bool}
-"""
+from kit.pki import NAME
 
 # A robot's node: publishes a random run on three topics, as any ROS 2 node would (default
 # transports, reliable), once the handler's subscriptions are matched, and writes what it
