@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 
 import pytest
+
 from kit.ros import HandlerProcess, publisher, wait_for
 
 MONITOR = """\

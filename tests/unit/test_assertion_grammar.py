@@ -45,8 +45,8 @@ from edgerv.core.language.lexer import duration_ns
 from edgerv.core.language.spot_worker import worker
 from edgerv.core.monitor import CompiledMonitor, compile_monitor
 from kit.bounded import bounded
-from kit.counts import props
 from kit.checks import events, run
+from kit.counts import props
 from kit.documents import spec_of
 
 BUDGET = 3.0  # seconds of Spot per monitor: past it the monitor is refused (an InputError)

@@ -19,7 +19,6 @@ import pytest
 import spot
 from spot import buddy
 
-from kit.dense import Formula, evaluator, horizon, text
 from edgerv.core.checker import CheckRun
 from edgerv.core.diagnostics import InputError, Location
 from edgerv.core.handoff import decode, encode
@@ -29,6 +28,7 @@ from edgerv.core.pipeline import MonitorRuntime
 from edgerv.core.traces import EventChunk, TraceEvent
 from kit.checks import events, run, verdicts
 from kit.counts import scaled
+from kit.dense import Formula, evaluator, horizon, text
 from kit.documents import compiled
 from kit.engines import ManualClock
 
