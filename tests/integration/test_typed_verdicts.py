@@ -32,7 +32,7 @@ from std_msgs.msg import String  # noqa: E402
 from edgerv.core.cdr import compile_reader  # noqa: E402
 from edgerv.core.msgtypes import field_kind, typestore  # noqa: E402
 from edgerv.handler.cdr_out import encode_verdict_array, encode_verdict_message  # noqa: E402
-from kit.documents import monitors_yaml, speed_monitor  # noqa: E402
+from kit.documents import monitor_yaml, monitors_yaml, speed_monitor  # noqa: E402
 from kit.ros import HandlerProcess, publisher, wait_for  # noqa: E402
 
 pytestmark = pytest.mark.integration
@@ -185,8 +185,8 @@ def test_a_late_subscriber_gets_the_last_verdict_of_every_monitor(
     is the last verdict of every monitor (a monitor without one is in none), and
     /edgerv/verdict the history (all 9 of the edge's: fewer than its depth of 100)."""
     # the cloud's monitor on a topic of its own: each publisher waits for its handler
-    other = speed_monitor("cloud-cap", sortThreshold=1)
-    other = other.replace("topic: /speed,", "topic: /speed2,")
+    speed2 = {"topic": "/speed2", "type": "std_msgs/msg/Float64"}
+    other = monitor_yaml("cloud-cap", "always (speed < 100)", {"speed": speed2}, sortThreshold=1)
     edge = HandlerProcess(tmp_path, monitors(tmp_path), domain, name="edge")
     (tmp_path / "cloud").mkdir()
     cloud = HandlerProcess(
