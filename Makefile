@@ -89,7 +89,7 @@ $(VENV)/.demo-installed: $(STAMP)
 	$(BIN)/python -m pip install --quiet -e '.[demo]'
 	touch $@
 
-# A two-minute tour: edgerv check on a recorded trace, then one handler on live traffic.
+# A short tour (about 10 s): edgerv check on a recorded trace, then one handler on live traffic.
 tour: install
 	bash examples/demo.sh
 

@@ -481,7 +481,17 @@ def require_type(msg_type: str) -> str:
         import difflib
 
         close = difflib.get_close_matches(current, known, n=2, cutoff=0.7)
-        own = "a package of your own: put its msg/ directory under a directory of $EDGERV_MSG_PATH"
+        pkg = current.split("/", 1)[0]
+        set_to = os.environ.get("EDGERV_MSG_PATH")
+        own = (
+            f"a package of your own: export EDGERV_MSG_PATH=DIR, DIR holding {pkg}/msg/ (a "
+            "colcon workspace's src/)"
+            + (
+                f"; $EDGERV_MSG_PATH is {set_to}, without {pkg}/msg/"
+                if set_to
+                else " ($EDGERV_MSG_PATH is not set)"
+            )
+        )
         service = service_of(current)
         if service is not None:
             pkg, _, name = service.split("/")

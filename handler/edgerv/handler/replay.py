@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib
 import math
 import sys
 import time
@@ -36,7 +37,8 @@ INT32 = range(-(2**31), 2**31)
 
 
 def fill(msg: Any, data: dict[str, Any], where: str = "msg") -> Any:
-    """Set the fields of an rclpy message from nested dicts (numbers widened to float)."""
+    """Set the fields of an rclpy message from nested dicts (numbers widened to float), an
+    array of messages from a list of dicts (``"wheels": [{"rpm": 5.0}]``)."""
     for key, value in data.items():
         if not hasattr(msg, key):
             raise ValueError(f"{where} has no field '{key}'")
@@ -45,9 +47,32 @@ def fill(msg: Any, data: dict[str, Any], where: str = "msg") -> Any:
             fill(current, value, f"{where}.{key}")
         elif isinstance(current, float) and isinstance(value, int) and not isinstance(value, bool):
             setattr(msg, key, float(value))
+        elif isinstance(value, list):
+            setattr(msg, key, _elements(msg, key, value, f"{where}.{key}"))
         else:
             setattr(msg, key, value)
     return msg
+
+
+def _elements(msg: Any, key: str, items: list[Any], where: str) -> list[Any]:
+    """The elements of ``msg``'s array field ``key`` from JSON: messages filled from dicts,
+    integers widened for a float array, others as they are."""
+    from rosidl_parser.definition import AbstractNestedType, BasicType, NamespacedType  # type: ignore[import-untyped]
+
+    slot = msg.SLOT_TYPES[list(msg.get_fields_and_field_types()).index(key)]
+    element = slot.value_type if isinstance(slot, AbstractNestedType) else None
+    if isinstance(element, NamespacedType):
+        module = importlib.import_module(".".join(element.namespaces))
+        cls = getattr(module, element.name)
+        out = []
+        for i, item in enumerate(items):
+            if not isinstance(item, dict):
+                raise ValueError(f"{where}[{i}] must be an object (a {element.name} message)")
+            out.append(fill(cls(), item, f"{where}[{i}]"))
+        return out
+    if isinstance(element, BasicType) and element.typename in ("float", "double"):
+        return [float(v) if type(v) is int else v for v in items]
+    return items
 
 
 def positive_rate(text: str) -> float:
