@@ -28,6 +28,7 @@ Processes, images, clusters
   the test's own) and ``ros_env``, the one environment builder of ROS 2 processes (the
   benches' bench/ros_env.py too)
 - robotrun: a robot's run for the handler as installed (docker run, systemd)
+- own_types: a robot's own interface packages, monitors on them, their publisher and bag
 - dockerimage: the handler's image, built once
 - kube, chart: kubectl on the e2e cluster, the chart installed, Monitor resources
 """

@@ -168,15 +168,18 @@ def derived_image(tag: str, dockerfile: str) -> str:
 # -- the recipes of images/README.md -----------------------------------------------------------
 
 
-def readme_recipe(name: str) -> str:
-    """The ```sh block that follows ``<!-- recipe: NAME -->`` in images/README.md: the
-    tests run the documented commands themselves, not a copy of them."""
+def readme_recipe(name: str, lang: str = "sh") -> str:
+    """The ```sh block (or ```LANG: ``dockerfile``) that follows ``<!-- recipe: NAME -->``
+    in images/README.md: the tests run the documented commands (and build the documented
+    Dockerfiles) themselves, not a copy of them."""
     text = README.read_text()
     found = re.search(
-        rf"<!-- recipe: {re.escape(name)} -->\s*```sh\n(.*?)```", text, flags=re.DOTALL
+        rf"<!-- recipe: {re.escape(name)} -->\s*```{re.escape(lang)}\n(.*?)```",
+        text,
+        flags=re.DOTALL,
     )
     if found is None:
-        raise AssertionError(f"images/README.md has no '<!-- recipe: {name} -->' sh block")
+        raise AssertionError(f"images/README.md has no '<!-- recipe: {name} -->' {lang} block")
     return found.group(1)
 
 
