@@ -38,3 +38,19 @@ def test_random_disorder_within_the_window_is_undone() -> None:
         out += w.add(sorted(arrival[k : k + 7]), now)
     out += w.drain()
     assert out == items
+
+
+def test_under_steady_traffic_a_late_message_is_still_put_back_in_order() -> None:
+    """The window never empties while messages come every millisecond: what decides that an
+    item waited too long is its own time, not that of the first item ever pending (the
+    take loop calls due() at every wake; it released everything every 20 ms)."""
+    w, out = ReorderWindow(0.02), []
+    for i in range(200):  # /odom every 1 ms, its stamps 1 ms apart, taken at once
+        now = i / 1000
+        out += w.add([(i * MS, "/odom", i)], now)
+        if i == 150:  # stamped 145 ms: 5 ms late, within the window
+            out += w.add([(145 * MS + 1, "/stop", "late")], now)
+        out += w.due(now)
+    out += w.drain()
+    stamps = [item[0] for item in out]
+    assert stamps == sorted(stamps) and len(out) == 201

@@ -322,6 +322,11 @@ class MonitorRuntime:
     held: frozenset[int] = field(init=False)
     # a wide letter's derived placeholders (what the automaton reads), None for any other
     derived: Derived | None = field(init=False)
+    # none of these (nor a signal read through an optional): Router.offer_values takes
+    # its events as they come in one inlined step (what _compress_one does for it)
+    plain: bool = field(default=False, init=False)
+    atom_funcs: Any = field(default=None, init=False)  # (the monitor's, for that step)
+    atoms_of_signal: Any = field(default=None, init=False)
 
     def __post_init__(self) -> None:
         spec = self.monitor.spec
@@ -352,6 +357,10 @@ class MonitorRuntime:
         )
         if self.held:  # (so, not a test per message for the others)
             self.offer = self._offer_held  # type: ignore[method-assign]
+        self.plain = (
+            self.clock is None and self.past is None and self.derived is None and not self.held
+        )
+        self.atom_funcs, self.atoms_of_signal = m.atom_funcs, m.atoms_of_signal
 
     @property
     def buffered(self) -> int:
@@ -1034,6 +1043,15 @@ class MonitorRuntime:
         letters = self.letters
         if not letters or self.halted:
             return []
+        if len(letters) == 1 and self.derived is None:  # (a live handler's usual round)
+            table = self.monitor.table
+            state = table.table[(self.state << table.bits) | letters[0]]
+            if state < table.live:  # no verdict: one step, nothing else
+                self.state = state
+                self.step += 1
+                del letters[0]
+                del self.stamps[0]
+                return []
         if self.monitor.derived is not None:  # a wide letter: the automaton reads its top
             letters = _projected(letters, self.monitor)
         ends = _long_run_ends(letters) if len(letters) >= SHORT_EVALUATION else None
@@ -1386,7 +1404,37 @@ class Router:
                 if held:
                     updates = [u for u in updates if u[1] is not ABSENT]
                 event = events[b] = (stamp, seq, tuple(updates))
-            if runtime.offer_event(event):
+            if (
+                runtime.plain
+                and runtime.threshold == 1
+                and not runtime.missing
+                and not runtime.holding
+                and not runtime.halted
+                and stamp > runtime.floor
+            ):
+                # The common step, inlined (what offer_event and _compress_one do for a
+                # monitor with no clock, past operator, wide letter or optional, every
+                # signal valued, taking its events as they come): the atoms that read
+                # the updated signals evaluated anew, one letter.
+                last = runtime.last_released
+                if last is not None and stamp < last:
+                    runtime.late_events += 1
+                runtime.last_released = stamp
+                values_ = runtime.values
+                funcs, readers = runtime.atom_funcs, runtime.atoms_of_signal
+                bits = runtime.valuation
+                for sig, value in event[2]:
+                    values_[sig] = value
+                    for atom in readers[sig]:
+                        if funcs[atom](values_):
+                            bits |= 1 << atom
+                        else:
+                            bits &= ~(1 << atom)
+                runtime.valuation = bits
+                runtime.letters.append(bits)
+                runtime.stamps.append(stamp)
+                ready.append(runtime)
+            elif runtime.offer_event(event):
                 ready.append(runtime)
         return ready
 

@@ -33,6 +33,7 @@ from edgerv.core.placement import placement_json
 from edgerv.core.reactions import Reaction
 from edgerv.handler.budget import MemoryBudget, monitor_cost
 from edgerv.handler.clock import Clock, SystemClock
+from edgerv.handler.handoff_state import HandoffState
 from edgerv.handler.handoff_steps import HandoffSteps
 from edgerv.handler.payloads import MonitorReport
 from edgerv.handler.slot import MonitorSlot
@@ -51,11 +52,18 @@ PRESSURE_SECONDS = 1.0
 # letters to come wake it.
 SCHEDULE_SECONDS = 0.002
 WAKE_LETTERS = 512
+# An idle scheduler (no message since its last tick, nothing buffered) sleeps until the
+# next instant a tick has work, at most this long.
+IDLE_TICK_SECONDS = 5.0
 # Batches of at least this many messages are ingested a column at a time (each monitor's
 # messages of the batch at once: in NumPy arrays where it has this many and no past
 # operator, else in lists), shorter ones a message at a time: below it, building the
 # columns costs more than it saves.
 COLUMNS_FROM = 32
+# A short batch offered while the scheduler dozes, giving letters to at most this many
+# monitors, is evaluated by the ingest thread itself (Engine.ingest): at a robot's rates,
+# waking the scheduler for every message cost more than evaluating.
+INLINE_MONITORS = 512
 # A scheduler round evaluates monitors until it has this many verdicts, then lets go of
 # the lock and hands them on: the ingest thread takes messages between rounds, and what
 # is in flight stays bounded, however many monitors violate at once (the verdict storm).
@@ -109,6 +117,15 @@ class Engine(HandoffSteps):
         self.lock = threading.RLock()
         self.ready = threading.Condition(self.lock)
         self.dozing = False  # the scheduler sleeps until its tick: the next letters wake it
+        self.doze_until: float | None = None  # (time.monotonic) the dozing scheduler's tick
+        self.ingested = False  # messages came since the scheduler planned its next tick
+        self.replan = False  # the scheduler plans its next tick anew when it wakes
+        self.tick_period = 0.05  # the scheduler's (run_scheduler)
+        # bumped by whatever changes a monitor's state but a message or a route: an
+        # evaluation, a flush or a change of pressure, a handoff's step, a reaction's
+        # outcome (the diagnostics skip their check while it and those stay: Health.settled)
+        self.changes = 0
+        self.reached: list[Verdict] = []  # evaluated by ingest, for the scheduler to emit
         self.slots: dict[str, MonitorSlot] = {}
         self.router = Router()
         self.routes_version = 0  # bumped whenever topics or their fields change
@@ -285,10 +302,38 @@ class Engine(HandoffSteps):
                 woke = self._ingest_columns(batch, now, admit)
             else:
                 woke = self._ingest_each(batch, now, admit)
+            self.ingested = True
+            if (
+                self.dozing
+                and self.doze_until is not None
+                and self.doze_until > time.monotonic() + self.tick_period
+            ):  # an idle scheduler's long doze: it ticks every period again
+                self.replan = woke = True
+                self.doze_until = None
+            if (
+                not woke
+                and self.dozing
+                and self.waiting
+                and len(batch) < COLUMNS_FROM
+                and len(self.waiting) <= INLINE_MONITORS
+            ):
+                # A few messages while the scheduler dozes (a robot's rates): their letters
+                # are evaluated here, under the lock this thread holds, rather than by
+                # waking the scheduler for each message; it is woken only to hand the
+                # verdicts on (the sinks, the reactions: always its thread).
+                reached = self._evaluate(EVALUATE_CHUNK)
+                if reached or self.behind or self.reactions_due:
+                    self.reached += reached
+                    woke = True
             if woke or (self.dozing and self.waiting):
                 self.dozing = False
                 self.ready.notify()
         return True
+
+    def _take_reached(self) -> list[Verdict]:
+        """The verdicts :meth:`ingest` reached since the scheduler last handed them on."""
+        reached, self.reached = self.reached, []
+        return reached
 
     def _admit(self, now: float, runtime: MonitorRuntime) -> bool:
         """Whether ``runtime``'s buffer takes one more event (counted); else it is dropped."""
@@ -426,6 +471,7 @@ class Engine(HandoffSteps):
             slot = self.slots.get(monitor)
             if slot is None:
                 return  # removed since
+            self.changes += 1
             if problem is None:
                 slot.reactions += 1
             else:
@@ -435,7 +481,7 @@ class Engine(HandoffSteps):
     def evaluate(self) -> list[Verdict]:
         """A scheduler round: evaluate the letters that wait (the verdicts, to emit)."""
         with self.lock:
-            return self._evaluate()
+            return self._take_reached() + self._evaluate()
 
     def _evaluate(self, most: int | None = None) -> list[Verdict]:
         """Evaluate the letters of the monitors that have some (not all monitors: cheap);
@@ -443,6 +489,8 @@ class Engine(HandoffSteps):
         wait first in line for the next round (:attr:`behind` is then True)."""
         verdicts: list[Verdict] = []
         waiting, self.waiting = self.waiting, {}
+        if waiting:
+            self.changes += 1
         items = iter(waiting.items())
         for name, rt in items:
             slot = self.slots.get(name)
@@ -502,6 +550,7 @@ class Engine(HandoffSteps):
                     if rt.flush():
                         self.waiting[rt.name] = rt
                     slot.pending_since = None
+                    self.changes += 1
                 if (
                     not rt.events
                     and not rt.letters
@@ -509,6 +558,7 @@ class Engine(HandoffSteps):
                     and not slot.migration_wanted
                 ):
                     continue  # an idle monitor: nothing to update
+                self.changes += 1
                 fill = rt.buffered / slot.capacity
                 if fill >= HIGH_WATER:
                     slot.full_since = slot.full_since if slot.full_since is not None else now
@@ -545,22 +595,73 @@ class Engine(HandoffSteps):
                     log.exception("verdict sink %s failed", type(sink).__name__)
 
     def run_scheduler(self, stop: threading.Event, period: float = 0.05) -> None:
-        """The scheduler thread: evaluate every SCHEDULE_SECONDS, tick every ``period``."""
+        """The scheduler thread: evaluate every SCHEDULE_SECONDS while letters wait, and
+        :meth:`tick` when one has work: every ``period`` while messages come, a buffer
+        holds events or letters, or a handoff is under way; else it sleeps until the
+        next instant a tick can change anything (:meth:`next_tick_due`: a sort buffer's
+        flush, a clock step), and the first message wakes it."""
+        self.tick_period = period
         next_tick = time.monotonic()
         while not stop.is_set():
             with self.lock:
                 if not self.behind:  # (else more wait from the last round: at once)
                     self.dozing = not self.waiting and not self.in_handoff
                     doze = max(0.0, next_tick - time.monotonic())
+                    self.doze_until = next_tick if self.dozing else None
                     self.ready.wait(timeout=doze if self.dozing else SCHEDULE_SECONDS)
                     self.dozing = False
-                verdicts = self._evaluate(EVALUATE_CHUNK)
+                    self.doze_until = None
+                verdicts = self._take_reached() + self._evaluate(EVALUATE_CHUNK)
                 if self.in_handoff:
                     self._precompress()
-            if time.monotonic() >= next_tick:
+                replan, self.replan = self.replan, False
+            now = time.monotonic()
+            if now >= next_tick:
                 verdicts += self.tick()
-                next_tick = time.monotonic() + period
+                replan = True
+            if replan:
+                now = time.monotonic()
+                with self.lock:
+                    next_tick = self.next_tick_due(now, period)
             self.emit(verdicts)
+
+    def next_tick_due(self, now: float, period: float) -> float:
+        """When :meth:`tick` next has work (time.monotonic; lock held): ``now + period``
+        while messages came since the last tick, a monitor holds events or letters or
+        its pressure is being followed, or a handoff is under way (and always under a
+        clock other than the system's); else the earliest sort-buffer flush
+        (``flush_after`` after its first event) and clock step (a monitor's clock
+        deadline, ``flush_after`` late as :meth:`advance_clocks` takes it), at most
+        IDLE_TICK_SECONDS away. Reset: :attr:`ingested`."""
+        soon = now + period
+        if self.ingested or self.in_handoff or not isinstance(self.clock, SystemClock):
+            self.ingested = False
+            return soon
+        due = now + IDLE_TICK_SECONDS
+        flush_ns = int(self.flush_after * 1e9)
+        wall = self.clock.wall_ns()
+        for slot in self.slots.values():
+            rt = slot.runtime
+            if rt is None:
+                continue
+            if rt.letters or rt.events or slot.full_since is not None or slot.migration_wanted:
+                return soon
+            if slot.pending_since is not None:
+                due = min(due, slot.pending_since + self.flush_after)
+            clock = rt.clock
+            if clock is not None and clock.deadline is not None and slot.active:
+                due = min(due, now + (clock.deadline + flush_ns - wall) / 1e9)
+        # a step not taken when due (everything was not drained up to it yet): once a period
+        return max(due, soon) if due <= now else due
+
+    def _set_handoff(self, slot: MonitorSlot, role: HandoffState | None) -> None:
+        """(A handoff's step: the scheduler ticks every period while one is under way, and
+        plans anew when one ends: a restored monitor may have a clock step due.)"""
+        super()._set_handoff(slot, role)
+        self.changes += 1
+        self.replan = True
+        if self.dozing:
+            self.ready.notify()
 
     def drain(self, until: float | None = None) -> int:
         """At shutdown: release every buffer and evaluate it, so no accepted event is
@@ -574,7 +675,7 @@ class Engine(HandoffSteps):
                     slot.pending_since = None
         while True:
             with self.lock:
-                verdicts = self._evaluate(EVALUATE_CHUNK)
+                verdicts = self._take_reached() + self._evaluate(EVALUATE_CHUNK)
                 more = self.behind
             self.emit(verdicts)
             if not more:

@@ -16,6 +16,7 @@ status's ``hardware_id``); the handler's own is ``edgerv handler: <name>``.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections import deque
@@ -127,6 +128,10 @@ class Reading:
     rosout_failures: int = 0  # log lines that could not be sent to /rosout
     # verdict sink -> verdicts it got only as a burst's count (it fell behind: outbox.py)
     coalesced: Mapping[str, int] = field(default_factory=dict)
+    # what the reading was made from, in a few counters that change whenever anything a
+    # level reads may have (the ROS layer's :meth:`~edgerv.handler.ros_node.RosIngest.
+    # fingerprint`); None: not known, every check reads everything
+    fingerprint: object = None
 
 
 def read_engine(
@@ -136,6 +141,7 @@ def read_engine(
     bad: Mapping[str, int] | None = None,
     rosout_failures: int = 0,
     coalesced: Mapping[str, int] | None = None,
+    fingerprint: object = None,
 ) -> Reading:
     """A :class:`Reading` of ``engine``. The lock is held for at most READ_CHUNK monitors
     at a time: the ingest and scheduler threads wait for it no longer than that."""
@@ -194,6 +200,7 @@ def read_engine(
         dict(bad or {}),
         rosout_failures,
         dict(coalesced or {}),
+        fingerprint,
     )
 
 
@@ -237,6 +244,10 @@ class _Sample(NamedTuple):
     coalesced: Mapping[str, int] = {}
 
 
+# what a monitor's status values are made of: its reading and its events per second
+_StatusKey = tuple[MonitorReading, str]
+
+
 class Health:
     """The statuses of one handler over time. :meth:`write` (a verdict sink, on the
     scheduler thread) notes violations as they are reached and sets :attr:`changed`;
@@ -259,6 +270,17 @@ class Health:
         self._samples: deque[_Sample] = deque()
         self._published: dict[str, Level] = {}
         self._last: tuple[Reading, _Sample, float, dict[str, list[tuple[Level, str]]]] | None = None
+        # Settled (:meth:`settled`): the fingerprint of the last check's reading, the
+        # first check that saw it, and until when a check would give the last levels
+        # again (None: not settled); whether the last levels were published
+        self._fingerprint: object = None
+        self._fingerprint_since = 0.0
+        self._quiet_until: float | None = None
+        self._unpublished = False
+        # each monitor's last status values and what they were made of: made again only
+        # when that changed (statuses(); the diagnostics thread's alone)
+        self._kept_statuses: dict[str, tuple[_StatusKey, tuple[tuple[str, str], ...]]] = {}
+        self._statuses_now: dict[str, tuple[_StatusKey, tuple[tuple[str, str], ...]]] = {}
 
     # -- a verdict sink ----------------------------------------------------------------
 
@@ -408,7 +430,41 @@ class Health:
         }
         problems[HANDLER_PREFIX + self.handler] = self._handler_problems(reading, base, now)
         self._last = (reading, base, now, problems)
-        return {name: worst(level for level, _ in p) for name, p in problems.items()}
+        levels = {name: worst(level for level, _ in p) for name, p in problems.items()}
+        self._settle(reading.fingerprint, base, now, levels)
+        return levels
+
+    def _settle(
+        self, fingerprint: object, base: _Sample, now: float, levels: Mapping[str, Level]
+    ) -> None:
+        """After a check: whether the next ones may be skipped (:meth:`settled`)."""
+        self._unpublished = self.level_changed(levels)
+        if fingerprint is None or fingerprint != self._fingerprint:
+            self._fingerprint, self._fingerprint_since = fingerprint, now
+            self._quiet_until = None
+        elif base.at >= self._fingerprint_since:
+            # "the last period" began after the last change: every counter it compares
+            # is as now, and only a hold's end or a monitor going stale changes a level
+            later = self.next_change(now)
+            self._quiet_until = math.inf if later is None else later
+        else:
+            self._quiet_until = None
+
+    def settled(self, fingerprint: object, now: float) -> bool:
+        """Whether a check at ``now`` would give the levels of the last one, published:
+        nothing a level reads changed since (the reading's ``fingerprint``, None: not
+        known), "the last period" of that check began after the last change (so no
+        count "in the last period" changes with time alone), and no hold ends nor a
+        monitor goes stale before ``now``. The diagnostics thread then skips the check
+        between two updates: an idle handler reads none of its monitors then."""
+        quiet = self._quiet_until
+        return (
+            fingerprint is not None
+            and fingerprint == self._fingerprint
+            and quiet is not None
+            and now < quiet
+            and not self._unpublished
+        )
 
     def statuses(self) -> list[Status]:
         """The statuses of the last :meth:`check`: the handler's, then each active
@@ -417,9 +473,11 @@ class Health:
             return []
         reading, base, now, problems = self._last
         out = [self._handler_status(reading, base, now, problems[HANDLER_PREFIX + self.handler])]
+        self._statuses_now = {}
         for m in sorted(reading.monitors, key=lambda m: m.name):
             p = problems[MONITOR_PREFIX + m.name]
             out.append(self._monitor_status(m, self._tracks[m.name], base, now, p))
+        self._kept_statuses = self._statuses_now  # (the monitors gone are forgotten)
         return out
 
     def _monitor_status(
@@ -449,6 +507,12 @@ class Health:
             rate = _rate(m.events - before[1], now - base.at)
         else:
             rate = _rate(m.events - t.events, now - t.since)
+        level = worst(p[0] for p in problems)
+        key = (m, rate)  # all its values are made of
+        kept = self._kept_statuses.get(m.name)
+        if kept is not None and kept[0] == key:  # an idle monitor's values are made once
+            self._statuses_now[m.name] = kept
+            return Status(level, MONITOR_PREFIX + m.name, message, self.handler, kept[1])
         handoff = f" (handoff: {m.handoff})" if m.handoff else ""
         values = (
             ("state", m.state),
@@ -472,9 +536,8 @@ class Health:
                 f"{m.reactions} done, {m.reaction_failures} failed" if m.reacts else "off",
             ),
         )
-        return Status(
-            worst(p[0] for p in problems), MONITOR_PREFIX + m.name, message, self.handler, values
-        )
+        self._statuses_now[m.name] = (key, values)
+        return Status(level, MONITOR_PREFIX + m.name, message, self.handler, values)
 
     def _handler_status(
         self, reading: Reading, base: _Sample, now: float, problems: list[tuple[Level, str]]
@@ -531,6 +594,7 @@ class Health:
 
     def published(self, statuses: Iterable[Status]) -> None:
         self._published = {s.name: s.level for s in statuses}
+        self._unpublished = False
 
     def next_change(self, now: float) -> float | None:
         """The next instant a level changes by time alone (a hold ends, a monitor goes

@@ -12,11 +12,14 @@ the price is up to ``window`` more latency.
 from __future__ import annotations
 
 from bisect import bisect_right
-from operator import itemgetter
 from typing import Any, Generic, TypeVar
 
 Item = TypeVar("Item", bound=tuple[Any, ...])  # (stamp ns, topic, field values, ...)
-_STAMP = itemgetter(0)
+
+
+def _stamp_of(pair: tuple[Any, float]) -> int:
+    """An (item, time taken) pair's stamp: the key pending is kept sorted by."""
+    return int(pair[0][0])
 
 
 class ReorderWindow(Generic[Item]):
@@ -24,24 +27,29 @@ class ReorderWindow(Generic[Item]):
         self.window = window
         self.window_ns = int(window * 1e9)
         self.pending: list[Item] = []
+        self._taken: list[float] = []  # when each pending item was taken (pending's order)
         self.newest: int | None = None
-        self.since: float | None = None  # when the oldest pending item was taken
+        self.since: float | None = None  # when the pending item taken first was taken
 
     def add(self, batch: list[Item], now: float) -> list[Item]:
         """Take a batch; return what leaves the window, in timestamp order."""
         if not batch:
             return []
         # stable: equal stamps keep their arrival order; sorted runs merge in linear time
-        self.pending = sorted(self.pending + batch, key=_STAMP)
-        newest = self.pending[-1][0]
+        pairs = sorted(
+            zip(self.pending + batch, self._taken + [now] * len(batch), strict=True),
+            key=_stamp_of,
+        )
+        newest = pairs[-1][0][0]
         if self.newest is None or newest > self.newest:
             self.newest = newest
-        if self.since is None:
-            self.since = now
-        cut = bisect_right(self.pending, self.newest - self.window_ns, key=_STAMP)
-        released, self.pending = self.pending[:cut], self.pending[cut:]
-        if not self.pending:
-            self.since = None
+        cut = bisect_right(pairs, self.newest - self.window_ns, key=_stamp_of)
+        released = [item for item, _ in pairs[:cut]]
+        self.pending = [item for item, _ in pairs[cut:]]
+        self._taken = [taken for _, taken in pairs[cut:]]
+        # (not the first item's time: under steady traffic the window never empties, and
+        # the time of an item released long ago made due() release everything at once)
+        self.since = min(self._taken) if self._taken else None
         return released
 
     def due(self, now: float) -> list[Item]:
@@ -51,5 +59,5 @@ class ReorderWindow(Generic[Item]):
         return []
 
     def drain(self) -> list[Item]:
-        released, self.pending, self.since = self.pending, [], None
+        released, self.pending, self._taken, self.since = self.pending, [], [], None
         return released

@@ -392,7 +392,27 @@ class RosIngest:
 
     # -- /diagnostics ----------------------------------------------------------------------
 
-    def _reading_now(self) -> Reading:
+    def fingerprint(self) -> object:
+        """A few counters that change whenever anything a diagnostic level reads may have
+        (Health.settled): the engine's messages, routes and changes (evaluations, pressure,
+        handoffs, reactions) and this node's counts; None with --deadline (its window's
+        percentiles change with time alone)."""
+        engine = self.engine
+        if engine.deadline is not None:
+            return None
+        return (
+            engine.router.seq,
+            engine.routes_version,
+            engine.changes,
+            tuple(engine.lost.items()),
+            tuple((t, s.publishers) for t, s in list(self.subs.items())),
+            tuple(self.qos_problems.items()),
+            tuple(self.bad_messages.items()),
+            self.rosout.failures if self.rosout else 0,
+            tuple(self.outbox.coalesced().items()) if self.outbox is not None else None,
+        )
+
+    def _reading_now(self, fingerprint: object = None) -> Reading:
         """The engine and this node's own counts, for the statuses."""
         publishers = {
             topic: sub.publishers
@@ -406,13 +426,17 @@ class RosIngest:
             bad=dict(self.bad_messages),
             rosout_failures=self.rosout.failures if self.rosout else 0,
             coalesced=self.outbox.coalesced() if self.outbox is not None else None,
+            fingerprint=fingerprint,
         )
 
     def diagnose(self, health: Health, update: bool) -> list[Status] | None:
         """One check of the levels: the statuses published (all of them, as
         diagnostic_updater does) when ``update`` is due or a level changed, else None."""
         now = health.clock.monotonic()
-        levels = health.check(self._reading_now(), now)
+        fingerprint = self.fingerprint()  # (taken before the reading: a change meanwhile
+        if not update and health.settled(fingerprint, now):  # shows at the next look)
+            return None  # nothing changed: the levels are those published
+        levels = health.check(self._reading_now(fingerprint), now)
         if not update and not health.level_changed(levels):
             return None
         statuses = health.statuses()
@@ -813,6 +837,7 @@ class RosIngest:
         deadline = self.deadline
         timed: _Deadline | None = None  # --deadline once subscribed: waited on too
         waited: list[Any] = []
+        burst = True  # the last round took several messages: more may be gathering
         try:
             while not self._stop.is_set():
                 if self._resubscribe and self._apply_resubscriptions():
@@ -851,7 +876,8 @@ class RosIngest:
                 if not ready:  # (the monitors' topics: the deadline's does not count)
                     self._drained(waited_at, reorder)  # everything here was taken
                     continue
-                time.sleep(COALESCE_SECONDS)  # let a burst gather: fewer, larger batches
+                if burst:  # let a burst gather: fewer, larger batches
+                    time.sleep(COALESCE_SECONDS)
                 # Every round takes from every subscription, not only from those ready at
                 # the wait: a topic that was quiet then is not left behind while the
                 # others keep coming (it would reach the monitors later than the reorder
@@ -860,6 +886,10 @@ class RosIngest:
                 subs, taking = list(self.subs.values()), self._version
                 batch, through = self._take_all(subs)
                 while batch and not self._stop.is_set():  # while messages keep coming
+                    # A round that took one message is no burst: back to the wait, which
+                    # returns at once if more came meanwhile (at a robot's rates, a round
+                    # again over every subscription would take nothing).
+                    burst = len(batch) > 1
                     if reorder is not None and (several or reorder.pending):
                         taken(batch)  # a monitor being received learns its cut sooner
                         ingest(reorder.add(batch, time.monotonic()))
@@ -870,6 +900,8 @@ class RosIngest:
                         self._take_deadline(timed)
                     if self._version != taking:  # _ingest subscribed anew (a monitor came)
                         subs, taking = list(self.subs.values()), self._version
+                    if not burst:
+                        break
                     batch, through = self._take_all(subs)
                 self._drained(through, reorder)
         finally:
