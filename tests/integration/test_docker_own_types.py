@@ -21,8 +21,6 @@ from __future__ import annotations
 import base64
 import json
 import os
-import re
-import shutil
 import subprocess
 import sys
 import time
@@ -147,21 +145,7 @@ def test_the_documented_image_of_ones_own_types_gives_the_verdicts_of_edgerv_che
 
     # what a reader has at hand: handler.env (the domain set), the certificate, the monitors
     certs = shared_pki()
-    work = tmp_path / "work"
-    (work / "monitors").mkdir(parents=True)
-    env_file = (ROOT / "packaging" / "handler.env").read_text()
-    assert re.search(r"^ROS_DOMAIN_ID=0$", env_file, re.M)
-    (work / "handler.env").write_text(
-        env_file.replace("ROS_DOMAIN_ID=0\n", f"ROS_DOMAIN_ID={domain}\n")
-    )
-    shutil.copy(certs.crt, work / "handler.crt")
-    shutil.copy(certs.key, work / "handler.key")
-    (work / "monitors" / "robot.yaml").write_text(MONITORS)
-    etc, data = tmp_path / "etc", tmp_path / "data"
-    setup = dockerimage.with_values(
-        dockerimage.readme_recipe("docker-setup"), {"ETC": str(etc), "DATA": str(data)}
-    )
-    subprocess.run(["bash", "-euc", setup], cwd=work, check=True, timeout=60)
+    work, etc, data = dockerimage.readme_setup(tmp_path, domain, MONITORS)
 
     port, name = free_port(), f"edgerv-test-types-{os.getpid()}"
     run = dockerimage.with_values(

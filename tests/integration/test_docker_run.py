@@ -19,7 +19,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 import socket
 import subprocess
 import time
@@ -84,26 +83,10 @@ def test_the_documented_docker_run_gives_the_verdicts_of_edgerv_check(
     image: str, tmp_path: Path, domain: int
 ) -> None:
     certs = shared_pki()
-    # what a reader has at hand: handler.env (packaging/handler.env, the domain set),
-    # the certificate and its key, the monitors
-    work = tmp_path / "work"
-    (work / "monitors").mkdir(parents=True)
     env_file = (ROOT / "packaging" / "handler.env").read_text()
-    assert re.search(r"^ROS_DOMAIN_ID=0$", env_file, re.M)
     assert re.search(r"^ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET$", env_file, re.M)
     assert re.search(r"^FASTDDS_BUILTIN_TRANSPORTS=UDPv4$", env_file, re.M)
-    (work / "handler.env").write_text(
-        env_file.replace("ROS_DOMAIN_ID=0\n", f"ROS_DOMAIN_ID={domain}\n")
-    )
-    shutil.copy(certs.crt, work / "handler.crt")
-    shutil.copy(certs.key, work / "handler.key")
-    (work / "monitors" / "robot.yaml").write_text(MONITORS)
-    etc, data = tmp_path / "etc", tmp_path / "data"
-
-    setup = dockerimage.with_values(
-        dockerimage.readme_recipe("docker-setup"), {"ETC": str(etc), "DATA": str(data)}
-    )
-    subprocess.run(["bash", "-euc", setup], cwd=work, check=True, timeout=60)
+    work, etc, data = dockerimage.readme_setup(tmp_path, domain, MONITORS)
     assert oct(os.stat(etc / "tls.key").st_mode & 0o777) == "0o640"
 
     port, name = free_port(), f"edgerv-test-{os.getpid()}"

@@ -196,3 +196,28 @@ def with_values(recipe: str, values: dict[str, str]) -> str:
             lines[i] = " ".join(f"{k}={shlex.quote(v)}" for k, v in values.items())
             return "\n".join(lines) + "\n"
     raise AssertionError(f"no line of NAME=value assignments in the recipe:\n{recipe}")
+
+
+def readme_setup(tmp: Path, domain: int, monitors: str) -> tuple[Path, Path, Path]:
+    """What a reader of images/README.md has at hand, then its ``docker-setup`` block run:
+    a work directory with handler.env (packaging/handler.env, the test's domain set), the
+    shared certificate and its key, and ``monitors`` as monitors/robot.yaml. Returns the
+    work directory and the block's ETC and DATA (under ``tmp``)."""
+    from kit.pki import shared_pki
+
+    certs = shared_pki()
+    work = tmp / "work"
+    (work / "monitors").mkdir(parents=True)
+    env_file = (ROOT / "packaging" / "handler.env").read_text()
+    if not re.search(r"^ROS_DOMAIN_ID=0$", env_file, re.M):
+        raise AssertionError("packaging/handler.env no longer sets ROS_DOMAIN_ID=0")
+    (work / "handler.env").write_text(
+        env_file.replace("ROS_DOMAIN_ID=0\n", f"ROS_DOMAIN_ID={domain}\n")
+    )
+    shutil.copy(certs.crt, work / "handler.crt")
+    shutil.copy(certs.key, work / "handler.key")
+    (work / "monitors" / "robot.yaml").write_text(monitors)
+    etc, data = tmp / "etc", tmp / "data"
+    setup = with_values(readme_recipe("docker-setup"), {"ETC": str(etc), "DATA": str(data)})
+    subprocess.run(["bash", "-euc", setup], cwd=work, check=True, timeout=60)
+    return work, etc, data
