@@ -503,6 +503,16 @@ def run(args: argparse.Namespace) -> int:
     reactions = ReactionLane(reactor, args.name)
     engine.reactor = reactions
     engine.budget = budget
+
+    def refuse_to_start() -> int:
+        """Close what was opened (nothing was evaluated yet), for an input error."""
+        now = time.monotonic()
+        reactions.close(now)
+        reactor.close()
+        outbox.close(now)
+        ros.close()
+        return EXIT_INPUT
+
     diagnostics += load(engine, specs, active, args.max_monitors)
     for d in diagnostics:
         print(d.render(), file=sys.stderr)
@@ -512,11 +522,7 @@ def run(args: argparse.Namespace) -> int:
             f"the memory budget ({size_text(budget.total)}, {budget.origin}): not starting",
             file=sys.stderr,
         )
-        reactions.close(time.monotonic())
-        reactor.close()
-        outbox.close(time.monotonic())
-        ros.close()
-        return EXIT_INPUT
+        return refuse_to_start()
     if any(d.severity == "error" for d in diagnostics):
         log.error(
             "%d problem(s) above: those monitors are not loaded; the others run",
@@ -570,11 +576,7 @@ def run(args: argparse.Namespace) -> int:
                 f"{exc.strerror}",
                 file=sys.stderr,
             )
-            reactions.close(time.monotonic())
-            reactor.close()
-            outbox.close(time.monotonic())
-            ros.close()
-            return EXIT_INPUT
+            return refuse_to_start()
     scheduler_stop = threading.Event()
     scheduler = threading.Thread(
         target=engine.run_scheduler, args=(scheduler_stop,), name="edgerv-scheduler", daemon=True
