@@ -327,6 +327,9 @@ class MonitorRuntime:
     plain: bool = field(default=False, init=False)
     atom_funcs: Any = field(default=None, init=False)  # (the monitor's, for that step)
     atoms_of_signal: Any = field(default=None, init=False)
+    # the CPU (ns) its host measured spending on it since it was made: taking its events
+    # and evaluating them (a handler's estimate from sampled timings; not in a snapshot)
+    cost_ns: float = field(default=0.0, init=False, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         spec = self.monitor.spec

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
+import random
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -68,6 +70,12 @@ INLINE_MONITORS = 512
 # the lock and hands them on: the ingest thread takes messages between rounds, and what
 # is in flight stays bounded, however many monitors violate at once (the verdict storm).
 EVALUATE_CHUNK = 4096
+# What each monitor costs here (its runtime's ``cost_ns``, the load report's
+# ``cpuSeconds`` per monitor) is estimated from timings of one message in COST_SAMPLE and
+# one evaluation round in COST_SAMPLE, chosen at random (unbiased, whatever the topics'
+# rhythm), each scaled by COST_SAMPLE: timing every one would cost more than the budget
+# of the edge allows (a clock read is ~50 ns, a monitor's step ~1 us).
+COST_SAMPLE = 16
 
 
 class VerdictSink(Protocol):
@@ -148,6 +156,25 @@ class Engine(HandoffSteps):
         self.reactor: Reactor | None = None
         self.behind = False  # the last round stopped at EVALUATE_CHUNK verdicts: more wait
         self.budget: MemoryBudget | None = None  # --memory-budget: monitors' buffers count
+        # 1 in cost_every messages and rounds, at random, timed for the monitors' costs
+        # (1: every one): how many more messages, and rounds, until the next timed one
+        self.random = random.Random()
+        self.sample_costs(COST_SAMPLE)
+
+    def sample_costs(self, every: int) -> None:
+        """Time 1 in ``every`` messages and rounds, at random, for the monitors' costs."""
+        self.cost_every = every
+        self.untimed_messages = self.untimed_rounds = self.cost_gap()
+
+    def cost_gap(self) -> int:
+        """How many messages (or rounds) until the next timed one, counting it: the gaps
+        of a Bernoulli process of probability 1/cost_every (each one timed independently
+        of the others, so no rhythm of the topics biases the estimate), drawn once per
+        timed one rather than a draw per message."""
+        if self.cost_every <= 1:
+            return 1
+        u = 1.0 - self.random.random()  # (0, 1]
+        return int(math.log(u) / math.log(1.0 - 1.0 / self.cost_every)) + 1
 
     # -- monitors --------------------------------------------------------------------------
 
@@ -371,6 +398,7 @@ class Engine(HandoffSteps):
         """:meth:`ingest` a message at a time; True when a monitor has WAKE_LETTERS waiting."""
         routes, slots, woke = self.router.routes, self.slots, False
         messages, newest, heard = self.messages, self.newest, self.heard
+        offer, untimed = self.router.offer_values, self.untimed_messages
         for stamp, topic, values in batch:
             route = routes.get(topic)
             if route is None:
@@ -379,10 +407,21 @@ class Engine(HandoffSteps):
             heard[topic] = now
             if stamp > newest.get(topic, stamp - 1):
                 newest[topic] = stamp
-            for runtime in self.router.offer_values(route, stamp, values, admit):
+            untimed -= 1
+            if untimed:
+                ready = offer(route, stamp, values, admit)
+            else:  # a timed message: its cost shared by its readers
+                start = time.perf_counter_ns()
+                ready = offer(route, stamp, values, admit)
+                share = (time.perf_counter_ns() - start) * self.cost_every / len(route.readers)
+                for reader, _ in route.readers:
+                    reader.cost_ns += share
+                untimed = self.cost_gap()
+            for runtime in ready:
                 slots[runtime.name].pending_since = now if runtime.events else None
                 self.waiting[runtime.name] = runtime
                 woke = woke or len(runtime.letters) >= WAKE_LETTERS
+        self.untimed_messages = untimed
         return woke
 
     def _ingest_columns(
@@ -399,6 +438,7 @@ class Engine(HandoffSteps):
         (:meth:`~edgerv.core.pipeline.MonitorRuntime.take_arrivals`): it takes and drops
         exactly what :meth:`_ingest_each` would. A batch with fewer than COLUMNS_FROM
         messages on every topic goes to :meth:`_ingest_each` whole."""
+        began = time.perf_counter_ns()  # every such batch timed: a clock read is nothing here
         routes, slots = self.router.routes, self.slots
         stamps_, topics, rows = (list(c) for c in zip(*batch, strict=True))
         by_topic = batches.positions_by_topic(topics, routes)
@@ -420,7 +460,9 @@ class Engine(HandoffSteps):
         woke = False
         arrays: dict[str, batches.Column] = {}  # in NumPy arrays, made on first use
         stamps: Any = None
+        own = 0  # ns spent on one monitor at a time; the rest is shared by all of them
         for name, mine in reads.items():
+            start = time.perf_counter_ns()
             runtime, slot = runtimes[name], slots[name]
             if runtime.past is None:  # columns.compress may make its letters: arrays
                 if stamps is None:
@@ -448,6 +490,9 @@ class Engine(HandoffSteps):
                 slot.pending_since = now if runtime.events else None
                 self.waiting[name] = runtime
                 woke = woke or len(runtime.letters) >= WAKE_LETTERS
+            spent = time.perf_counter_ns() - start
+            runtime.cost_ns += spent
+            own += spent
         for topic, at in by_topic.items():
             if topic in arrays:  # (NumPy's max, where the arrays were made)
                 top = int(stamps[arrays[topic][0]].max())
@@ -455,6 +500,10 @@ class Engine(HandoffSteps):
                 top = max(map(stamps_.__getitem__, at))
             if top > self.newest.get(topic, top - 1):
                 self.newest[topic] = top
+        if runtimes:
+            share = (time.perf_counter_ns() - began - own) / len(runtimes)
+            for runtime in runtimes.values():
+                runtime.cost_ns += share
         return woke
 
     def taken(self, batch: Sequence[tuple[Any, ...]]) -> None:
@@ -492,11 +541,21 @@ class Engine(HandoffSteps):
         if waiting:
             self.changes += 1
         items = iter(waiting.items())
+        self.untimed_rounds -= 1
+        timed = not self.untimed_rounds  # a timed round: each monitor's evaluation
+        if timed:
+            self.untimed_rounds = self.cost_gap()
         for name, rt in items:
             slot = self.slots.get(name)
             if slot is None or slot.runtime is not rt:
                 continue  # removed or redefined since
-            for v in rt.evaluate():
+            if timed:
+                start = time.perf_counter_ns()
+                reached = rt.evaluate()
+                rt.cost_ns += (time.perf_counter_ns() - start) * self.cost_every
+            else:
+                reached = rt.evaluate()
+            for v in reached:
                 slot.verdicts[v.verdict] += 1
                 slot.last_verdict = v
                 verdicts.append(v)
@@ -711,6 +770,7 @@ class Engine(HandoffSteps):
                         "epoch": slot.epoch,
                         "peer": slot.peer if slot.handoff else None,
                         "events": slot.events,
+                        "cpuSeconds": slot.runtime.cost_ns / 1e9 if slot.runtime else 0.0,
                         "migrationWanted": slot.migration_wanted,
                         "placement": placement_json(slot.compiled.spec.placement),
                     }

@@ -1,0 +1,77 @@
+"""What each monitor costs its handler (issue 37, "costs measured, not guessed"): the
+engine charges a monitor its share of each message it reads and its evaluations, and
+the load report carries it (``cpuSeconds`` per monitor). The amounts are timings, so the
+tests check who is charged and how the shares are split, never how much."""
+
+from __future__ import annotations
+
+from edgerv.handler.engine import COLUMNS_FROM, Engine
+from kit.documents import compiled
+
+
+def engine_of(every: int) -> Engine:
+    """Monitors ``a1`` and ``a2`` read /a, ``b`` reads /b; ``every``: 1 in how many
+    messages and rounds are timed."""
+    e = Engine("edge")
+    e.sample_costs(every)
+    for name, signal in (("a1", "a"), ("a2", "a"), ("b", "b")):
+        e.put(compiled(f"always ({signal} < 100)", {signal: "float"}, name=name), active=True)
+    return e
+
+
+def costs(e: Engine) -> dict[str, float]:
+    return {name: slot.runtime.cost_ns for name, slot in e.slots.items() if slot.runtime}
+
+
+def test_the_readers_of_a_topic_share_each_message_and_the_others_pay_nothing() -> None:
+    e = engine_of(every=1)
+    e.ingest([(i, "/a", [float(i)]) for i in range(1, COLUMNS_FROM // 2)])
+    c = costs(e)
+    assert c["a1"] > 0 and c["a1"] == c["a2"]  # one share each, the same
+    assert c["b"] == 0
+
+
+def test_a_monitor_is_charged_for_its_own_evaluation_only() -> None:
+    e = engine_of(every=1)
+    e.ingest([(1, "/a", [1.0])])
+    before = costs(e)
+    assert [v.monitor for v in e.evaluate()] == []  # pending: no verdict, work all the same
+    after = costs(e)
+    assert after["a1"] > before["a1"] and after["a2"] > before["a2"]
+    assert after["b"] == 0  # it had no letter: not evaluated
+
+
+def test_a_long_batch_read_a_column_at_a_time_charges_its_readers_only() -> None:
+    e = engine_of(every=1)
+    e.ingest([(i, "/a", [float(i)]) for i in range(1, 4 * COLUMNS_FROM)])
+    c = costs(e)
+    assert c["a1"] > 0 and c["a2"] > 0
+    assert c["b"] == 0
+
+
+def test_messages_and_rounds_are_timed_one_in_every_at_random() -> None:
+    """Sampling: the gaps between timed messages (and rounds) are those of a Bernoulli
+    process of probability 1/every; one not chosen charges nothing, so the estimate costs
+    only the chosen ones' clock reads."""
+    e = engine_of(every=16)
+    gaps = [e.cost_gap() for _ in range(4000)]
+    assert min(gaps) >= 1 and 14 < sum(gaps) / len(gaps) < 18  # mean 16 (sd of it: 0.24)
+    e.untimed_messages = e.untimed_rounds = 10**9  # none chosen for a long while
+    e.ingest([(i, "/a", [float(i)]) for i in range(1, 10)])
+    e.evaluate()
+    assert set(costs(e).values()) == {0.0}
+    e.untimed_messages = 1  # the next one chosen: charged 16 times its timing
+    e.ingest([(10, "/a", [10.0])])
+    assert costs(e)["a1"] > 0 and costs(e)["b"] == 0
+    assert e.untimed_messages >= 1  # and the next gap drawn
+
+
+def test_the_load_report_carries_each_monitors_cost_in_seconds() -> None:
+    e = engine_of(every=1)
+    e.put(compiled("always (c < 100)", {"c": "float"}, name="idle"), active=False)
+    e.ingest([(1, "/a", [1.0]), (2, "/b", [2.0])])
+    e.evaluate()
+    monitors = e.load()["monitors"]
+    for name in ("a1", "a2", "b"):
+        assert monitors[name]["cpuSeconds"] == e.slots[name].runtime.cost_ns / 1e9 > 0  # type: ignore[union-attr]
+    assert monitors["idle"]["cpuSeconds"] == 0.0  # not active here: nothing spent
