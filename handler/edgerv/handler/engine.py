@@ -37,6 +37,7 @@ from edgerv.handler.budget import MemoryBudget, monitor_cost
 from edgerv.handler.clock import Clock, SystemClock
 from edgerv.handler.handoff_state import HandoffState
 from edgerv.handler.handoff_steps import HandoffSteps
+from edgerv.handler.host import read_host_cpu
 from edgerv.handler.payloads import MonitorReport
 from edgerv.handler.slot import MonitorSlot
 
@@ -756,11 +757,13 @@ class Engine(HandoffSteps):
         ``deadline`` is the makespan window's reading (null without ``--deadline``)."""
         now_ns = int(self.clock.monotonic() * 1e9)
         deadline = self.deadline.report(now_ns) if self.deadline else None
+        host = read_host_cpu()
         with self.lock:
             return {
                 "handler": self.name,
                 "monotonic": self.clock.monotonic(),
                 "cpuSeconds": time.process_time(),
+                "host": None if host is None else host.json(),
                 "ingestLag": self.ingest_lag,
                 "deadline": deadline,
                 "monitors": {
