@@ -41,6 +41,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+from recovery import recovery  # (examples/robot: this script's directory)
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent.parent
 DEADLINE_MS = 125.0
@@ -312,6 +314,8 @@ class PhaseResult:
     stop_time: float = 0.0  # the phase's end (after the mission, and parked if it parked)
     parked: dict[str, Any] = field(default_factory=dict)  # orchestrated: after the goal
     parked_at: float = 0.0
+    on_edge_at_goal: int | None = None  # monitors on the edge when the goal was given
+    recovery: dict[str, Any] | None = None  # orchestrated: recovery.recovery's measure
 
     def figures(self) -> dict[str, Any]:
         ms = [m for _, m in self.makespans]
@@ -328,6 +332,7 @@ class PhaseResult:
             "handlerCpu": {k: round(v, 3) for k, v in self.handler_cpu.items()},
             **({"goalGivenAfterSeconds": self.settled_after} if self.settled_after else {}),
             **({"parked": self.parked} if self.parked else {}),
+            **({"recovery": self.recovery} if self.recovery else {}),
         }
 
 
@@ -561,6 +566,7 @@ class Demo:
             self.work = json.loads(line)["calibrated"]["workMs"] / 1000
         cpu0 = self.cpu_seconds()
         result.goal_time = time.time()
+        result.on_edge_at_goal = self.view.on_edge
         result.goal_stamp = self.planner.start_mission()
         wait_verdict = phase.wait_verdict and not self.args.short
         # the goal monitor's window, and for the orchestrated robot as long again: one that
@@ -697,6 +703,15 @@ class Demo:
         result.misses = sum(1 for r in frames if not r["met"])
         result.arrived = log.event("arrived", result.goal_time) is not None
         result.collided = log.event("collision", result.goal_time) is not None
+        if result.migrations:  # orchestrated: how the policy brought the loop back
+            stop = int(result.stop_time * 1e9)
+            phase_frames = [(r["stamp"] / 1e9, bool(r["met"])) for r in log.kind("frame")]
+            settled = result.on_edge_at_goal
+            result.recovery = recovery(
+                [f for f in phase_frames if f[0] * 1e9 <= stop],
+                result.migrations,
+                None if settled is None else self.monitor_count - settled,
+            )
 
     # -- verdicts: live against edgerv check on the recording ----------------------------------
 
@@ -1071,6 +1086,16 @@ def print_table(summary: dict[str, Any]) -> None:
         f"reasons {', '.join(summary['migrationReasons']) or '-'}); monitors whose live "
         f"verdicts differ from edgerv check on the recording: {differ}{said}"
     )
+    for name, p in summary["phases"].items():
+        r = p.get("recovery")
+        if r:
+            back = "never" if r["seconds"] is None else f"in {r['seconds']} s"
+            console.print(
+                f"{name}: back under the deadline {back} after its first miss "
+                f"({r['handoffs']} handoffs, {r['monitorsMoved']} monitors moved, "
+                f"{r['deadlineMisses']} deadlines missed meanwhile; "
+                f"{r['monitorsInCloud']} monitors in the cloud once settled)"
+            )
     if summary["problems"]:
         console.print("[bold red]The run did not reproduce the paper's shape:[/bold red]")
         for p in summary["problems"]:

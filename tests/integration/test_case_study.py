@@ -65,6 +65,21 @@ def test_the_moves_were_decided_by_the_policy_on_deadline_pressure(
     assert "deadline" in summary["migrationReasons"], text
 
 
+def test_the_policy_brings_the_loop_back_under_its_deadline_and_says_how_fast(
+    run: tuple[int, dict[str, Any], str],
+) -> None:
+    """Issue 37's measure: from the first missed deadline to the first of 10 frames in a
+    row that met theirs, the handoffs and moves it took, the misses meanwhile."""
+    _, summary, text = run
+    recovery = summary["phases"]["orchestrated"]["recovery"]
+    assert recovery["seconds"] is not None, (recovery, text)  # the loop came back under it
+    assert 1 <= recovery["handoffs"] <= summary["migrations"], recovery
+    assert 0 < recovery["monitorsMoved"] <= summary["monitorsMoved"], recovery
+    assert recovery["deadlineMisses"] >= 1, recovery
+    on_edge = summary["raisedLoad"]["monitors"] - recovery["monitorsInCloud"]
+    assert recovery["monitorsInCloud"] > 0 and on_edge >= 0, recovery
+
+
 def test_once_the_robot_parks_the_policy_brings_monitors_back_down(
     run: tuple[int, dict[str, Any], str],
 ) -> None:

@@ -1,0 +1,55 @@
+"""How a placement policy brought the robot's control loop back under its deadline.
+
+Issue 37's measure of a policy, from what the robot and ``edgerv orchestrate`` wrote:
+the seconds from the first missed deadline to the first of ``RUN`` frames in a row that
+met theirs, the handoffs and monitor moves the policy made until then, the deadlines
+missed meanwhile, and how many monitors were in the cloud once it had settled.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+RUN = 10  # frames in a row that met their deadline: the loop is back under it
+
+
+def recovery(
+    frames: Sequence[tuple[float, bool]],
+    moves: Sequence[Mapping[str, Any]],
+    in_cloud: int | None,
+    run: int = RUN,
+) -> dict[str, Any] | None:
+    """``frames``: (wall seconds, met its deadline) in time order; ``moves``: the
+    orchestrator's records (``at`` wall seconds, ``monitors``, ``ok``, ``from``: a move,
+    not a start); ``in_cloud``: monitors in the cloud once the policy settled. None when
+    no deadline was missed (nothing to recover from); ``seconds`` None when the loop never
+    met ``run`` deadlines in a row after the first miss (then the moves and misses are
+    those of the whole run)."""
+    first = next((i for i, (_, met) in enumerate(frames) if not met), None)
+    if first is None:
+        return None
+    start = frames[first][0]
+    back: float | None = None
+    misses, streak = 0, 0
+    for i in range(first, len(frames)):
+        if frames[i][1]:
+            streak += 1
+            if streak == run:
+                back = frames[i - run + 1][0]
+                break
+        else:
+            misses += 1
+            streak = 0
+    made = [
+        m
+        for m in moves
+        if m.get("ok") and m.get("from") and (back is None or float(m["at"]) <= back)
+    ]
+    return {
+        "seconds": None if back is None else round(back - start, 2),
+        "handoffs": len(made),
+        "monitorsMoved": sum(len(m["monitors"]) for m in made),
+        "deadlineMisses": misses,
+        "monitorsInCloud": in_cloud,
+    }
