@@ -20,7 +20,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from edgerv.core.documents import load_monitors_text  # noqa: E402
 from edgerv.core.monitor import compile_monitor  # noqa: E402
 from edgerv.handler.engine import Engine  # noqa: E402
-from edgerv.handler.ros_node import TAKE_PER_WAKE, RosIngest, message_class  # noqa: E402
+from edgerv.handler.ros.node import TAKE_PER_WAKE, RosIngest, message_class  # noqa: E402
 
 pytestmark = pytest.mark.integration
 

@@ -31,7 +31,7 @@ from std_msgs.msg import String  # noqa: E402
 
 from edgerv.core.cdr import compile_reader  # noqa: E402
 from edgerv.core.msgtypes import field_kind, typestore  # noqa: E402
-from edgerv.handler.cdr_out import encode_verdict_array, encode_verdict_message  # noqa: E402
+from edgerv.handler.ros.cdr_out import encode_verdict_array, encode_verdict_message  # noqa: E402
 from kit.documents import monitor_yaml, monitors_yaml, speed_monitor  # noqa: E402
 from kit.ros import HandlerProcess, publisher, wait_for  # noqa: E402
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from edgerv.handler.ros_logs import ros_log_dir, ros_log_problem
+from edgerv.handler.ros.logs import ros_log_dir, ros_log_problem
 
 
 def test_the_directory_is_resolved_as_rcl_resolves_it(tmp_path: Path) -> None:

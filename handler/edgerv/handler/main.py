@@ -30,7 +30,6 @@ from edgerv.core.deadline import MakespanWindow, parse_deadline
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
 from edgerv.core.documents import MonitorSpec, read_monitors
 from edgerv.core.language.spot_worker import add_budget_argument, worker
-from edgerv.handler import ros_types
 from edgerv.handler.budget import (
     MemoryBudget,
     container_limit,
@@ -45,6 +44,7 @@ from edgerv.handler.engine import Engine, VerdictSink
 from edgerv.handler.health import DiagnosticsConfig, Health
 from edgerv.handler.limits import Limits
 from edgerv.handler.outbox import ITEM_BYTES, QUEUED, Outbox, ReactionLane
+from edgerv.handler.ros import types as ros_types
 from edgerv.handler.sinks import VerdictLog, ViolationLines
 from edgerv.handler.tls import is_loopback, server_context
 from edgerv.handler.token import Token, TokenFile
@@ -454,9 +454,9 @@ def run(args: argparse.Namespace) -> int:
             diagnostics.append(
                 Diagnostic(Location("--active"), f"no monitor named {', '.join(unknown)}")
             )
-    from edgerv.handler import ros_node  # ROS only from here on: `edgerv check` needs none
     from edgerv.handler.api import ControlApi
     from edgerv.handler.metrics import build_registry
+    from edgerv.handler.ros import node as ros_node  # ROS from here on: `check` needs none
 
     ros_types.configure(args.types_cache)  # types of the robot's own, built at first use
     ros_node.init_ros()
@@ -497,7 +497,7 @@ def run(args: argparse.Namespace) -> int:
     if ros.health is not None:
         outbox.add("diagnostics", health)  # notes violations as they come: published at once
     engine.matched = ros.matched
-    from edgerv.handler.reactor import Reactor
+    from edgerv.handler.ros.reactor import Reactor
 
     reactor = Reactor(args.name, engine.note_reaction)  # spec.onViolation
     reactions = ReactionLane(reactor, args.name)
@@ -617,8 +617,6 @@ def run(args: argparse.Namespace) -> int:
     if verdict_log:
         verdict_log.close()
     ros.close()
-    from rclpy.utilities import try_shutdown
-
-    try_shutdown()
+    ros_node.shutdown_ros()
     log.info("handler %s stopped", args.name)
     return 1 if ros.failed else 0

@@ -12,8 +12,8 @@ from typing import Any
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from edgerv.core.pipeline import Verdict
-from edgerv.handler.cdr_out import CDR_LE, VerdictFields, encode_verdict, encode_verdict_array
 from edgerv.handler.engine import Engine
+from edgerv.handler.ros.cdr_out import CDR_LE, VerdictFields, encode_verdict, encode_verdict_array
 
 TYPED_VERDICT_TOPIC = "/edgerv/verdict"  # edgerv_msgs/msg/Verdict, each as reached
 LAST_VERDICTS_TOPIC = "/edgerv/last_verdicts"  # edgerv_msgs/msg/VerdictArray, per handler

@@ -48,15 +48,13 @@ from rclpy.exceptions import InvalidHandle
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
-from rclpy.utilities import ok
+from rclpy.utilities import ok, try_shutdown
 
 from edgerv.core.cdr import Reader, compile_reader, header_stamp_ns
 from edgerv.core.deadline import MakespanWindow
 from edgerv.core.documents import QosSpec
 from edgerv.core.msgtypes import starts_with_header
 from edgerv.core.pipeline import TopicRoute, Verdict
-from edgerv.handler import ros_types
-from edgerv.handler.cdr_out import encode_diagnostic_array
 from edgerv.handler.clock import (
     CLOCK_DEPTH,
     CLOCK_TOPIC,
@@ -68,9 +66,15 @@ from edgerv.handler.engine import Engine
 from edgerv.handler.health import Health, Pacer, Reading, Status, read_engine
 from edgerv.handler.outbox import Burst, Outbox
 from edgerv.handler.reorder import ReorderWindow
-from edgerv.handler.ros_logs import ros_log_problem
+from edgerv.handler.ros import types as ros_types
+from edgerv.handler.ros.cdr_out import encode_diagnostic_array
+from edgerv.handler.ros.logs import ros_log_problem
+from edgerv.handler.ros.verdict_topics import (
+    LAST_VERDICTS_SECONDS,
+    LAST_VERDICTS_TOPIC,
+    TypedVerdicts,
+)
 from edgerv.handler.sinks import verdict_record
-from edgerv.handler.verdict_topics import LAST_VERDICTS_SECONDS, LAST_VERDICTS_TOPIC, TypedVerdicts
 
 log = logging.getLogger("edgerv.handler.ros")
 
@@ -103,7 +107,7 @@ def message_class(msg_type: str) -> Any:
     """The rclpy class of ``pkg/msg/Type`` (or of a service's event, ``pkg/srv/Name_Event``,
     in its package's ``srv`` module). A type not installed, of a package of the robot's
     own, is built from its .msg files where ``edgerv check`` finds them (at its first use,
-    cached: :mod:`edgerv.handler.ros_types`); raises ImportError saying what to do."""
+    cached: :mod:`edgerv.handler.ros.types`); raises ImportError saying what to do."""
     pkg, kind, name = msg_type.split("/")
     try:
         return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
@@ -133,6 +137,11 @@ def init_ros() -> None:
             + (["--disable-external-lib-logs"] if no_files else []),
             signal_handler_options=SignalHandlerOptions.NO,
         )
+
+
+def shutdown_ros() -> None:
+    """Shut rclpy down, unless it is down already: the handler's last step."""
+    try_shutdown()
 
 
 # -- /rosout -------------------------------------------------------------------------------

@@ -27,7 +27,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from edgerv.core.pipeline import Verdict
 from edgerv.core.reactions import Call, Fields, Publish, Reaction
-from edgerv.handler.ros_node import message_class, node_name
+from edgerv.handler.ros.node import message_class, node_name
 
 log = logging.getLogger("edgerv.handler.reactor")
 
