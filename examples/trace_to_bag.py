@@ -36,7 +36,7 @@ def main(argv: list[str]) -> int:
     from rclpy.serialization import serialize_message
     from rosbags.rosbag2 import StoragePlugin, Writer
 
-    from edgerv.handler.ros.node import message_class
+    from edgerv.handler.ros.messages import message_class
     from edgerv.handler.ros.replay import fill, read_events
 
     try:

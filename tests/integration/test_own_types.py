@@ -175,7 +175,7 @@ def test_edgerv_types_build_packs_wheels_that_pip_installs_and_that_import_alone
 import sys
 from rclpy.serialization import deserialize_message, serialize_message
 from edgerv.core.msgtypes import field_kind
-from edgerv.handler.ros.node import message_class
+from edgerv.handler.ros.messages import message_class
 State, Vec2 = message_class("my_robot_msgs/msg/State"), message_class("common_msgs/msg/Vec2")
 msg = State(mode="AUTO", corners=[Vec2(x=1.0), Vec2(y=2.0)], codes=[3])
 assert deserialize_message(serialize_message(msg), State) == msg

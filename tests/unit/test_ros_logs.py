@@ -1,4 +1,4 @@
-"""Where rcl writes its log files, and the warning when it cannot (handler/ros_logs.py).
+"""Where rcl writes its log files, and the warning when it cannot (handler/ros/logs.py).
 
 The handler and `edgerv replay` start ROS without its log files where that directory
 cannot be written (a read-only home), instead of failing at rclpy.init with exit 70

@@ -219,7 +219,7 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.utilities import try_shutdown
 
     from edgerv.handler.ros.logs import ros_log_problem
-    from edgerv.handler.ros.node import message_class
+    from edgerv.handler.ros.messages import message_class
 
     ClockMsg = message_class("rosgraph_msgs/msg/Clock")
 
