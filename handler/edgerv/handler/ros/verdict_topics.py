@@ -28,7 +28,7 @@ log = logging.getLogger("edgerv.handler.ros")
 VERDICT_TOPIC = "/edgerv/verdicts"  # JSON in std_msgs/String: kept for compatibility
 BUILD_MSGS = (
     "edgerv_msgs is not installed in this Python environment: no typed verdicts on "
-    "/edgerv/verdict and /edgerv/last_verdicts (the JSON on {VERDICT_TOPIC} goes "
+    f"/edgerv/verdict and /edgerv/last_verdicts (the JSON on {VERDICT_TOPIC} goes "
     "on); build it from edgerv's source tree with `make install`, or `bash "
     "interfaces/build.sh <venv>` for another venv"
 )
