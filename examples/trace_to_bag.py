@@ -36,8 +36,8 @@ def main(argv: list[str]) -> int:
     from rclpy.serialization import serialize_message
     from rosbags.rosbag2 import StoragePlugin, Writer
 
-    from edgerv.handler.replay import fill, read_events
-    from edgerv.handler.ros_node import message_class
+    from edgerv.handler.ros.messages import message_class
+    from edgerv.handler.ros.replay import fill, read_events
 
     try:
         read = argparse.Namespace(monitors=args.monitors, trace=args.trace)

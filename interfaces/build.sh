@@ -28,7 +28,7 @@
 #
 # The robot's own interface packages are built the same way (rosidl, the same build-time
 # packages, the same wheel layout) by edgerv itself, `edgerv types build DIR`, or by the
-# handler at a type's first use: edgerv.handler.ros_types, docs/handler.md ("Your own
+# handler at a type's first use: edgerv.handler.ros.types, docs/handler.md ("Your own
 # message types").
 set -euo pipefail
 
@@ -96,7 +96,7 @@ BASEVER="$(sed -n 's:.*<version>\(.*\)</version>.*:\1:p' "$SRC/package.xml" | he
 [ -n "$BASEVER" ] || die "no <version> in $SRC/package.xml"
 SRCHASH="$(cd "$HERE" && {
   find edgerv_msgs -type f -print0 | LC_ALL=C sort -z | xargs -0 sha256sum
-  sha256sum pack_wheel.py build.sh ../handler/edgerv/handler/ros_types.py
+  sha256sum pack_wheel.py build.sh ../handler/edgerv/handler/ros/types.py
   printf 'python %s\n%s\n' "$PYVER" "$ros_versions"
 } | sha256sum | cut -c1-12)"
 VERSION="$BASEVER+src.$SRCHASH"

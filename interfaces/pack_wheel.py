@@ -12,7 +12,7 @@ the ros-jazzy-* wheels on PyPI, so that pip installs it into a venv the same way
 usage: python pack_wheel.py STAGE OUT_DIR DIST_NAME VERSION [REQUIREMENT...]
 
 Prints the wheel's path. The packing itself is edgerv's
-(:func:`edgerv.handler.ros_types.pack_wheel`, which ``edgerv types build --wheel-dir``
+(:func:`edgerv.handler.ros.types.pack_wheel`, which ``edgerv types build --wheel-dir``
 packs the robot's own interface packages with), taken from this source tree: standard
 library only, edgerv need not be installed. The wheel is reproducible (fixed file times,
 sorted entries). Run it with the venv's Python: the wheel is tagged for it.
@@ -25,7 +25,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "handler"))  # this tree's edgerv
 
-from edgerv.handler.ros_types import pack_wheel  # noqa: E402
+from edgerv.handler.ros.types import pack_wheel
 
 SUMMARY = "edgerv's ROS 2 interfaces (edgerv_msgs), built by interfaces/build.sh"
 

@@ -53,7 +53,7 @@ GOAL_SECONDS = 20.0  # the goal monitor's F[0..20s]
 # The policy's hysteresis, shortened for a demo of minutes (edgerv orchestrate's defaults:
 # 30 s and 60 s): the edge handler calm this long before monitors come back down, and none
 # comes down within this long of its last move.
-# a handler's count of what the middleware lost (edgerv.handler.ros_node._count_lost)
+# a handler's count of what the middleware lost (edgerv.handler.ros.take.TakeLoop._count_lost)
 LOST = re.compile(r"(/\S+): \d+ message\(s\) lost before this handler took them, (\d+) in all")
 CALM_SECONDS = 8
 COOLDOWN_SECONDS = 20

@@ -216,7 +216,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     add_arguments(handler)
     handler.set_defaults(func=run)
 
-    from edgerv.handler import replay
+    from edgerv.handler.ros import replay
 
     rep = sub.add_parser(
         "replay",
@@ -245,7 +245,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     orchestrate.add_arguments(orch)
     orch.set_defaults(func=orchestrate.run)
 
-    from edgerv.handler import ros_types
+    from edgerv.handler.ros import types as ros_types
 
     types = sub.add_parser(
         "types",

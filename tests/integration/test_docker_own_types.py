@@ -31,7 +31,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from edgerv.handler import ros_types
+from edgerv.handler.ros import types as ros_types
 from kit import dockerimage
 from kit.own_types import (
     MONITOR_NAMES,
@@ -58,7 +58,7 @@ RECORDER = r"""
 import base64, json, sys, time
 import rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from edgerv.handler.ros_types import load_package
+from edgerv.handler.ros.types import load_package
 load_package("my_robot_msgs")
 from my_robot_msgs.msg import State
 out, n = sys.argv[1], int(sys.argv[2])

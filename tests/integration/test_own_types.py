@@ -1,7 +1,7 @@
 """A robot's own message types, live (issue #39): a custom interface package written here
 (nested types, arrays, a type of another custom package, standard ones), found by the
 handler under $EDGERV_MSG_PATH as ``edgerv check`` finds it, built with rosidl at its first
-use into a types cache (edgerv.handler.ros_types: a real ament/rosidl build from PyPI's
+use into a types cache (edgerv.handler.ros.types: a real ament/rosidl build from PyPI's
 ros-jazzy-* wheels, no ROS installation); a real rclpy publisher node imports the
 generated classes and publishes; a recorder node next to the handler records the same
 messages as an MCAP bag; the handler's verdicts equal ``edgerv check`` on the bag. Then
@@ -27,7 +27,7 @@ rclpy = pytest.importorskip("rclpy")
 
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 
-from edgerv.handler import ros_types  # noqa: E402
+from edgerv.handler.ros import types as ros_types  # noqa: E402
 from kit.own_types import MONITORS, PUBLISHER, N, write_bag, write_packages  # noqa: E402
 from kit.ros import HandlerProcess, check_verdicts, own_node, ros_env, wait_for  # noqa: E402
 
@@ -175,7 +175,7 @@ def test_edgerv_types_build_packs_wheels_that_pip_installs_and_that_import_alone
 import sys
 from rclpy.serialization import deserialize_message, serialize_message
 from edgerv.core.msgtypes import field_kind
-from edgerv.handler.ros_node import message_class
+from edgerv.handler.ros.messages import message_class
 State, Vec2 = message_class("my_robot_msgs/msg/State"), message_class("common_msgs/msg/Vec2")
 msg = State(mode="AUTO", corners=[Vec2(x=1.0), Vec2(y=2.0)], codes=[3])
 assert deserialize_message(serialize_message(msg), State) == msg

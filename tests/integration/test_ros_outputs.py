@@ -27,10 +27,10 @@ from rclpy.serialization import deserialize_message  # noqa: E402
 
 from edgerv.core.documents import load_monitors_text  # noqa: E402
 from edgerv.core.monitor import compile_monitor  # noqa: E402
-from edgerv.handler.cdr_out import encode_diagnostic_array  # noqa: E402
 from edgerv.handler.engine import Engine  # noqa: E402
 from edgerv.handler.health import DiagnosticsConfig, Health, Level, read_engine  # noqa: E402
-from edgerv.handler.ros_node import RosoutHandler  # noqa: E402
+from edgerv.handler.ros.cdr_out import encode_diagnostic_array  # noqa: E402
+from edgerv.handler.ros.rosout import RosoutHandler  # noqa: E402
 from kit.documents import monitor_yaml, speed_monitor  # noqa: E402
 from kit.ros import HandlerProcess, own_node, publisher, wait_for  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""The handler's take loop (ros_node.RosIngest) on real rclpy subscriptions, in process.
+"""The handler's take loop (edgerv.handler.ros.take) on real rclpy subscriptions, in process.
 
 A real publisher fills a real subscription's queue; the rounds of the take loop are
 called one by one, so what each round takes, and how far it says everything is taken
@@ -20,7 +20,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from edgerv.core.documents import load_monitors_text  # noqa: E402
 from edgerv.core.monitor import compile_monitor  # noqa: E402
 from edgerv.handler.engine import Engine  # noqa: E402
-from edgerv.handler.ros_node import TAKE_PER_WAKE, RosIngest, message_class  # noqa: E402
+from edgerv.handler.ros.messages import message_class  # noqa: E402
+from edgerv.handler.ros.node import HandlerNode  # noqa: E402
+from edgerv.handler.ros.subscriptions import TAKE_PER_WAKE  # noqa: E402
 
 pytestmark = pytest.mark.integration
 
@@ -52,21 +54,21 @@ spec:
 
 
 @pytest.fixture
-def ingest(domain: int) -> Iterator[RosIngest]:
+def ingest(domain: int) -> Iterator[HandlerNode]:
     rclpy.init(domain_id=domain)
     engine = Engine("take-loop", flush_after=1e9)
     for spec in load_monitors_text("monitors.yaml", MONITORS):
         engine.put(compile_monitor(spec), active=True)
-    ros = RosIngest(engine, "take-loop")
+    ros = HandlerNode(engine, "take-loop")
     try:
-        ros._reconfigure()
+        ros.subscriptions.reconfigure()
         yield ros
     finally:
         ros.close()
         rclpy.shutdown()
 
 
-def _publish(ros: RosIngest, n: int, topic: str = "/burst", start: int = 0) -> None:
+def _publish(ros: HandlerNode, n: int, topic: str = "/burst", start: int = 0) -> None:
     """``n`` messages on ``topic``, all of them in the subscription's queue (as far as
     its depth allows) on return."""
     node = rclpy.create_node("take_loop_publisher")
@@ -87,15 +89,15 @@ def _publish(ros: RosIngest, n: int, topic: str = "/burst", start: int = 0) -> N
         node.destroy_node()
 
 
-def test_rounds_take_every_message_of_a_burst_larger_than_a_round(ingest: RosIngest) -> None:
+def test_rounds_take_every_message_of_a_burst_larger_than_a_round(ingest: HandlerNode) -> None:
     n = 2 * TAKE_PER_WAKE + 500
     _publish(ingest, n)
-    subs = list(ingest.subs.values())
+    subs = list(ingest.subscriptions.subs.values())
     values: list[float] = []
     rounds = []
     while True:
         before = time.time_ns()
-        batch, through = ingest._take_all(subs)
+        batch, through = ingest.take.take_all(subs)
         if not batch:
             break
         rounds.append((len(batch), through, before))
@@ -112,32 +114,32 @@ def test_rounds_take_every_message_of_a_burst_larger_than_a_round(ingest: RosIng
     assert rounds[2][1] >= rounds[2][2]
 
 
-def test_the_clock_waits_for_what_the_take_loop_has_not_taken(ingest: RosIngest) -> None:
+def test_the_clock_waits_for_what_the_take_loop_has_not_taken(ingest: HandlerNode) -> None:
     engine = ingest.engine
     _publish(ingest, TAKE_PER_WAKE + 10)
-    subs = list(ingest.subs.values())
-    _, through = ingest._take_all(subs)
-    ingest._drained(through, None)
+    subs = list(ingest.subscriptions.subs.values())
+    _, through = ingest.take.take_all(subs)
+    ingest.take.drained(through, None)
     # the queue still holds messages published before now: the monitors' clocks must not
     # pass them (until = min(wall, drained_at) - flush_after)
     assert engine.drained_at is not None and engine.drained_at < time.time_ns()
     held = engine.drained_at
-    batch, through = ingest._take_all(subs)
+    batch, through = ingest.take.take_all(subs)
     assert len(batch) == 10
-    ingest._drained(through, None)
+    ingest.take.drained(through, None)
     assert engine.drained_at > held
     # a stale bound never moves the instant back
-    ingest._drained(held - 1, None)
+    ingest.take.drained(held - 1, None)
     assert engine.drained_at > held
 
 
-def test_messages_a_full_queue_lost_are_counted(ingest: RosIngest) -> None:
+def test_messages_a_full_queue_lost_are_counted(ingest: HandlerNode) -> None:
     """A subscription of depth 5 (KEEP_LAST): of 50 messages one publisher sends before
     the handler takes any, the queue keeps the last 5; the other 45 are lost, and said so.
     (The first round only learns where the publisher's numbers stand: what came before
     the handler subscribed was never its to take.)"""
     engine = ingest.engine
-    small = [ingest.subs["/small"]]
+    small = [ingest.subscriptions.subs["/small"]]
     node = rclpy.create_node("take_loop_small_publisher")
     try:
         cls = message_class("std_msgs/msg/Float64")
@@ -147,14 +149,14 @@ def test_messages_a_full_queue_lost_are_counted(ingest: RosIngest) -> None:
         deadline = time.monotonic() + 10
         while not pub.get_subscription_count() and time.monotonic() < deadline:
             time.sleep(0.05)
-        ingest._check_qos()  # the QoS thread's count of the topic's publishers: one
-        assert ingest.subs["/small"].publishers == 1
+        ingest.subscriptions.check_qos()  # the graph thread's count of the topic's publishers: one
+        assert ingest.subscriptions.subs["/small"].publishers == 1
 
         def send(first: int, n: int) -> list[float]:
             for i in range(first, first + n):
                 pub.publish(cls(data=float(i)))
             assert pub.wait_for_all_acked(Duration(seconds=10))
-            batch, _ = ingest._take_all(small)
+            batch, _ = ingest.take.take_all(small)
             return [v[2][0] for v in batch]
 
         assert send(0, 5) == [0.0, 1.0, 2.0, 3.0, 4.0]
@@ -174,11 +176,11 @@ def test_messages_a_full_queue_lost_are_counted(ingest: RosIngest) -> None:
         deadline = time.monotonic() + 10
         while not pub.get_subscription_count() and time.monotonic() < deadline:
             time.sleep(0.05)
-        ingest._check_qos()
+        ingest.subscriptions.check_qos()
         for i in range(3):
             pub.publish(cls(data=float(100 + i)))
         assert pub.wait_for_all_acked(Duration(seconds=10))
-        batch, _ = ingest._take_all(small)
+        batch, _ = ingest.take.take_all(small)
         assert [v[2][0] for v in batch] == [100.0, 101.0, 102.0]
         assert engine.lost["/small"] == 45
     finally:

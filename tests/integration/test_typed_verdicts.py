@@ -9,6 +9,7 @@ would; edgerv_msgs is the package interfaces/build.sh built (`make install`).
 from __future__ import annotations
 
 import json
+import os
 import threading
 import time
 from collections.abc import Iterator
@@ -31,7 +32,7 @@ from std_msgs.msg import String  # noqa: E402
 
 from edgerv.core.cdr import compile_reader  # noqa: E402
 from edgerv.core.msgtypes import field_kind, typestore  # noqa: E402
-from edgerv.handler.cdr_out import encode_verdict_array, encode_verdict_message  # noqa: E402
+from edgerv.handler.ros.cdr_out import encode_verdict_array, encode_verdict_message  # noqa: E402
 from kit.documents import monitor_yaml, monitors_yaml, speed_monitor  # noqa: E402
 from kit.ros import HandlerProcess, publisher, wait_for  # noqa: E402
 
@@ -258,7 +259,8 @@ def test_without_edgerv_msgs_the_handler_runs_with_json_only(
     shadow = tmp_path / "shadow" / "edgerv_msgs"
     shadow.mkdir(parents=True)
     (shadow / "__init__.py").write_text("raise ImportError('hidden by the test')\n")
-    monkeypatch.setenv("PYTHONPATH", str(shadow.parent))
+    # first on the path: what follows it (this checkout's edgerv, if given) is still used
+    monkeypatch.setenv("PYTHONPATH", str(shadow.parent), prepend=os.pathsep)
     listener.subscribe(
         "/edgerv/verdicts", String, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
     )

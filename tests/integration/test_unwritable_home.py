@@ -1,7 +1,7 @@
 """A handler whose home cannot be written (a read-only root in a hardened container, a
 service user without a home): rcl cannot create ~/.ros/log, and rclpy.init used to fail
 with an internal error (exit 70). It now runs without ROS's log files, says so once, and
-checks its monitors as ever (handler/ros_logs.py; tests/unit/test_ros_logs.py)."""
+checks its monitors as ever (handler/ros/logs.py; tests/unit/test_ros_logs.py)."""
 
 from __future__ import annotations
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from edgerv.handler import ros_types
+from edgerv.handler.ros import types as ros_types
 
 COMMON = {"msg/Vec2.msg": "# a package of the user's that another uses\nfloat64 x\nfloat64 y\n"}
 ROBOT = {
@@ -76,7 +76,7 @@ PUBLISHER = r"""
 import json, random, sys, time
 import rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from edgerv.handler.ros_types import load_package
+from edgerv.handler.ros.types import load_package
 load_package("my_robot_msgs")  # the cached build (it loads common_msgs too)
 from builtin_interfaces.msg import Time
 from common_msgs.msg import Vec2

@@ -296,8 +296,8 @@ def wait_for(predicate: Any, timeout: float = 20, interval: float = 0.1) -> Any:
 PUBLISHER = r"""
 import json, sys, time, rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from edgerv.handler.ros_node import message_class
-from edgerv.handler.replay import fill
+from edgerv.handler.ros.messages import message_class
+from edgerv.handler.ros.replay import fill
 topic, msg_type, reliability, values, interval = sys.argv[1], sys.argv[2], sys.argv[3], \
     json.loads(sys.argv[4]), float(sys.argv[5])
 rclpy.init()

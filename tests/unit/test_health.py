@@ -326,7 +326,7 @@ def test_warn_when_the_buffer_is_half_full_and_when_the_monitor_wants_to_migrate
 
 class Reactor:
     """Fails each reaction whose violation's step is in ``fail``, does the others, and
-    tells the engine as the ROS reactor does (edgerv.handler.reactor)."""
+    tells the engine as the ROS reactor does (edgerv.handler.ros.reactor)."""
 
     def __init__(self, engine: Engine, fail: set[int]) -> None:
         self.engine, self.fail = engine, fail

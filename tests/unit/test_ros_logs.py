@@ -1,4 +1,4 @@
-"""Where rcl writes its log files, and the warning when it cannot (handler/ros_logs.py).
+"""Where rcl writes its log files, and the warning when it cannot (handler/ros/logs.py).
 
 The handler and `edgerv replay` start ROS without its log files where that directory
 cannot be written (a read-only home), instead of failing at rclpy.init with exit 70
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from edgerv.handler.ros_logs import ros_log_dir, ros_log_problem
+from edgerv.handler.ros.logs import ros_log_dir, ros_log_problem
 
 
 def test_the_directory_is_resolved_as_rcl_resolves_it(tmp_path: Path) -> None:

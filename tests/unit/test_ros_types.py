@@ -1,4 +1,4 @@
-"""The robot's own message types for the live handler (edgerv.handler.ros_types), without
+"""The robot's own message types for the live handler (edgerv.handler.ros.types), without
 building: what a package is made of and uses, the plan and its digests, the project files
 a build is given, the cache's place, the hints when a type cannot be had, the wheels.
 A real rosidl build, and a handler and a publisher on the built types:
@@ -20,8 +20,8 @@ from pathlib import Path
 
 import pytest
 
-from edgerv.handler import ros_types
-from edgerv.handler.ros_types import (
+from edgerv.handler.ros import types as ros_types
+from edgerv.handler.ros.types import (
     MissingTools,
     TypesError,
     cache_dir,

@@ -1,7 +1,7 @@
 """Sim time and replay's pace, without ROS traffic: the /clock samples a handler keeps
 (edgerv.handler.clock), the ROS time it reads from them, an engine stepping its timed
 monitors by that time, and the schedule ``edgerv replay`` publishes by
-(edgerv.handler.replay.Schedule). The same with real processes and DDS:
+(edgerv.handler.ros.replay.Schedule). The same with real processes and DDS:
 tests/integration/test_replay_time.py and test_sim_clock.py."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from edgerv.core.documents import load_monitors_text
 from edgerv.core.monitor import compile_monitor
 from edgerv.handler.clock import NO_TIME, ClockSamples, SimClock, clock_ns
 from edgerv.handler.engine import Engine
-from edgerv.handler.replay import Schedule
+from edgerv.handler.ros.replay import Schedule
 from kit.engines import ManualClock
 
 S = 1_000_000_000

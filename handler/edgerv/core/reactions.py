@@ -1,6 +1,6 @@
 """What a monitor does when it is violated (``spec.onViolation``): publish a message, call
 a service, or both. Pure: the definition and the check of its fields against the message
-types; the handler's ROS layer does it (:mod:`edgerv.handler.reactor`).
+types; the handler's ROS layer does it (:mod:`edgerv.handler.ros.reactor`).
 
 A message or request is written as a mapping of field values (nested mappings for nested
 messages); every field it does not name keeps its default (zero, false, empty). The values

@@ -5,7 +5,7 @@ active monitor and one for the handler, built from the engine's state and the ti
 taken a few hundred monitors at a time); :class:`Health` remembers what it saw before
 (when a monitor was last violated, when its events last came, the counters a period
 ago) and turns a reading into :class:`Status` records: plain data that the ROS layer
-(:mod:`edgerv.handler.ros_node`) publishes on ``/diagnostics`` as
+(:mod:`edgerv.handler.ros.diagnostics`) publishes on ``/diagnostics`` as
 ``diagnostic_msgs/msg/DiagnosticArray``. :class:`Pacer` says when the next reading is
 due. docs/handler.md, "Topics", says what each level and value means.
 
@@ -129,7 +129,7 @@ class Reading:
     # verdict sink -> verdicts it got only as a burst's count (it fell behind: outbox.py)
     coalesced: Mapping[str, int] = field(default_factory=dict)
     # what the reading was made from, in a few counters that change whenever anything a
-    # level reads may have (the ROS layer's :meth:`~edgerv.handler.ros_node.RosIngest.
+    # level reads may have (the ROS layer's :meth:`~edgerv.handler.ros.diagnostics.Diagnostics.
     # fingerprint`); None: not known, every check reads everything
     fingerprint: object = None
 

@@ -30,7 +30,6 @@ from edgerv.core.deadline import MakespanWindow, parse_deadline
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
 from edgerv.core.documents import MonitorSpec, read_monitors
 from edgerv.core.language.spot_worker import add_budget_argument, worker
-from edgerv.handler import ros_types
 from edgerv.handler.budget import (
     MemoryBudget,
     container_limit,
@@ -45,6 +44,7 @@ from edgerv.handler.engine import Engine, VerdictSink
 from edgerv.handler.health import DiagnosticsConfig, Health
 from edgerv.handler.limits import Limits
 from edgerv.handler.outbox import ITEM_BYTES, QUEUED, Outbox, ReactionLane
+from edgerv.handler.ros import types as ros_types
 from edgerv.handler.sinks import VerdictLog, ViolationLines
 from edgerv.handler.tls import is_loopback, server_context
 from edgerv.handler.token import Token, TokenFile
@@ -454,9 +454,10 @@ def run(args: argparse.Namespace) -> int:
             diagnostics.append(
                 Diagnostic(Location("--active"), f"no monitor named {', '.join(unknown)}")
             )
-    from edgerv.handler import ros_node  # ROS only from here on: `edgerv check` needs none
     from edgerv.handler.api import ControlApi
     from edgerv.handler.metrics import build_registry
+    from edgerv.handler.ros import node as ros_node  # ROS from here on: `check` needs none
+    from edgerv.handler.ros.messages import type_problem
 
     ros_types.configure(args.types_cache)  # types of the robot's own, built at first use
     ros_node.init_ros()
@@ -475,7 +476,7 @@ def run(args: argparse.Namespace) -> int:
         args.name,
         sinks,
         flush_after=args.flush_after,
-        type_check=ros_node.type_problem,
+        type_check=type_problem,
         reorder_window=window,
         deadline=MakespanWindow(deadline.topic, deadline.budget_ns) if deadline else None,
         clock=clock,
@@ -490,14 +491,15 @@ def run(args: argparse.Namespace) -> int:
         args.name,
         DiagnosticsConfig(args.diagnostics_period, args.diagnostics_hold, args.diagnostics_stale),
     )
-    ros = ros_node.RosIngest(engine, args.name, reorder_window=window, health=health)
-    ros.forward_logs(logging.getLogger("edgerv"))  # /rosout, besides stderr
-    outbox.add("ros-topics", ros)  # /edgerv/verdicts and /edgerv/verdict
-    ros.outbox = outbox
-    if ros.health is not None:
+    ros = ros_node.HandlerNode(
+        engine, args.name, reorder_window=window, health=health, outbox=outbox
+    )
+    ros.rosout.forward(logging.getLogger("edgerv"))  # /rosout, besides stderr
+    outbox.add("ros-topics", ros.verdicts)  # /edgerv/verdicts and /edgerv/verdict
+    if ros.diagnostics is not None:
         outbox.add("diagnostics", health)  # notes violations as they come: published at once
-    engine.matched = ros.matched
-    from edgerv.handler.reactor import Reactor
+    engine.matched = ros.subscriptions.matched
+    from edgerv.handler.ros.reactor import Reactor
 
     reactor = Reactor(args.name, engine.note_reaction)  # spec.onViolation
     reactions = ReactionLane(reactor, args.name)
@@ -553,7 +555,7 @@ def run(args: argparse.Namespace) -> int:
     if args.listen:
         api = ControlApi(
             engine,
-            build_registry(engine, lambda: dict(ros.qos_problems), outbox, budget),
+            build_registry(engine, lambda: dict(ros.subscriptions.qos_problems), outbox, budget),
             token,
             on_change=on_change,
             on_routes=ros.wake,
@@ -583,7 +585,7 @@ def run(args: argparse.Namespace) -> int:
     )
     scheduler.start()
     ros.start(on_failure=stop.set)
-    ros.ready.wait(timeout=10)
+    ros.take.ready.wait(timeout=10)
     running = sum(1 for m in engine.snapshot() if m["active"])
     log.info(
         "handler %s ready: %d of %d monitors active%s",
@@ -594,7 +596,7 @@ def run(args: argparse.Namespace) -> int:
     )
     while not stop.wait(0.5):
         pass
-    if args.drain > 0 and api is not None and not ros.failed:
+    if args.drain > 0 and api is not None and not ros.take.failed:
         drain(engine, args.drain, hurry)
     # Ordered shutdown: take nothing more, evaluate what was taken, then close the outputs;
     # each within its time, whatever is queued (a verdict storm's backlog included).
@@ -617,8 +619,6 @@ def run(args: argparse.Namespace) -> int:
     if verdict_log:
         verdict_log.close()
     ros.close()
-    from rclpy.utilities import try_shutdown
-
-    try_shutdown()
+    ros_node.shutdown_ros()
     log.info("handler %s stopped", args.name)
-    return 1 if ros.failed else 0
+    return 1 if ros.take.failed else 0

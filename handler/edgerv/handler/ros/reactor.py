@@ -27,7 +27,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from edgerv.core.pipeline import Verdict
 from edgerv.core.reactions import Call, Fields, Publish, Reaction
-from edgerv.handler.ros_node import message_class, node_name
+from edgerv.handler.ros.messages import message_class
+from edgerv.handler.ros.node import node_name
 
 log = logging.getLogger("edgerv.handler.reactor")
 

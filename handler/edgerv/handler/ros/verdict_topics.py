@@ -1,9 +1,14 @@
-"""The typed verdict topics (edgerv_msgs): ``/edgerv/verdict``, each verdict as reached,
-and ``/edgerv/last_verdicts``, the last verdict of every monitor of this handler, for
-subscribers that come late (docs/handler.md, "Typed verdicts")."""
+"""The verdict topics. Typed, when edgerv_msgs is installed (interfaces/build.sh):
+``edgerv_msgs/msg/Verdict`` on ``/edgerv/verdict``, each verdict as reached, and
+``edgerv_msgs/msg/VerdictArray`` on ``/edgerv/last_verdicts``, the last verdict of every
+monitor of this handler, for subscribers that come late (docs/handler.md, "Typed
+verdicts"); and as JSON in ``std_msgs/msg/String`` on ``/edgerv/verdicts``, kept for
+compatibility."""
 
 from __future__ import annotations
 
+import json
+import logging
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -12,8 +17,21 @@ from typing import Any
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from edgerv.core.pipeline import Verdict
-from edgerv.handler.cdr_out import CDR_LE, VerdictFields, encode_verdict, encode_verdict_array
 from edgerv.handler.engine import Engine
+from edgerv.handler.outbox import Burst
+from edgerv.handler.ros.cdr_out import CDR_LE, VerdictFields, encode_verdict, encode_verdict_array
+from edgerv.handler.ros.messages import message_class
+from edgerv.handler.sinks import verdict_record
+
+log = logging.getLogger("edgerv.handler.ros")
+
+VERDICT_TOPIC = "/edgerv/verdicts"  # JSON in std_msgs/String: kept for compatibility
+BUILD_MSGS = (
+    "edgerv_msgs is not installed in this Python environment: no typed verdicts on "
+    f"/edgerv/verdict and /edgerv/last_verdicts (the JSON on {VERDICT_TOPIC} goes "
+    "on); build it from edgerv's source tree with `make install`, or `bash "
+    "interfaces/build.sh <venv>` for another venv"
+)
 
 TYPED_VERDICT_TOPIC = "/edgerv/verdict"  # edgerv_msgs/msg/Verdict, each as reached
 LAST_VERDICTS_TOPIC = "/edgerv/last_verdicts"  # edgerv_msgs/msg/VerdictArray, per handler
@@ -139,3 +157,92 @@ class TypedVerdicts:
         self._published = fields
         self.arrays += 1
         return True
+
+
+def typed_verdicts(node: Any, engine: Engine) -> TypedVerdicts | None:
+    """The typed verdict topics on ``node``, or None (with a warning) without edgerv_msgs."""
+    try:
+        verdict_type = message_class("edgerv_msgs/msg/Verdict")
+        array_type = message_class("edgerv_msgs/msg/VerdictArray")
+    except ImportError:
+        log.warning(BUILD_MSGS)
+        return None
+    try:  # (the typesupport libraries load here)
+        return TypedVerdicts(node, engine, verdict_type, array_type)
+    except Exception as exc:
+        log.warning(
+            "edgerv_msgs is installed but its typesupport does not load (%s): no typed "
+            "verdicts (the JSON on %s goes on); rebuild it: `make install`",
+            exc,
+            VERDICT_TOPIC,
+        )
+        return None
+
+
+class VerdictTopics:
+    """A verdict sink (a lane of the outbox): the JSON on /edgerv/verdicts and the typed
+    topics (:class:`TypedVerdicts`, without edgerv_msgs none), whose /edgerv/last_verdicts
+    is refreshed by :meth:`start`'s thread until ``stop`` is set."""
+
+    def __init__(self, node: Any, engine: Engine, stop: threading.Event) -> None:
+        from std_msgs.msg import String
+
+        self._string = String
+        self.verdicts = node.create_publisher(
+            String, VERDICT_TOPIC, QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        )
+        self.typed = typed_verdicts(node, engine)
+        self._stop = stop
+        self._failures = 0
+        self._thread: threading.Thread | None = None
+
+    def write(self, handler: str, verdicts: Sequence[Verdict]) -> None:
+        """One std_msgs/String with a JSON object per verdict on /edgerv/verdicts (kept
+        for compatibility), and each verdict typed on /edgerv/verdict."""
+        for v in verdicts:
+            self.verdicts.publish(self._string(data=json.dumps(verdict_record(handler, v))))
+        if self.typed is not None:
+            self.typed.write(handler, verdicts)
+
+    def write_bursts(self, handler: str, bursts: Sequence[Burst[Verdict]]) -> None:
+        """Bursts a lane coalesced (this sink fell behind): on /edgerv/verdicts each one's
+        first verdict, and its last with ``"coalesced": N``, the monitor's verdicts between
+        them that are not published; typed, the first and the last."""
+        string, publish = self._string, self.verdicts.publish
+        for b in bursts:
+            publish(string(data=json.dumps(verdict_record(handler, b.first))))
+            if b.count > 1:
+                last = verdict_record(handler, b.last)
+                last["coalesced"] = b.between
+                publish(string(data=json.dumps(last)))
+        if self.typed is not None:
+            self.typed.write(handler, [v for b in bursts for v in b.ends])
+
+    def start(self) -> None:
+        """The /edgerv/last_verdicts thread, with the typed topics."""
+        if self.typed is not None:
+            self._thread = threading.Thread(
+                target=self._last_verdicts_loop,
+                args=(self.typed,),
+                name="edgerv-last-verdicts",
+                daemon=True,
+            )
+            self._thread.start()
+
+    def _last_verdicts_loop(self, typed: TypedVerdicts) -> None:
+        """The /edgerv/last_verdicts thread: a look every LAST_VERDICTS_SECONDS (nothing
+        to do unless a verdict was written or a monitor came or went), the first at once."""
+        while True:
+            try:
+                typed.refresh()
+            except Exception:  # retried next time; it must not stop the handler
+                self._failures += 1
+                n = self._failures
+                if n in (1, 10, 100) or n % 1000 == 0:
+                    log.exception("publishing %s failed (%d times)", LAST_VERDICTS_TOPIC, n)
+            if self._stop.wait(LAST_VERDICTS_SECONDS):
+                return
+
+    def join(self, timeout: float) -> None:
+        if self._thread is not None:
+            self._thread.join(timeout=timeout)

@@ -218,8 +218,8 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.utilities import try_shutdown
 
-    from edgerv.handler.ros_logs import ros_log_problem
-    from edgerv.handler.ros_node import message_class
+    from edgerv.handler.ros.logs import ros_log_problem
+    from edgerv.handler.ros.messages import message_class
 
     ClockMsg = message_class("rosgraph_msgs/msg/Clock")
 

@@ -938,7 +938,7 @@ def pack_wheel(
     meta_files = {
         f"{distinfo}/METADATA": "\n".join(metadata) + "\n",
         f"{distinfo}/WHEEL": (
-            "Wheel-Version: 1.0\nGenerator: edgerv (edgerv.handler.ros_types)\n"
+            "Wheel-Version: 1.0\nGenerator: edgerv (edgerv.handler.ros.types)\n"
             f"Root-Is-Purelib: false\nTag: {tag}\n"
         ),
         f"{distinfo}/top_level.txt": "\n".join(sorted(top_level)) + "\n",
