@@ -1,0 +1,435 @@
+"""The deadline planner (issue 37): which monitors move up to the cloud, or come home to
+the edge, solved exactly within a time budget.
+
+A pure function (:func:`plan_moves`) of the edge's monitors (:class:`MonitorCost`: each
+one's CPU cost on the edge, events/s, ``maxLatencyMs``, pinned, in a handoff), the edge's
+reading (:class:`EdgeState`: the real-time task's p95 makespan and deadline, the CPU its
+tasks leave for verification, the cloud's latency) and :class:`PlannerConfig`. It decides;
+the policy around it keeps the waits in time (``deadline_wait``, the calm and cooldown
+waits) and the handoff moves. One :class:`Plan` is one handoff batch, in one direction.
+
+With ``ratio = p95 / deadline``, *verification* the cost of what runs on the edge (a
+monitor in a handoff counts there, wherever it is bound: it may not have left, or be
+arriving) and *allowed* ``headroom * (1 - margin)``:
+
+* **Up** when ``ratio >= high``: free ``need = max(verification - allowed,
+  ceil(verification * (1 - low / ratio)))``: bring verification within the headroom less
+  its margin, and at least the share of it by which the p95 is over the calm mark ``low``
+  (a first-order model: the makespan taken as growing with the verification it competes
+  with). Movable: on the edge, not pinned, not in a handoff, ``maxLatencyMs`` (if any) at
+  least the cloud's latency. The plan frees at least ``need`` with, lexicographically,
+  (1) the fewest monitors: each moved monitor's verdicts gain the cloud's latency, and
+  each is a state transfer in the handoff; (2) of those, the fewest events/s: the
+  verdicts per second made later and the traffic the link must carry. When the movable
+  monitors cannot free ``need``, all of them move and the plan says by how much it falls
+  short.
+* **Home** when ``ratio <= low``: monitors on the cloud whose home is the edge (not
+  pinned, not in a handoff) come back, their summed cost at most ``allowed -
+  verification`` (the room), at most ``max_home`` of them, with (1) the most monitors,
+  (2) of those, the most events/s.
+* **Neither** between the two marks (the hysteresis band), without a deadline signal
+  (``p95`` None), or when nothing may or needs to move.
+
+Costs are counted in millionths of a core and rates in thousandths of an event per second
+(:func:`microcores`, :func:`millievents`): integers, so the solver's feasibility and
+objective are exact. The fewest (most) monitors is found by sorting (largest cost first
+reaches the need with the fewest; smallest first fits the most); the second criterion
+among those is an integer program (a cardinality-constrained knapsack; monitors of equal
+cost and rate one variable, taken by name) solved by SciPy's :func:`scipy.optimize.milp`
+(HiGHS, presolve off: on its two dense rows it costs seconds) within ``time_budget``.
+If the solver does not prove the optimum within it (or its answer fails the exact
+check), the plan is the greedy rule's: today's rule (the busiest first, until enough is
+shed) with the measured cost in place of its proxy, the event rate: largest cost first
+up, smallest cost first home, ties by fewer (up) or more (home) events, then name. It is
+optimal in the number of monitors; only the events/s may be worse. ``Plan.method`` says
+which made the plan. SciPy is imported at the first solve (0.4 s).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+Tier = Literal["edge", "cloud"]
+Method = Literal["milp", "greedy", "all", "none"]
+TIERS: tuple[Tier, ...] = ("edge", "cloud")
+MICRO = 1_000_000  # units of a core in a cost
+MILLI = 1_000  # units of an event/s in a rate
+
+
+def microcores(cores: float) -> int:
+    """A cost in millionths of a core, rounded to the nearest: the planner's unit."""
+    return round(cores * MICRO)
+
+
+def millievents(per_second: float) -> int:
+    """A rate in thousandths of an event per second, rounded to the nearest."""
+    return round(per_second * MILLI)
+
+
+def _finite_at_least(value: float, low: float) -> bool:
+    return math.isfinite(value) and value >= low
+
+
+@dataclass(frozen=True)
+class MonitorCost:
+    """One monitor as the planner weighs it."""
+
+    name: str
+    tier: Tier  # where it runs now (in a handoff: the tier it is moving from)
+    cost: float  # cores it takes on the edge (its evaluation and its share of ingestion)
+    events_per_second: float = 0.0
+    max_latency_ms: float | None = None  # placement.maxLatencyMs; None: any latency
+    pinned: bool = False  # placement.migrate: pinned
+    in_handoff: bool = False  # being moved right now: left alone
+    home: Tier = "edge"  # placement.tier: only a monitor whose home is the edge comes home
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            raise ValueError("a monitor needs a name")
+        if self.tier not in TIERS or self.home not in TIERS:
+            raise ValueError(f"monitor {self.name}: tiers are 'edge' and 'cloud'")
+        if not _finite_at_least(self.cost, 0.0):
+            raise ValueError(f"monitor {self.name}: cost {self.cost} is not >= 0 cores")
+        if not _finite_at_least(self.events_per_second, 0.0):
+            raise ValueError(f"monitor {self.name}: {self.events_per_second} events/s")
+        if self.max_latency_ms is not None and not self.max_latency_ms >= 0:
+            raise ValueError(f"monitor {self.name}: maxLatencyMs {self.max_latency_ms}")
+
+
+@dataclass(frozen=True)
+class EdgeState:
+    """The edge's reading: the real-time task's deadline and what its tasks leave."""
+
+    headroom: float  # cores the robot's real-time tasks leave for verification
+    deadline: float  # the task's budget, seconds
+    p95: float | None  # its makespans' 95th percentile, seconds; None: no signal
+    cloud_latency_ms: float  # the cloud tier's latency from the robot (the link's RTT)
+
+    def __post_init__(self) -> None:
+        if not _finite_at_least(self.headroom, 0.0):
+            raise ValueError(f"headroom {self.headroom} is not >= 0 cores")
+        if not (math.isfinite(self.deadline) and self.deadline > 0):
+            raise ValueError(f"deadline {self.deadline} is not > 0 seconds")
+        if self.p95 is not None and not _finite_at_least(self.p95, 0.0):
+            raise ValueError(f"p95 {self.p95} is not >= 0 seconds")
+        if not _finite_at_least(self.cloud_latency_ms, 0.0):
+            raise ValueError(f"cloud latency {self.cloud_latency_ms} is not >= 0 ms")
+
+    @property
+    def ratio(self) -> float | None:
+        return None if self.p95 is None else self.p95 / self.deadline
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    high: float = 1.0  # p95 / deadline at or above: move up (the policy's deadline_high)
+    low: float = 0.95  # at or below: monitors may come home (deadline_low)
+    margin: float = 0.1  # share of the headroom verification leaves free, both ways
+    max_home: int | None = None  # monitors brought home in one plan at most
+    time_budget: float = 0.2  # seconds the solver may take; 0: the greedy rule only
+
+    def __post_init__(self) -> None:
+        if not (0 < self.low < self.high and math.isfinite(self.high)):
+            raise ValueError("need 0 < low < high")
+        if not 0 <= self.margin < 1:
+            raise ValueError("need 0 <= margin < 1")
+        if self.max_home is not None and self.max_home < 1:
+            raise ValueError("need max_home >= 1 (or None: no limit)")
+        if not _finite_at_least(self.time_budget, 0.0):
+            raise ValueError("need time_budget >= 0 seconds")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The monitors to move, by name, in one direction (never both)."""
+
+    up: tuple[str, ...]  # to the cloud
+    down: tuple[str, ...]  # home to the edge
+    method: Method  # milp: the proven optimum; greedy: the fallback; all: no choice
+    reason: str  # in words
+    target_microcores: int = 0  # up: the cost to free; home: the room on the edge
+    moved_microcores: int = 0  # the cost moved (freed, or brought home)
+    events_milli: int = 0  # the events/s moved, in thousandths
+    solver_seconds: float = 0.0  # wall time in the solver (0: not called)
+
+    @property
+    def objective(self) -> tuple[int, int]:
+        """What the plan optimises, lexicographically: (monitors moved, events_milli);
+        up minimises it, home maximises it."""
+        return len(self.up) + len(self.down), self.events_milli
+
+
+@dataclass(frozen=True)
+class _Item:
+    name: str
+    cost: int  # microcores
+    events: int  # millievents
+
+
+def _cores(units: int) -> str:
+    return f"{units / MICRO:.3g} cores"
+
+
+def _names(names: Sequence[str], most: int = 5) -> str:
+    shown = ", ".join(names[:most])
+    return shown if len(names) <= most else f"{shown} and {len(names) - most} more"
+
+
+def plan_moves(
+    monitors: Sequence[MonitorCost], edge: EdgeState, config: PlannerConfig | None = None
+) -> Plan:
+    """The plan for this reading. Raises ValueError for two monitors of one name."""
+    c = config or PlannerConfig()
+    ordered = sorted(monitors, key=lambda m: m.name)
+    twice = sorted({a.name for a, b in itertools.pairwise(ordered) if a.name == b.name})
+    if twice:
+        raise ValueError(f"monitors named twice: {', '.join(twice)}")
+    ratio = edge.ratio
+    if ratio is None:
+        return Plan((), (), "none", "no deadline signal: nothing moves without a reading")
+    deadline = f"p95 {edge.p95 or 0.0:.4g} s of a {edge.deadline:.4g} s deadline ({ratio:.0%})"
+    verification = sum(microcores(m.cost) for m in ordered if m.tier == "edge" or m.in_handoff)
+    allowed = microcores(edge.headroom * (1 - c.margin))
+    if ratio >= c.high:
+        return _up(ordered, edge, c, ratio, verification, allowed, deadline)
+    if ratio > c.low:
+        return Plan(
+            (),
+            (),
+            "none",
+            f"hysteresis: {deadline} is between the marks {c.low:.0%} (monitors come home "
+            f"at or below) and {c.high:.0%} (they move up at or above)",
+        )
+    return _home(ordered, c, verification, allowed, deadline)
+
+
+def _up(
+    ordered: list[MonitorCost],
+    edge: EdgeState,
+    c: PlannerConfig,
+    ratio: float,
+    verification: int,
+    allowed: int,
+    deadline: str,
+) -> Plan:
+    at_risk = f"the deadline is at risk ({deadline}, high mark {c.high:.0%})"
+    if verification <= 0:
+        return Plan((), (), "none", f"{at_risk}, but no verification runs on the edge")
+    need = max(verification - allowed, math.ceil(verification * (1 - c.low / ratio)))
+    on_edge = [m for m in ordered if m.tier == "edge"]
+    pinned = [m.name for m in on_edge if m.pinned]
+    moving = [m.name for m in on_edge if m.in_handoff and not m.pinned]
+    far = [
+        m.name
+        for m in on_edge
+        if not (m.pinned or m.in_handoff)
+        and m.max_latency_ms is not None
+        and m.max_latency_ms < edge.cloud_latency_ms
+    ]
+    held = set(pinned) | set(moving) | set(far)
+    items = [
+        _Item(m.name, microcores(m.cost), millievents(m.events_per_second))
+        for m in on_edge
+        if m.name not in held
+    ]
+    holds = "; ".join(
+        f"{what} {_names(names)}"
+        for what, names in (
+            ("pinned:", pinned),
+            (f"maxLatencyMs below the cloud's {edge.cloud_latency_ms:g} ms:", far),
+            ("in a handoff:", moving),
+        )
+        if names
+    )
+    sizing = (
+        f"verification takes {_cores(verification)} on the edge, the headroom less its "
+        f"{c.margin:.0%} margin allows {_cores(allowed)}: {_cores(need)} to free"
+    )
+    if not items:
+        return Plan((), (), "none", f"{at_risk}: {sizing}, but no monitor may move ({holds})", need)
+    movable = sum(i.cost for i in items)
+    if movable < need:
+        return _made(
+            items,
+            "all",
+            f"{at_risk}: {sizing}; the movable monitors take only {_cores(movable)}: all "
+            f"{len(items)} move up, {_cores(need - movable)} short"
+            + (f" ({holds})" if holds else ""),
+            need,
+            up=True,
+        )
+    greedy = _largest_first(items, need)
+    if len(greedy) == len(items):
+        return _made(
+            items, "all", f"{at_risk}: {sizing}; only all the movable free it", need, up=True
+        )
+    return _optimise(items, greedy, need, c.time_budget, f"{at_risk}: {sizing}", up=True)
+
+
+def _home(
+    ordered: list[MonitorCost], c: PlannerConfig, verification: int, allowed: int, deadline: str
+) -> Plan:
+    calm = f"the deadline is met ({deadline}, low mark {c.low:.0%})"
+    away = [m for m in ordered if m.tier == "cloud" and m.home == "edge"]
+    items = [
+        _Item(m.name, microcores(m.cost), millievents(m.events_per_second))
+        for m in away
+        if not (m.pinned or m.in_handoff)
+    ]
+    if not items:
+        held = f" ({len(away)} pinned or in a handoff)" if away else ""
+        return Plan((), (), "none", f"{calm}, and no monitor may come home{held}")
+    room = allowed - verification
+    sizing = (
+        f"the headroom less its {c.margin:.0%} margin allows {_cores(allowed)}, verification "
+        f"takes {_cores(verification)} on the edge: {_cores(max(0, room))} of room"
+    )
+    limit = len(items) if c.max_home is None else min(c.max_home, len(items))
+    greedy = _smallest_first(items, room, limit)
+    if not greedy:
+        return Plan(
+            (), (), "none", f"{calm}: {sizing}, and none of the {len(items)} away fits", room
+        )
+    if len(greedy) == len(items):
+        return _made(items, "all", f"{calm}: {sizing}; all of those away fit", room, up=False)
+    return _optimise(items, greedy, room, c.time_budget, f"{calm}: {sizing}", up=False)
+
+
+def _largest_first(items: list[_Item], need: int) -> list[_Item]:
+    """The greedy rule up: largest cost first (then fewer events, name) until ``need``;
+    the fewest monitors that free it. ``need`` must be at most the items' sum."""
+    chosen: list[_Item] = []
+    freed = 0
+    for item in sorted(items, key=lambda i: (-i.cost, i.events, i.name)):
+        if freed >= need:
+            break
+        chosen.append(item)
+        freed += item.cost
+    return chosen
+
+
+def _smallest_first(items: list[_Item], room: int, limit: int) -> list[_Item]:
+    """The greedy rule home: smallest cost first (then more events, name) while it fits
+    ``room``, at most ``limit``: the most monitors that fit."""
+    chosen: list[_Item] = []
+    used = 0
+    for item in sorted(items, key=lambda i: (i.cost, -i.events, i.name)):
+        if len(chosen) >= limit or used + item.cost > room:
+            break
+        chosen.append(item)
+        used += item.cost
+    return chosen
+
+
+def _made(
+    chosen: list[_Item],
+    method: Method,
+    reason: str,
+    target: int,
+    up: bool,
+    seconds: float = 0.0,
+) -> Plan:
+    names = tuple(sorted(i.name for i in chosen))
+    cost, events = sum(i.cost for i in chosen), sum(i.events for i in chosen)
+    direction = "up" if up else "home"
+    said = (
+        f"{reason}; {len(names)} move {direction}: {_names(list(names))} "
+        f"({_cores(cost)}, {events / MILLI:.6g} events/s)"
+    )
+    return Plan(
+        names if up else (),
+        () if up else names,
+        method,
+        said,
+        target,
+        cost,
+        events,
+        seconds,
+    )
+
+
+def _optimise(
+    items: list[_Item], greedy: list[_Item], bound: int, budget: float, reason: str, up: bool
+) -> Plan:
+    """The fewest (up) or most (home) events/s among sets of ``len(greedy)`` monitors that
+    free at least (up) or fit in (home) ``bound``; the greedy set if not proven in time."""
+    criterion = "the fewest that free it" if up else "the most that fit"
+    seconds = 0.0
+    if budget <= 0:
+        why = "no time budget for the solver"
+    else:
+        chosen, seconds, why = _solve(items, len(greedy), bound, budget, up)
+        if chosen is not None:
+            events, fallback = sum(i.events for i in chosen), sum(i.events for i in greedy)
+            if events <= fallback if up else events >= fallback:
+                return _made(
+                    chosen,
+                    "milp",
+                    f"{reason}; {criterion}, and of those the {'fewest' if up else 'most'} "
+                    f"events/s (milp, proven optimal in {seconds * 1e3:.0f} ms)",
+                    bound,
+                    up,
+                    seconds,
+                )
+            why = "the solver's answer is worse than the greedy rule's"
+    largest = "largest" if up else "smallest"
+    return _made(
+        greedy,
+        "greedy",
+        f"{reason}; {criterion}, {largest} cost first (the greedy rule: {why})",
+        bound,
+        up,
+        seconds,
+    )
+
+
+def _solve(
+    items: list[_Item], k: int, bound: int, budget: float, up: bool
+) -> tuple[list[_Item] | None, float, str]:
+    """HiGHS on ``k`` of ``items``: up the fewest events with cost >= bound, home the most
+    with cost <= bound. (chosen or None, seconds, why None).
+
+    Monitors of equal cost and rate are one integer variable (how many of them), taken
+    by name: the program has no symmetric columns (HiGHS's symmetry detection, which
+    does not heed the time limit, took 2 s on 10,000 monitors of a few thousand kinds)."""
+    import numpy as np
+    from scipy.optimize import (  # type: ignore[import-untyped]
+        Bounds,
+        LinearConstraint,
+        milp,
+    )
+
+    kinds: dict[tuple[int, int], list[_Item]] = {}
+    for item in sorted(items, key=lambda i: i.name):
+        kinds.setdefault((item.cost, item.events), []).append(item)
+    keys = sorted(kinds)
+    events = np.array([e for _, e in keys], dtype=np.float64)
+    rows = np.array([[c for c, _ in keys], [1] * len(keys)], dtype=np.float64)
+    lower = [float(bound), float(k)] if up else [-np.inf, float(k)]
+    upper = [np.inf, float(k)] if up else [float(bound), float(k)]
+    start = time.perf_counter()
+    result = milp(
+        events if up else -events,
+        integrality=np.ones(len(keys)),
+        bounds=Bounds(0, np.array([len(kinds[key]) for key in keys], dtype=np.float64)),
+        constraints=LinearConstraint(rows, lower, upper),
+        options={"time_limit": budget, "mip_rel_gap": 0.0, "presolve": False},
+    )
+    seconds = time.perf_counter() - start
+    if int(result.status) != 0 or result.x is None:
+        message = str(result.message).split(".")[0].lower()
+        return None, seconds, f"the solver stopped unproven in {budget:g} s: {message}"
+    chosen = [
+        item
+        for key, x in zip(keys, result.x, strict=True)
+        for item in kinds[key][: max(0, round(float(x)))]
+    ]
+    cost = sum(i.cost for i in chosen)
+    if len(chosen) != k or (cost < bound if up else cost > bound):
+        return None, seconds, "the solver's answer failed the exact check"
+    return chosen, seconds, ""

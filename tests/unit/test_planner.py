@@ -1,0 +1,382 @@
+"""The deadline planner (edgerv.core.planner, issue 37): its plans are the optimum an
+exhaustive search finds on small instances; it never plans a pinned monitor, one whose
+maxLatencyMs the cloud exceeds, or one in a handoff; it never plans both ways; up frees
+the need when the movable monitors can, home fits the headroom less its margin; the
+greedy rule takes over when the solver has no time; nothing moves inside the band."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+
+import pytest
+from hypothesis import event, given
+from hypothesis import strategies as st
+
+from edgerv.core.planner import (
+    MICRO,
+    MILLI,
+    EdgeState,
+    MonitorCost,
+    Plan,
+    PlannerConfig,
+    Tier,
+    microcores,
+    millievents,
+    plan_moves,
+)
+from kit.counts import props
+
+DEADLINE = 0.1  # seconds
+CLOUD_MS = 40.0
+ROOMY = PlannerConfig(time_budget=5.0)  # a loaded machine solves 12 monitors well within it
+
+
+def edge(headroom: float, p95: float | None, cloud_ms: float = CLOUD_MS) -> EdgeState:
+    return EdgeState(headroom, DEADLINE, p95, cloud_ms)
+
+
+def on(
+    tier: Tier,
+    name: str,
+    cost: float,
+    rate: float,
+    *,
+    max_latency_ms: float | None = None,
+    pinned: bool = False,
+    in_handoff: bool = False,
+) -> MonitorCost:
+    return MonitorCost(name, tier, cost, rate, max_latency_ms, pinned, in_handoff)
+
+
+# --- instances: up to 12 monitors, costs and rates already in the planner's units ---
+
+
+@st.composite
+def monitors(draw: st.DrawFn, fewest: int, edge_share: float) -> list[MonitorCost]:
+    """``fewest`` to 12 monitors, about ``edge_share`` of them on the edge."""
+    count = draw(st.integers(fewest, 12))
+    on_edge = draw(st.lists(st.floats(0, 1), min_size=count, max_size=count))
+    one_in = st.sampled_from((False, False, False, False, False, True))
+    return [
+        MonitorCost(
+            f"m{i:02d}",
+            "edge" if on_edge[i] < edge_share else "cloud",
+            draw(st.integers(0, 400_000)) / MICRO,
+            draw(st.integers(0, 2_000_000)) / MILLI,
+            draw(st.sampled_from((None, None, 5.0, 40.0, 100.0))),
+            pinned=draw(one_in),
+            in_handoff=draw(one_in),
+            home=draw(st.sampled_from(("edge", "edge", "edge", "cloud"))),
+        )
+        for i in range(count)
+    ]
+
+
+configs = st.builds(
+    lambda max_home, margin: PlannerConfig(max_home=max_home, margin=margin, time_budget=5.0),
+    st.sampled_from((None, None, 1, 2, 3)),
+    st.sampled_from((0.0, 0.1, 0.25)),
+)
+
+
+@st.composite
+def instances(
+    draw: st.DrawFn, p95_ms: st.SearchStrategy[int], fewest: int = 0, edge_share: float = 0.5
+) -> tuple[list[MonitorCost], EdgeState, PlannerConfig]:
+    """Monitors, a reading and a configuration. The headroom is drawn against what is at
+    stake: on the way up, 20% to 100% of what runs on the edge is allowed; on the way home,
+    what runs there plus -10% to 110% of what is away (so that some fit and some do not)."""
+    ms, config = draw(monitors(fewest, edge_share)), draw(configs)
+    here = verification(ms)
+    away = sum(microcores(m.cost) for m in ms) - here
+    p95 = draw(p95_ms) / 1000
+    if p95 >= DEADLINE:
+        room = draw(st.integers(20, 100)) * here // 100
+    else:
+        room = here + draw(st.integers(-10, 110)) * away // 100
+    return ms, edge(max(0, room) / MICRO / (1 - config.margin), p95), config
+
+
+AT_RISK = instances(st.integers(100, 150), 4, 0.8)  # ratio 1.0 .. 1.5, most on the edge
+CALM = instances(st.integers(0, 95), 4, 0.3)  # ratio 0 .. 0.95, most away
+ANY = instances(st.integers(0, 200))
+
+
+# --- the rules as the module's docstring states them, written out again ---
+
+
+def verification(ms: Sequence[MonitorCost]) -> int:
+    return sum(microcores(m.cost) for m in ms if m.tier == "edge" or m.in_handoff)
+
+
+def allowed(e: EdgeState, c: PlannerConfig) -> int:
+    return microcores(e.headroom * (1 - c.margin))
+
+
+def need(ms: Sequence[MonitorCost], e: EdgeState, c: PlannerConfig) -> int:
+    v, ratio = verification(ms), e.ratio
+    assert ratio is not None
+    return max(v - allowed(e, c), math.ceil(v * (1 - c.low / ratio)))
+
+
+def may_go_up(m: MonitorCost, e: EdgeState) -> bool:
+    latency_ok = m.max_latency_ms is None or m.max_latency_ms >= e.cloud_latency_ms
+    return m.tier == "edge" and not m.pinned and not m.in_handoff and latency_ok
+
+
+def may_come_home(m: MonitorCost) -> bool:
+    return m.tier == "cloud" and m.home == "edge" and not m.pinned and not m.in_handoff
+
+
+Item = tuple[str, int, int]  # name, microcores, millievents
+
+
+def items(ms: Sequence[MonitorCost]) -> list[Item]:
+    return [(m.name, microcores(m.cost), millievents(m.events_per_second)) for m in ms]
+
+
+def fewest_then_least_events(candidates: list[Item], target: int) -> tuple[int, int] | None:
+    """Exhaustively: the smallest (monitors, events) over sets freeing ``target``."""
+    for k in range(len(candidates) + 1):
+        rates = [
+            sum(e for _, _, e in s)
+            for s in itertools.combinations(candidates, k)
+            if sum(c for _, c, _ in s) >= target
+        ]
+        if rates:
+            return k, min(rates)
+    return None
+
+
+def most_then_most_events(candidates: list[Item], room: int, limit: int) -> tuple[int, int]:
+    """Exhaustively: the largest (monitors, events) over sets of at most ``limit`` that fit
+    ``room``."""
+    for k in range(limit, -1, -1):
+        rates = [
+            sum(e for _, _, e in s)
+            for s in itertools.combinations(candidates, k)
+            if sum(c for _, c, _ in s) <= room
+        ]
+        if rates:
+            return k, max(rates)
+    return 0, 0
+
+
+def cost_of(names: Sequence[str], ms: Sequence[MonitorCost]) -> int:
+    by_name = {m.name: m for m in ms}
+    return sum(microcores(by_name[n].cost) for n in names)
+
+
+# --- the optimum ---
+
+
+@props(80)
+@given(AT_RISK)
+def test_up_is_the_optimum_of_an_exhaustive_search(
+    instance: tuple[list[MonitorCost], EdgeState, PlannerConfig],
+) -> None:
+    ms, e, c = instance
+    p = plan_moves(ms, e, c)
+    event(f"method {p.method}")  # --hypothesis-show-statistics: how many the solver made
+    candidates = items([m for m in ms if may_go_up(m, e)])
+    if verification(ms) == 0 or not candidates:
+        assert (p.up, p.down, p.method) == ((), (), "none")
+        return
+    target = need(ms, e, c)
+    assert p.target_microcores == target
+    best = fewest_then_least_events(candidates, target)
+    if best is None:  # they cannot free it: all of them go, and the plan says it falls short
+        assert p.method == "all" and set(p.up) == {n for n, _, _ in candidates}
+        assert "short" in p.reason
+        return
+    assert p.method in ("milp", "all"), p.reason
+    assert p.objective == best
+    assert p.moved_microcores == cost_of(p.up, ms) >= target
+
+
+@props(80)
+@given(CALM)
+def test_home_is_the_optimum_of_an_exhaustive_search(
+    instance: tuple[list[MonitorCost], EdgeState, PlannerConfig],
+) -> None:
+    ms, e, c = instance
+    p = plan_moves(ms, e, c)
+    event(f"method {p.method}")
+    candidates = items([m for m in ms if may_come_home(m)])
+    room = allowed(e, c) - verification(ms)
+    limit = len(candidates) if c.max_home is None else min(c.max_home, len(candidates))
+    best = most_then_most_events(candidates, room, limit)
+    assert p.up == ()
+    if best[0] == 0:
+        assert (p.down, p.method) == ((), "none")
+        return
+    assert p.method in ("milp", "all"), p.reason
+    assert p.objective == best
+    assert verification(ms) + cost_of(p.down, ms) <= allowed(e, c)
+
+
+def test_up_moves_the_fewest_then_the_fewest_events_where_the_greedy_rule_does_not() -> None:
+    ms = [
+        on("edge", "a", 0.20, 900),
+        on("edge", "b", 0.20, 100),
+        on("edge", "c", 0.15, 50),
+        on("edge", "d", 0.10, 10),
+        on("edge", "e", 0.05, 1),
+    ]
+    reading = edge(0.5, 0.12)  # 120%: verification 0.70, allowed 0.45: 0.25 to free
+    p = plan_moves(ms, reading, ROOMY)
+    assert p.target_microcores == 250_000
+    # two monitors are the fewest; of the nine pairs that free 0.25, c and d carry 60 ev/s
+    assert (p.up, p.method, p.objective) == (("c", "d"), "milp", (2, 60_000))
+    assert "proven optimal" in p.reason
+    greedy = plan_moves(ms, reading, PlannerConfig(time_budget=0))
+    assert (greedy.up, greedy.method, greedy.objective) == (("a", "b"), "greedy", (2, 1_000_000))
+    assert "no time budget for the solver" in greedy.reason
+
+
+def test_home_brings_the_most_that_fit_then_the_most_events() -> None:
+    ms = [
+        on("edge", "x", 0.10, 10),
+        on("cloud", "a", 0.12, 1000),
+        on("cloud", "b", 0.05, 10),
+        on("cloud", "c", 0.06, 20),
+        on("cloud", "d", 0.07, 500),
+        on("cloud", "e", 0.30, 5000),
+    ]
+    # allowed 0.9 * 0.4 = 0.36, verification 0.10: a room of 0.26; three fit (b, c, d:
+    # 0.18), and of the four threes that fit, a, c, d carries the most events/s (0.25 cores)
+    p = plan_moves(ms, edge(0.4, 0.05), ROOMY)
+    assert p.target_microcores == 260_000
+    assert (p.down, p.method, p.objective) == (("a", "c", "d"), "milp", (3, 1_520_000))
+    assert p.moved_microcores == 250_000
+    greedy = plan_moves(ms, edge(0.4, 0.05), PlannerConfig(time_budget=0))
+    assert (greedy.down, greedy.objective) == (("b", "c", "d"), (3, 530_000))
+    one = plan_moves(ms, edge(0.4, 0.05), PlannerConfig(max_home=1, time_budget=5.0))
+    assert one.down == ("a",)  # e (0.30) does not fit the room; a is the busiest that does
+
+
+# --- properties over any reading ---
+
+
+@props(150)
+@given(ANY, st.booleans())
+def test_a_plan_never_moves_what_it_must_not_and_goes_one_way(
+    instance: tuple[list[MonitorCost], EdgeState, PlannerConfig], blind: bool
+) -> None:
+    ms, e, c = instance
+    if blind:  # no deadline signal
+        e = edge(e.headroom, None)
+    p = plan_moves(ms, e, c)
+    by_name = {m.name: m for m in ms}
+    assert not (p.up and p.down)
+    assert all(may_go_up(by_name[n], e) for n in p.up)  # never pinned, latency, handoff
+    assert all(may_come_home(by_name[n]) for n in p.down)
+    assert (p.method == "none") == (not p.up and not p.down)
+    ratio = e.ratio
+    if ratio is None or c.low < ratio < c.high:  # no signal, or the hysteresis band
+        assert p.method == "none"
+        assert ("no deadline signal" if ratio is None else "hysteresis") in p.reason
+    if p.up:
+        movable = sum(microcores(m.cost) for m in ms if may_go_up(m, e))
+        assert p.moved_microcores >= min(p.target_microcores, movable)
+    if p.down:
+        assert verification(ms) + p.moved_microcores <= allowed(e, c)
+    again = plan_moves(list(reversed(ms)), e, c)  # the order given plays no part
+    assert (again.up, again.down, again.method) == (p.up, p.down, p.method)
+
+
+def test_a_monitor_in_a_handoff_stays_and_counts_on_the_edge() -> None:
+    ms = [
+        on("cloud", "arriving", 0.20, 100, in_handoff=True),
+        on("cloud", "a", 0.10, 100),
+        on("cloud", "b", 0.10, 100),
+    ]
+    # allowed 0.36, less the 0.20 that may be arriving: a room of 0.16, one of a, b fits
+    p = plan_moves(ms, edge(0.4, 0.05), ROOMY)
+    assert p.target_microcores == 160_000 and len(p.down) == 1
+    up = plan_moves([on("edge", "leaving", 0.3, 1, in_handoff=True)], edge(0.1, 0.2), ROOMY)
+    assert (up.up, up.method) == ((), "none") and "in a handoff: leaving" in up.reason
+
+
+def test_pinned_and_latency_held_monitors_stay_and_the_plan_names_them() -> None:
+    ms = [
+        on("edge", "pin", 0.5, 1, pinned=True),
+        on("edge", "near", 0.5, 1, max_latency_ms=10.0),
+        on("edge", "free", 0.1, 1),
+    ]
+    p = plan_moves(ms, edge(0.5, 0.15), ROOMY)  # 1.1 on the edge, 0.45 allowed
+    assert (p.up, p.method) == (("free",), "all")
+    assert "0.55 cores short" in p.reason
+    assert "pinned: pin" in p.reason and "below the cloud's 40 ms: near" in p.reason
+    assert plan_moves(ms, edge(0.5, 0.15, cloud_ms=10.0), ROOMY).up == ("free", "near")
+
+
+# --- the fallback and the hysteresis ---
+
+
+def test_the_greedy_rule_takes_over_when_the_solver_runs_out_of_time() -> None:
+    # rates proportional to costs: the second criterion is a subset sum, which HiGHS does
+    # not prove in a microsecond
+    ms = [
+        on("edge", f"m{i:03d}", (1000 + 37 * i % 1900) / MICRO, (1000 + 37 * i % 1900) / 100)
+        for i in range(300)
+    ]
+    reading = edge(sum(m.cost for m in ms) * 0.7 / 0.9, 0.105)  # 30% of it to free
+    p = plan_moves(ms, reading, PlannerConfig(time_budget=1e-6))
+    assert p.method == "greedy" and "the solver stopped unproven in 1e-06 s" in p.reason
+    assert p.solver_seconds > 0
+    by_rule = plan_moves(ms, reading, PlannerConfig(time_budget=0))
+    assert (by_rule.up, by_rule.method) == (p.up, "greedy")  # the same rule, deterministic
+    assert p.moved_microcores >= p.target_microcores
+    # the greedy rule is optimal in the number of monitors: largest cost first
+    costs = sorted((microcores(m.cost) for m in ms), reverse=True)
+    fewest = next(k for k in range(301) if sum(costs[:k]) >= p.target_microcores)
+    assert len(p.up) == fewest
+
+
+@pytest.mark.parametrize(
+    ("p95_ms", "up", "down"),
+    [(100, ("a",), ()), (99, (), ()), (96, (), ()), (95, (), ("b",)), (20, (), ("b",))],
+)
+def test_nothing_moves_inside_the_band(p95_ms: int, up: tuple[str], down: tuple[str]) -> None:
+    # the marks: up at 100% or more, home at 95% or less; the headroom is no obstacle
+    # either way (0.27 allowed, 0.2 on the edge, 0.01 away)
+    ms = [on("edge", "a", 0.2, 10), on("cloud", "b", 0.01, 10)]
+    p = plan_moves(ms, edge(0.3, p95_ms / 1000), ROOMY)
+    assert (p.up, p.down) == (up, down)
+    if not up and not down:
+        assert p.method == "none" and "hysteresis" in p.reason
+
+
+def test_what_comes_home_leaves_the_margin_so_it_does_not_bounce() -> None:
+    ms = [on("edge", "a", 0.2, 10), on("edge", "b", 0.2, 10), on("edge", "c", 0.2, 10)]
+    first = plan_moves(ms, edge(0.4, 0.12), ROOMY)  # 0.6 on the edge, 0.36 allowed
+    assert len(first.up) == 2  # 0.24 to free
+    moved = [on("cloud" if m.name in first.up else "edge", m.name, 0.2, 10) for m in ms]
+    back = plan_moves(moved, edge(0.4, 0.05), ROOMY)  # calm: 0.16 of room, 0.2 each
+    assert (back.down, back.method) == ((), "none") and "none of the 2 away fits" in back.reason
+    roomier = plan_moves(moved, edge(0.5, 0.05), ROOMY)  # 0.25 of room: one comes home
+    assert len(roomier.down) == 1
+
+
+# --- input ---
+
+
+def test_inputs_out_of_range_are_refused() -> None:
+    with pytest.raises(ValueError, match="named twice: a"):
+        plan_moves([on("edge", "a", 0.1, 1), on("cloud", "a", 0.1, 1)], edge(1.0, 0.2))
+    with pytest.raises(ValueError, match="cost"):
+        on("edge", "a", -0.1, 1)
+    with pytest.raises(ValueError, match="events/s"):
+        on("edge", "a", 0.1, math.nan)
+    with pytest.raises(ValueError, match="deadline"):
+        EdgeState(1.0, 0.0, 0.1, 40.0)
+    with pytest.raises(ValueError, match="low < high"):
+        PlannerConfig(low=1.0, high=1.0)
+    with pytest.raises(ValueError, match="margin"):
+        PlannerConfig(margin=1.0)
+    with pytest.raises(ValueError, match="time_budget"):
+        PlannerConfig(time_budget=math.inf)
+    assert isinstance(plan_moves([], edge(1.0, 0.2)), Plan)
