@@ -42,7 +42,9 @@ check), the plan is the greedy rule's: today's rule (the busiest first, until en
 shed) with the measured cost in place of its proxy, the event rate: largest cost first
 up, smallest cost first home, ties by fewer (up) or more (home) events, then name. It is
 optimal in the number of monitors; only the events/s may be worse. ``Plan.method`` says
-which made the plan. SciPy is imported at the first solve (0.4 s).
+which made the plan. SciPy is imported at the first solve (0.4 s); where it is not
+installed (the ``planner`` extra: a handler's image has none) the greedy rule plans, and
+the plan's reason says why.
 """
 
 from __future__ import annotations
@@ -398,11 +400,15 @@ def _solve(
     by name: the program has no symmetric columns (HiGHS's symmetry detection, which
     does not heed the time limit, took 2 s on 10,000 monitors of a few thousand kinds)."""
     import numpy as np
-    from scipy.optimize import (  # type: ignore[import-untyped]
-        Bounds,
-        LinearConstraint,
-        milp,
-    )
+
+    try:
+        from scipy.optimize import (  # type: ignore[import-untyped]
+            Bounds,
+            LinearConstraint,
+            milp,
+        )
+    except ImportError:  # the handler's image has no solver; a planner's host should
+        return None, 0.0, "SciPy is not installed (pip install 'edgerv[planner]')"
 
     kinds: dict[tuple[int, int], list[_Item]] = {}
     for item in sorted(items, key=lambda i: i.name):
