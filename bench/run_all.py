@@ -22,6 +22,7 @@ MODULES = [
     "nested_check",
     "migrate",
     "reactions",
+    "planner",
 ]
 
 
