@@ -5,6 +5,8 @@ tests check who is charged and how the shares are split, never how much."""
 
 from __future__ import annotations
 
+import os
+
 from edgerv.handler.engine import COLUMNS_FROM, Engine
 from edgerv.handler.host import HostCpu, parse_stat
 from kit.documents import compiled
@@ -78,15 +80,20 @@ def test_the_load_report_carries_each_monitors_cost_in_seconds() -> None:
     assert monitors["idle"]["cpuSeconds"] == 0.0  # not active here: nothing spent
 
 
-def test_the_load_report_carries_the_machines_cpu_counters() -> None:
-    """The headroom the edge has left comes from the machine's counters (/proc/stat)."""
+def test_the_load_report_carries_the_cpu_counters_of_the_handlers_cpus() -> None:
+    """The headroom the edge has left comes from the counters (/proc/stat) of the CPUs
+    the handler may run on (its affinity: pinned beside the real-time task, that core)."""
     stat = (
         "cpu  100 5 50 800 20 0 5 0 0 0\n"
         "cpu0 50 2 25 400 10 0 3 0 0 0\ncpu1 50 3 25 400 10 0 2 0 0 0\nintr 1\n"
     )
-    assert parse_stat(stat, 100.0) == HostCpu(cores=2, busy_seconds=1.6, total_seconds=9.8)
-    assert parse_stat("intr 1\n", 100.0) is None
-    assert parse_stat("cpu 1 x 3 4 5\n", 100.0) is None
+    both = HostCpu(cores=2, busy_seconds=1.6, total_seconds=9.8)
+    assert parse_stat(stat, 100.0, {0, 1}) == both
+    assert parse_stat(stat, 100.0, {1, 7}) == HostCpu(cores=1, busy_seconds=0.8, total_seconds=4.9)
+    assert parse_stat(stat, 100.0, {5}) is None
+    assert parse_stat("intr 1\n", 100.0, {0}) is None
+    assert parse_stat("cpu0 1 x 3 4 5\n", 100.0, {0}) is None
     host = Engine("edge").load()["host"]
     assert host is not None  # this is Linux
-    assert host["cores"] >= 1 and 0 < host["busySeconds"] <= host["totalSeconds"]
+    assert host["cores"] == len(os.sched_getaffinity(0))
+    assert 0 < host["busySeconds"] <= host["totalSeconds"]
