@@ -226,7 +226,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     replay.add_arguments(rep)
     rep.set_defaults(func=replay.run)
 
-    from edgerv.handler import migrate
+    from edgerv.control import migrate
 
     mig = sub.add_parser(
         "migrate", help="move a monitor from one handler to another", description=migrate.__doc__
@@ -234,7 +234,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     migrate.add_arguments(mig)
     mig.set_defaults(func=migrate.run)
 
-    from edgerv.handler import orchestrate
+    from edgerv.control import orchestrate
 
     orch = sub.add_parser(
         "orchestrate",

@@ -8,9 +8,9 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from edgerv.control.tls import ClientTls
+from edgerv.control.token import Token, TokenFile
 from edgerv.core.diagnostics import InputError
-from edgerv.handler.tls import ClientTls
-from edgerv.handler.token import Token, TokenFile
 
 DEFAULT_SELECTOR = "app.kubernetes.io/name=edgerv,app.kubernetes.io/component=handler"
 

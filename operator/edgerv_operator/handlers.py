@@ -32,17 +32,17 @@ from typing import Any
 
 import kopf
 
-from edgerv.core.placement import PolicyConfig
-from edgerv.handler.client import (
+from edgerv.control.client import (
     ApiError,
     HandlerClient,
     Invalid,
     NotFound,
     Unauthorized,
 )
-from edgerv.handler.migrate import migrate, settle
-from edgerv.handler.orchestrate import Orchestrator, Target
-from edgerv.handler.payloads import MonitorReport
+from edgerv.control.migrate import migrate, settle
+from edgerv.control.orchestrate import Orchestrator, Target
+from edgerv.control.placement import PolicyConfig
+from edgerv.control.wire import MonitorReport
 from edgerv_operator.config import ConfigError, OperatorConfig
 from edgerv_operator.documents import (
     HandlerPod,

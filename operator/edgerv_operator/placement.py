@@ -2,7 +2,7 @@
 
 Pure: no Kubernetes and no network (tests/unit/test_operator.py). The orchestration
 policy itself (moves on pressure, back down when calm) is
-:mod:`edgerv.core.placement`, shared with ``edgerv orchestrate``.
+:mod:`edgerv.control.placement`, shared with ``edgerv orchestrate``.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ import sys
 
 from kubernetes import client, config
 
-from edgerv.handler.client import ApiError, HandlerClient
+from edgerv.control.client import ApiError, HandlerClient
 from edgerv_operator.config import ConfigError, OperatorConfig
 
 

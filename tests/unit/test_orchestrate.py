@@ -6,10 +6,8 @@ import argparse
 
 import pytest
 
-from edgerv.core.diagnostics import InputError
-from edgerv.core.placement import DeadlineReading, Placement, PolicyConfig
-from edgerv.handler.migrate import MigrationFailed
-from edgerv.handler.orchestrate import (
+from edgerv.control.migrate import MigrationFailed
+from edgerv.control.orchestrate import (
     Counters,
     Orchestrator,
     Target,
@@ -20,6 +18,8 @@ from edgerv.handler.orchestrate import (
     parse_handlers,
     parse_pairs,
 )
+from edgerv.control.placement import DeadlineReading, Placement, PolicyConfig
+from edgerv.core.diagnostics import InputError
 
 
 def test_handlers_flag() -> None:
@@ -184,9 +184,9 @@ def test_an_unsettled_move_is_not_done_and_is_settled_before_the_monitor_moves_a
     """`edgerv migrate` ended unsettled (a handler did not answer: the edge may hold m
     released): the record says so, not ok; each later round settles m on the edge first,
     and the policy's moves of m wait until that succeeded."""
-    import edgerv.handler.orchestrate as orchestrate
-    from edgerv.core.placement import Move
-    from edgerv.handler.migrate import Moved, Unsettled
+    import edgerv.control.orchestrate as orchestrate
+    from edgerv.control.migrate import Moved, Unsettled
+    from edgerv.control.placement import Move
 
     edge, cloud = Target("edge", "e:1"), Target("cloud", "c:1")
     o = Orchestrator([edge, cloud], PolicyConfig(tiers=("edge", "cloud")), token=None)

@@ -12,7 +12,9 @@ from typing import Any
 import pytest
 from prometheus_client import CollectorRegistry
 
-from edgerv.core.placement import (
+from edgerv.control import orchestrate
+from edgerv.control.orchestrate import Idle, Orchestrator, Target, why_nothing_moves
+from edgerv.control.placement import (
     DeadlineReading,
     HandlerReport,
     MonitorLoad,
@@ -22,10 +24,8 @@ from edgerv.core.placement import (
     PolicyMemory,
     plan,
 )
-from edgerv.handler import orchestrate
 from edgerv.handler.api import ControlApi
 from edgerv.handler.engine import Engine
-from edgerv.handler.orchestrate import Idle, Orchestrator, Target, why_nothing_moves
 from kit.documents import compiled
 
 CONFIG = PolicyConfig(tiers=("edge", "cloud"), tier_latency_ms={"edge": 0.0, "cloud": 40.0})

@@ -22,6 +22,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from edgerv.control.wire import MonitorReport, placement_json
 from edgerv.core import arrivals as batches
 from edgerv.core.deadline import MakespanWindow
 from edgerv.core.diagnostics import Diagnostic, InputError
@@ -29,13 +30,11 @@ from edgerv.core.documents import MonitorSpec
 from edgerv.core.handoff import HandoffError
 from edgerv.core.monitor import CompiledMonitor, compile_monitor
 from edgerv.core.pipeline import MonitorRuntime, Router, TopicRoute, Verdict
-from edgerv.core.placement import placement_json
 from edgerv.core.reactions import Reaction
 from edgerv.handler.budget import MemoryBudget, monitor_cost
 from edgerv.handler.clock import Clock, SystemClock
 from edgerv.handler.handoff_state import HandoffState
 from edgerv.handler.handoff_steps import HandoffSteps
-from edgerv.handler.payloads import MonitorReport
 from edgerv.handler.slot import MonitorSlot
 
 log = logging.getLogger("edgerv.handler")

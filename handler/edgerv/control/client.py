@@ -31,9 +31,9 @@ import urllib.parse
 from collections.abc import Sequence
 from typing import Any, Literal, cast
 
-from edgerv.handler.payloads import ErrorBody, HandoffRequest, MonitorListing, MonitorReport
-from edgerv.handler.tls import ClientTls, is_loopback, speaks_tls
-from edgerv.handler.token import Token, current
+from edgerv.control.tls import ClientTls, is_loopback, speaks_tls
+from edgerv.control.token import Token, current
+from edgerv.control.wire import ErrorBody, HandoffRequest, MonitorListing, MonitorReport
 
 
 class ApiError(Exception):

@@ -30,9 +30,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
-from edgerv.core.diagnostics import Diagnostic, InputError, Location
-from edgerv.core.handoff import HandoffError, frame_sizes, unbundle
-from edgerv.handler.client import (
+from edgerv.control.client import (
     ApiError,
     HandlerClient,
     HttpError,
@@ -43,9 +41,10 @@ from edgerv.handler.client import (
     WrongScheme,
     address_problem,
 )
-from edgerv.handler.handoff_steps import HANDOFF_EXPIRES
-from edgerv.handler.payloads import CutAnswer
-from edgerv.handler.tls import add_client_arguments, client_tls, is_loopback
+from edgerv.control.tls import add_client_arguments, client_tls, is_loopback
+from edgerv.control.wire import HANDOFF_EXPIRES, CutAnswer
+from edgerv.core.diagnostics import Diagnostic, InputError, Location
+from edgerv.core.handoff import HandoffError, frame_sizes, unbundle
 
 DESCRIPTION = """\
 Move monitors from one handler to another through their control APIs, with no

@@ -2,9 +2,9 @@
 
 Each round it reads every handler's load report (``GET /v1/load``), turns the
 counters into rates (:func:`build_reports`), asks the policy
-(:func:`edgerv.core.placement.plan`) what to do, and does it: ``start`` activates
+(:func:`edgerv.control.placement.plan`) what to do, and does it: ``start`` activates
 a monitor that runs nowhere, the other moves run the handoff of
-:mod:`edgerv.handler.migrate`. Each action is printed as one JSON line on stdout.
+:mod:`edgerv.control.migrate`. Each action is printed as one JSON line on stdout.
 A handler that does not answer is left out of that round (its monitors are not
 moved: it may only be slow), and no monitor is started that round (it may run
 on the silent one). A move that ends unsettled (``edgerv migrate``'s exit 3: a
@@ -31,26 +31,8 @@ from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, fields
 from typing import Any
 
-from edgerv.core.diagnostics import Diagnostic, InputError, Location
-from edgerv.core.placement import (
-    DeadlineReading,
-    HandlerReport,
-    MonitorLoad,
-    Move,
-    Placement,
-    PolicyConfig,
-    PolicyConfigError,
-    PolicyMemory,
-    deadline_at_risk,
-    deadline_ratio,
-    is_loaded,
-    is_pressured,
-    placement_from_json,
-    plan,
-    tier_allowed,
-)
-from edgerv.handler.client import ApiError, HandlerClient, address_problem
-from edgerv.handler.migrate import (
+from edgerv.control.client import ApiError, HandlerClient, address_problem
+from edgerv.control.migrate import (
     HelpFormatter,
     NotMoved,
     Unsettled,
@@ -59,8 +41,26 @@ from edgerv.handler.migrate import (
     seconds_from_zero,
     settle,
 )
-from edgerv.handler.tls import ClientTls, add_client_arguments, client_tls
-from edgerv.handler.token import Token
+from edgerv.control.placement import (
+    DeadlineReading,
+    HandlerReport,
+    MonitorLoad,
+    Move,
+    PolicyConfig,
+    PolicyConfigError,
+    PolicyMemory,
+    deadline_at_risk,
+    deadline_ratio,
+    is_loaded,
+    is_pressured,
+    plan,
+    tier_allowed,
+)
+from edgerv.control.tls import ClientTls, add_client_arguments, client_tls
+from edgerv.control.token import Token
+from edgerv.control.wire import placement_from_json
+from edgerv.core.diagnostics import Diagnostic, InputError, Location
+from edgerv.core.documents import Placement
 
 log = logging.getLogger("edgerv.orchestrate")
 

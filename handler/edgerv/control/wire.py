@@ -1,13 +1,35 @@
-"""The control API's JSON payloads, typed: what the handler's server answers
-(:mod:`edgerv.handler.api`, :meth:`MonitorSlot.describe`) and what its clients read
-(:mod:`edgerv.handler.client`: the operator, ``edgerv migrate``, ``edgerv orchestrate``).
+"""The control API on the wire: its JSON payloads, typed, and the protocol's constants.
+What the handler's server answers (:mod:`edgerv.handler.api`, :meth:`MonitorSlot.describe`)
+and what its callers read (:mod:`edgerv.control.client`: the operator, ``edgerv migrate``,
+``edgerv orchestrate``).
 
 docs/handler.md describes each field; these types are the one place both sides name them.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any, NotRequired, TypedDict
+
+from edgerv.core.documents import Placement
+
+HANDOFF_EXPIRES = 120.0  # seconds a handoff may wait for its next step before it is undone
+
+
+def placement_json(p: Placement) -> dict[str, object]:
+    """The placement as the API and the Monitor resource spell it."""
+    return {"tier": p.tier, "migrate": p.migrate, "maxLatencyMs": p.max_latency_ms}
+
+
+def placement_from_json(d: Mapping[str, object]) -> Placement:
+    """A placement as the API (or a Monitor resource's ``spec.placement``) spells it;
+    what is missing or of another type reads as the default."""
+    tier, migrate, budget = d.get("tier"), d.get("migrate", "auto"), d.get("maxLatencyMs")
+    return Placement(
+        tier if isinstance(tier, str) else None,
+        "pinned" if migrate == "pinned" else "auto",
+        float(budget) if isinstance(budget, int | float) else None,
+    )
 
 
 class LastVerdict(TypedDict):

@@ -39,7 +39,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+
+from edgerv.core.documents import Placement
 
 
 @dataclass(frozen=True)
@@ -71,27 +72,6 @@ class HandlerReport:
 
     def active(self) -> list[str]:
         return [m for m, load in self.monitors.items() if load.active]
-
-
-@dataclass(frozen=True)
-class Placement:
-    tier: str | None = None  # home tier: where it starts and comes back to (default: lowest)
-    migrate: Literal["auto", "pinned"] = "auto"
-    max_latency_ms: float | None = None
-
-
-def placement_json(p: Placement) -> dict[str, object]:
-    """The placement as the API and the Monitor resource spell it."""
-    return {"tier": p.tier, "migrate": p.migrate, "maxLatencyMs": p.max_latency_ms}
-
-
-def placement_from_json(d: Mapping[str, object]) -> Placement:
-    tier, migrate, budget = d.get("tier"), d.get("migrate", "auto"), d.get("maxLatencyMs")
-    return Placement(
-        tier if isinstance(tier, str) else None,
-        "pinned" if migrate == "pinned" else "auto",
-        float(budget) if isinstance(budget, int | float) else None,
-    )
 
 
 class PolicyConfigError(ValueError):
