@@ -204,7 +204,7 @@ def cli(argv: list[str]) -> int:
     """`edgerv migrate ARGV` in this process (its exit code; stderr to capsys)."""
     import argparse
 
-    from edgerv.control import migrate as command
+    from edgerv.control import migrate_command as command
 
     parser = argparse.ArgumentParser()
     command.add_arguments(parser)

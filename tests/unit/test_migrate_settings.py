@@ -337,7 +337,7 @@ def test_the_command_to_run_again_is_the_one_given_quoted() -> None:
     quoted for a shell; the monitors once each, in order."""
     import argparse
 
-    from edgerv.control import migrate as command
+    from edgerv.control import migrate_command as command
 
     parser = argparse.ArgumentParser()
     command.add_arguments(parser)

@@ -1,22 +1,33 @@
 """The control API on the wire: its JSON payloads, typed, and the protocol's constants.
-What the handler's server answers (:mod:`edgerv.handler.api`, :meth:`MonitorSlot.describe`)
-and what its callers read (:mod:`edgerv.control.client`: the operator, ``edgerv migrate``,
-``edgerv orchestrate``).
+What the handler's server answers (:mod:`edgerv.handler.api`, :meth:`MonitorSlot.describe`,
+:meth:`Engine.load`) and what its callers read (:mod:`edgerv.control.client`: the
+operator, ``edgerv migrate``, ``edgerv orchestrate``).
 
 docs/handler.md describes each field; these types are the one place both sides name them.
+A load report (``GET /v1/load``) is read by :func:`parse_load`, which checks its shape.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
-from typing import Any, NotRequired, TypedDict
+from typing import Any, Literal, NotRequired, TypedDict
 
+from edgerv.core.deadline import DeadlineLoad
 from edgerv.core.documents import Placement
 
 HANDOFF_EXPIRES = 120.0  # seconds a handoff may wait for its next step before it is undone
 
 
-def placement_json(p: Placement) -> dict[str, object]:
+class PlacementJson(TypedDict):
+    """A monitor's placement as the API and the Monitor resource spell it."""
+
+    tier: str | None
+    migrate: Literal["auto", "pinned"]
+    maxLatencyMs: float | None
+
+
+def placement_json(p: Placement) -> PlacementJson:
     """The placement as the API and the Monitor resource spell it."""
     return {"tier": p.tier, "migrate": p.migrate, "maxLatencyMs": p.max_latency_ms}
 
@@ -68,7 +79,7 @@ class MonitorReport(TypedDict):
     handoff: str | None  # the handoff step it is in, if any
     epoch: int  # the newest handoff it took part in here
     peer: str | None
-    placement: dict[str, Any]
+    placement: PlacementJson
 
 
 class MonitorListing(TypedDict):
@@ -136,3 +147,123 @@ class OutcomesAnswer(TypedDict):
     """``commit`` and ``abort``: what each monitor's step did (Engine.commit, Engine.abort)."""
 
     outcomes: dict[str, str]
+
+
+# -- the load report (GET /v1/load) -------------------------------------------------------
+
+
+class MonitorLoadReport(TypedDict):
+    """A monitor's counters in the load report (counters, not rates)."""
+
+    active: bool
+    handoff: str | None  # the handoff step it is in, if any
+    epoch: int
+    peer: str | None
+    events: int
+    migrationWanted: bool
+    placement: PlacementJson
+
+
+class LoadReport(TypedDict):
+    """``GET /v1/load``: what the orchestrator and the operator's placement rounds read."""
+
+    handler: str
+    monotonic: float  # the handler's monotonic clock, seconds
+    cpuSeconds: float  # the handler's process CPU time
+    ingestLag: float  # seconds
+    deadline: DeadlineLoad | None  # None: the handler measures no deadline (--deadline)
+    monitors: dict[str, MonitorLoadReport]
+
+
+def _number(d: Mapping[str, Any], key: str, where: str, default: float | None = None) -> float:
+    value = d.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ValueError(f"{where}{key} is not a number")
+    return float(value)
+
+
+def _number_or_none(d: Mapping[str, Any], key: str, where: str) -> float | None:
+    return None if d.get(key) is None else _number(d, key, where)
+
+
+def _whole(d: Mapping[str, Any], key: str, where: str, default: int | None = None) -> int:
+    value = d.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"{where}{key} is not a whole number")
+    return value
+
+
+def _flag(d: Mapping[str, Any], key: str, where: str) -> bool:
+    value = d.get(key)
+    if not isinstance(value, bool):
+        raise ValueError(f"{where}{key} is not true or false")
+    return value
+
+
+def _text_or_none(d: Mapping[str, Any], key: str, where: str) -> str | None:
+    value = d.get(key)
+    if value is not None and not isinstance(value, str):
+        raise ValueError(f"{where}{key} is not a string or null")
+    return value
+
+
+def _deadline(d: object) -> DeadlineLoad | None:
+    if d is None:
+        return None
+    if not isinstance(d, Mapping):
+        raise ValueError("deadline is not an object or null")
+    w = "deadline."
+    return {
+        "topic": _text_or_none(d, "topic", w) or "",
+        "budgetMs": _number(d, "budgetMs", w),
+        "windowSeconds": _number(d, "windowSeconds", w, 0.0),
+        "count": _whole(d, "count", w),
+        "misses": _whole(d, "misses", w, 0),
+        "p50Ms": _number_or_none(d, "p50Ms", w),
+        "p95Ms": _number_or_none(d, "p95Ms", w),
+        "maxMs": _number_or_none(d, "maxMs", w),
+        "lastMs": _number_or_none(d, "lastMs", w),
+        "missesTotal": _whole(d, "missesTotal", w, 0),
+        "messagesTotal": _whole(d, "messagesTotal", w, 0),
+    }
+
+
+def _monitor_load(name: str, d: object) -> MonitorLoadReport:
+    if not isinstance(d, Mapping):
+        raise ValueError(f"monitors.{name} is not an object")
+    w = f"monitors.{name}."
+    placement = d.get("placement") or {}
+    if not isinstance(placement, Mapping):
+        raise ValueError(f"{w}placement is not an object")
+    return {
+        "active": _flag(d, "active", w),
+        "handoff": _text_or_none(d, "handoff", w),
+        "epoch": _whole(d, "epoch", w, 0),
+        "peer": _text_or_none(d, "peer", w),
+        "events": _whole(d, "events", w),
+        "migrationWanted": _flag(d, "migrationWanted", w),
+        "placement": placement_json(placement_from_json(placement)),
+    }
+
+
+def parse_load(value: object) -> LoadReport:
+    """A load report as JSON decoded it, checked field by field: raises
+    :class:`ValueError` saying what is not as the API promises. What a handler may leave
+    out reads as its default (``ingestLag`` 0, ``deadline`` null, a monitor's ``epoch``
+    0, ``handoff`` and ``peer`` null, the default placement; in a ``deadline``, all but
+    ``budgetMs`` and ``count``)."""
+    if not isinstance(value, Mapping):
+        raise ValueError("it is not an object")
+    handler, monitors = value.get("handler"), value.get("monitors")
+    if not isinstance(handler, str):
+        raise ValueError("handler is not a string")
+    if not isinstance(monitors, Mapping):
+        raise ValueError("monitors is not an object")
+    return {
+        "handler": handler,
+        "monotonic": _number(value, "monotonic", ""),
+        "cpuSeconds": _number(value, "cpuSeconds", ""),
+        "ingestLag": _number(value, "ingestLag", "", 0.0),
+        "deadline": _deadline(value.get("deadline")),
+        "monitors": {str(name): _monitor_load(str(name), d) for name, d in monitors.items()},
+    }

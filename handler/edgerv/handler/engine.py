@@ -22,7 +22,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from edgerv.control.wire import MonitorReport, placement_json
+from edgerv.control.wire import LoadReport, MonitorReport, placement_json
 from edgerv.core import arrivals as batches
 from edgerv.core.deadline import MakespanWindow
 from edgerv.core.diagnostics import Diagnostic, InputError
@@ -691,7 +691,7 @@ class Engine(HandoffSteps):
                 )
                 return left
 
-    def load(self) -> dict[str, Any]:
+    def load(self) -> LoadReport:
         """The load report the orchestrator reads (``GET /v1/load``): counters, not rates;
         ``deadline`` is the makespan window's reading (null without ``--deadline``)."""
         now_ns = int(self.clock.monotonic() * 1e9)
