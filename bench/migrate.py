@@ -76,9 +76,9 @@ time.sleep(3600)
 
 DRIVER = r"""
 import json, sys, time
-from edgerv.handler.client import HandlerClient
-from edgerv.handler.migrate import migrate
-from edgerv.handler.tls import ClientTls
+from edgerv.control.client import HandlerClient
+from edgerv.control.migrate import migrate
+from edgerv.control.tls import ClientTls
 src, dst, token, names = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4].split(",")
 buffered, parked = int(sys.argv[5]), sys.argv[6] == "parked"
 tls = ClientTls(sys.argv[7], sys.argv[8])  # HTTPS, as the chart sets it up
@@ -152,8 +152,8 @@ def handler(lab: Lab, host: str, monitors: Path, tmp: Path, port: int, *extra: s
 def api(lab: Lab, host: str, port: int, path: str) -> Any:
     code = (
         "import json, sys\n"
-        "from edgerv.handler.client import HandlerClient\n"
-        "from edgerv.handler.tls import ClientTls\n"
+        "from edgerv.control.client import HandlerClient\n"
+        "from edgerv.control.tls import ClientTls\n"
         f"tls = ClientTls({str(shared_pki().ca)!r}, {NAME!r})\n"
         f"client = HandlerClient('{lab.addr[host]}:{port}', {TOKEN!r}, tls)\n"
         f"sys.stdout.write(json.dumps(client.get({path!r}, timeout=30)))\n"

@@ -226,24 +226,26 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     replay.add_arguments(rep)
     rep.set_defaults(func=replay.run)
 
-    from edgerv.handler import migrate
+    from edgerv.control import migrate_command
 
     mig = sub.add_parser(
-        "migrate", help="move a monitor from one handler to another", description=migrate.__doc__
+        "migrate",
+        help="move a monitor from one handler to another",
+        description=migrate_command.__doc__,
     )
-    migrate.add_arguments(mig)
-    mig.set_defaults(func=migrate.run)
+    migrate_command.add_arguments(mig)
+    mig.set_defaults(func=migrate_command.run)
 
-    from edgerv.handler import orchestrate
+    from edgerv.control import orchestrate_command
 
     orch = sub.add_parser(
         "orchestrate",
         help="poll handlers and move monitors by the placement policy",
-        description=orchestrate.__doc__,
+        description=orchestrate_command.__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    orchestrate.add_arguments(orch)
-    orch.set_defaults(func=orchestrate.run)
+    orchestrate_command.add_arguments(orch)
+    orch.set_defaults(func=orchestrate_command.run)
 
     from edgerv.handler.ros import types as ros_types
 

@@ -1,18 +1,50 @@
-"""The operator's settings: one validated object from the environment, errors that name
-the variable."""
+"""The operator's settings: the environment read once, into one frozen object, with errors
+that name the variable. Nothing else in the operator reads the environment.
+
+:meth:`OperatorConfig.from_env` is the operator's (``edgerv-operator`` reads it before Kopf
+starts and hands it to the handlers in Kopf's ``memo``) and the self-test's;
+:meth:`UninstallConfig.from_env` the uninstall hook's, which has no token.
+"""
 
 from __future__ import annotations
 
 import os
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+from edgerv.control.placement import PolicyConfig, tier_latencies
+from edgerv.control.tls import ClientTls
+from edgerv.control.token import Token, TokenFile
 from edgerv.core.diagnostics import InputError
-from edgerv.handler.tls import ClientTls
-from edgerv.handler.token import Token, TokenFile
+from edgerv_operator.constants import (
+    HANDLER_PORT,
+    HANDLER_SELECTOR,
+    LIVENESS,
+    PLACEMENT_SECONDS,
+    TIER_LABEL,
+    TIERS,
+)
 
-DEFAULT_SELECTOR = "app.kubernetes.io/name=edgerv,app.kubernetes.io/component=handler"
+VARIABLES = (  # every variable the operator, its self-test and its uninstall hook read
+    "EDGERV_NAMESPACE",
+    "POD_NAMESPACE",
+    "EDGERV_TOKEN",
+    "EDGERV_TOKEN_FILE",
+    "EDGERV_TLS_CA_FILE",
+    "EDGERV_TLS_SERVER_NAME",
+    "EDGERV_PLAIN_HTTP",
+    "EDGERV_HANDLER_PORT",
+    "EDGERV_HANDLER_SELECTOR",
+    "EDGERV_TIERS",
+    "EDGERV_TIER_LATENCY",
+    "EDGERV_TIER_LABEL",
+    "EDGERV_PLACEMENT_SECONDS",
+    "EDGERV_WATCH_NAMESPACES",
+    "EDGERV_PEERING",
+    "EDGERV_LIVENESS",
+    "EDGERV_OPERATOR_DEPLOYMENT",
+)
 
 
 class ConfigError(Exception):
@@ -37,12 +69,9 @@ def parse_selector(text: str) -> dict[str, str] | None:
     return labels or None
 
 
-def selector_labels(env: Mapping[str, str] | None = None) -> dict[str, str]:
-    """The handler pods' labels, for the pod index (read when the handlers module is
-    imported; a bad value falls back to the default, and startup refuses it)."""
-    env = os.environ if env is None else env
-    given = parse_selector(env.get("EDGERV_HANDLER_SELECTOR", DEFAULT_SELECTOR))
-    return given or parse_selector(DEFAULT_SELECTOR) or {}
+def _environment(env: Mapping[str, str] | None) -> Mapping[str, str]:
+    """``env``, or the process's environment (the one place the operator reads it)."""
+    return os.environ if env is None else env
 
 
 def _token(env: Mapping[str, str]) -> Token:
@@ -87,6 +116,42 @@ def _tls(env: Mapping[str, str]) -> ClientTls | None:
         raise ConfigError(f"EDGERV_TLS_CA_FILE: {exc.diagnostics[0].message}") from None
 
 
+def _namespace(env: Mapping[str, str]) -> str:
+    namespace = env.get("EDGERV_NAMESPACE") or env.get("POD_NAMESPACE") or ""
+    if not namespace:
+        raise ConfigError("EDGERV_NAMESPACE: not set: the namespace of the handler pods")
+    return namespace
+
+
+def _watched(env: Mapping[str, str]) -> tuple[str, ...]:
+    """EDGERV_WATCH_NAMESPACES: comma-separated, each once; empty: every namespace."""
+    watched = (n.strip() for n in env.get("EDGERV_WATCH_NAMESPACES", "").split(","))
+    return tuple(n for n in dict.fromkeys(watched) if n)
+
+
+def _tiers(env: Mapping[str, str]) -> tuple[tuple[str, ...], dict[str, float]]:
+    """EDGERV_TIERS, lowest first, and EDGERV_TIER_LATENCY (``TIER=MS,...``: each tier's
+    latency from the robot, for ``placement.maxLatencyMs``; a tier not named: 0)."""
+    given = env.get("EDGERV_TIERS", ",".join(TIERS))
+    tiers = tuple(t.strip() for t in given.split(","))
+    if not all(tiers) or len(set(tiers)) != len(tiers):
+        raise ConfigError(
+            f"EDGERV_TIERS: '{given}' is not a list of distinct tier names, lowest first "
+            "(e.g. edge,cloud)"
+        )
+    try:
+        latency = tier_latencies(env.get("EDGERV_TIER_LATENCY", ""))
+    except ValueError as exc:
+        raise ConfigError(f"EDGERV_TIER_LATENCY: {exc}") from None
+    strangers = sorted(set(latency) - set(tiers))
+    if strangers:
+        raise ConfigError(
+            f"EDGERV_TIER_LATENCY: tier {', '.join(strangers)} is not one of EDGERV_TIERS "
+            f"{','.join(tiers)}"
+        )
+    return tiers, latency
+
+
 @dataclass(frozen=True)
 class OperatorConfig:
     namespace: str  # where the handler pods run
@@ -94,33 +159,39 @@ class OperatorConfig:
     port: int  # the handlers' control API port (host networking: on each node's address)
     token: Token  # the handlers' token: EDGERV_TOKEN_FILE (followed), else EDGERV_TOKEN
     tiers: tuple[str, ...]  # lowest first: a monitor without placement.tier starts on the first
-    placement_seconds: float = 5.0  # between rounds of the placement policy; 0: none
-    tier_label: str = "edgerv.io/tier"  # the node label whose value is the node's tier
+    placement_seconds: float = PLACEMENT_SECONDS  # between rounds of the placement policy; 0: none
+    tier_label: str = TIER_LABEL  # the node label whose value is the node's tier
     tls: ClientTls | None = None  # how the handlers' certificates are verified (None: HTTP)
+    tier_latency_ms: Mapping[str, float] = field(default_factory=dict)  # from the robot
+    watch_namespaces: tuple[str, ...] = ()  # the Monitors' namespaces (empty: every one)
+    peering: str = ""  # the Kopf peering object replicas meet in ("": it runs alone)
+    liveness: str = LIVENESS  # where it answers its liveness probe ("": nowhere)
 
     def url(self, address: str) -> str:
         """A handler's API at ``HOST:PORT``, over HTTPS unless plain HTTP was asked for."""
         return f"{'https' if self.tls is not None else 'http'}://{address}"
 
+    @property
+    def policy(self) -> PolicyConfig:
+        """The placement policy's settings: the tiers and their latencies, else defaults."""
+        return PolicyConfig(tiers=self.tiers, tier_latency_ms=dict(self.tier_latency_ms))
+
+    @property
+    def selector_labels(self) -> dict[str, str]:
+        """The handler pods' labels, for the pod index (:mod:`edgerv_operator.pods`)."""
+        return parse_selector(self.selector) or {}
+
     @classmethod
     def from_env(cls, env: Mapping[str, str] | None = None) -> OperatorConfig:
-        env = os.environ if env is None else env
-
+        env = _environment(env)
         token = _token(env)
         tls = _tls(env)
-        namespace = env.get("EDGERV_NAMESPACE") or env.get("POD_NAMESPACE") or ""
-        if not namespace:
-            raise ConfigError("EDGERV_NAMESPACE: not set: the namespace of the handler pods")
-        tiers = tuple(t.strip() for t in env.get("EDGERV_TIERS", "edge,cloud").split(","))
-        if not all(tiers) or len(set(tiers)) != len(tiers):
-            raise ConfigError(
-                f"EDGERV_TIERS: '{env.get('EDGERV_TIERS')}' is not a list of distinct tier "
-                "names, lowest first (e.g. edge,cloud)"
-            )
-        text = env.get("EDGERV_HANDLER_PORT", "8470")
+        namespace = _namespace(env)
+        tiers, latency = _tiers(env)
+        text = env.get("EDGERV_HANDLER_PORT", str(HANDLER_PORT))
         if not text.isdigit() or not 1 <= int(text) <= 65535:
             raise ConfigError(f"EDGERV_HANDLER_PORT: '{text}' is not a port number (1-65535)")
-        every = env.get("EDGERV_PLACEMENT_SECONDS", "5")
+        every = env.get("EDGERV_PLACEMENT_SECONDS", f"{PLACEMENT_SECONDS:g}")
         try:
             placement_seconds = float(every)
         except ValueError:
@@ -130,16 +201,16 @@ class OperatorConfig:
                 f"EDGERV_PLACEMENT_SECONDS: '{every}' is not a number of seconds from 0 "
                 "(no placement rounds) to 3600"
             )
-        selector = env.get("EDGERV_HANDLER_SELECTOR", DEFAULT_SELECTOR)
+        selector = env.get("EDGERV_HANDLER_SELECTOR", HANDLER_SELECTOR)
         if parse_selector(selector) is None:
             raise ConfigError(
                 f"EDGERV_HANDLER_SELECTOR: '{selector}' is not a list of key=value labels "
                 "(e.g. app.kubernetes.io/component=handler)"
             )
-        tier_label = env.get("EDGERV_TIER_LABEL", "edgerv.io/tier")
+        tier_label = env.get("EDGERV_TIER_LABEL", TIER_LABEL)
         if not _LABEL_KEY.fullmatch(tier_label):
             raise ConfigError(
-                f"EDGERV_TIER_LABEL: '{tier_label}' is not a label key (e.g. edgerv.io/tier)"
+                f"EDGERV_TIER_LABEL: '{tier_label}' is not a label key (e.g. {TIER_LABEL})"
             )
         return cls(
             namespace=namespace,
@@ -150,4 +221,24 @@ class OperatorConfig:
             placement_seconds=placement_seconds,
             tier_label=tier_label,
             tls=tls,
+            tier_latency_ms=latency,
+            watch_namespaces=_watched(env),
+            peering=env.get("EDGERV_PEERING", ""),
+            liveness=env.get("EDGERV_LIVENESS", LIVENESS),
         )
+
+
+@dataclass(frozen=True)
+class UninstallConfig:
+    """What the uninstall hook (:mod:`edgerv_operator.uninstall`) needs: the release's
+    namespace, the operator's Deployment ("": none in the cluster), the namespaces whose
+    Monitors it watched (empty: every one)."""
+
+    namespace: str
+    deployment: str = ""
+    watch_namespaces: tuple[str, ...] = ()
+
+    @classmethod
+    def from_env(cls, env: Mapping[str, str] | None = None) -> UninstallConfig:
+        env = _environment(env)
+        return cls(_namespace(env), env.get("EDGERV_OPERATOR_DEPLOYMENT", ""), _watched(env))

@@ -17,7 +17,7 @@ from typing import Any, TypedDict
 import yaml
 
 from edgerv.core.diagnostics import Diagnostic, InputError
-from edgerv.core.documents import parse_monitors_text
+from edgerv.core.documents import API_VERSION, KIND, parse_monitors_text
 from edgerv.core.monitor import compile_monitor
 
 
@@ -42,8 +42,8 @@ def handler_name(namespace: str, name: str) -> str:
 def monitor_document(namespace: str, name: str, spec: Mapping[str, Any]) -> MonitorDocument:
     """The Monitor document for the handlers, from the resource's spec."""
     return {
-        "apiVersion": "edgerv.io/v1alpha1",
-        "kind": "Monitor",
+        "apiVersion": API_VERSION,
+        "kind": KIND,
         "metadata": {"name": handler_name(namespace, name)},
         "spec": dict(spec),
     }

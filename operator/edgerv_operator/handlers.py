@@ -4,7 +4,8 @@
 A Monitor resource is defined on every handler of the cluster (the pods of the
 chart's DaemonSet, one per node, host networking) and runs on one: where it runs
 already, else a ready handler of its home tier (``placement.tier``, default the
-lowest), else of the nearest tier above (:func:`~edgerv_operator.placement.choose`). What
+lowest), else of the nearest tier above, the least loaded there
+(:func:`~edgerv_operator.placement.choose`: the placement policy's rule). What
 the operator keeps between calls lives in Kopf's ``memo`` (an :class:`Operator`);
 the nodes' tiers come from a Kopf index, kept by watching; the handler pods from the
 index of a second Kopf operator that watches them in their own namespace only
@@ -16,8 +17,8 @@ then tends the cluster: monitors on a handler pod that is going away move to
 another by the handoff (a drain), and the placement policy of ``edgerv
 orchestrate`` runs one round. Moves are made one at a time (one lock): a tier
 edit, a drain and a placement round never act on a monitor at once
-(docs/protocol.md, "The operator"). Run it with ``kopf run -m
-edgerv_operator.handlers`` (the image does) or ``python -m edgerv_operator``.
+(docs/protocol.md, "The operator"). Run it with ``edgerv-operator`` (the image does;
+:mod:`edgerv_operator.__main__`), or ``kopf run -m edgerv_operator.handlers``.
 """
 
 from __future__ import annotations
@@ -32,18 +33,19 @@ from typing import Any
 
 import kopf
 
-from edgerv.core.placement import PolicyConfig
-from edgerv.handler.client import (
+from edgerv.control.client import (
     ApiError,
     HandlerClient,
     Invalid,
     NotFound,
     Unauthorized,
 )
-from edgerv.handler.migrate import migrate, settle
-from edgerv.handler.orchestrate import Orchestrator, Target
-from edgerv.handler.payloads import MonitorReport
+from edgerv.control.migrate import migrate, settle
+from edgerv.control.orchestrate import Orchestrator, Target
+from edgerv.control.placement import HandlerReport
+from edgerv.control.wire import MonitorReport
 from edgerv_operator.config import ConfigError, OperatorConfig
+from edgerv_operator.constants import FINALIZER, MONITORS
 from edgerv_operator.documents import (
     HandlerPod,
     document_text,
@@ -51,13 +53,12 @@ from edgerv_operator.documents import (
     monitor_document,
     problems,
 )
-from edgerv_operator.placement import change, choose, destination, tier_of
+from edgerv_operator.placement import change, choose, destination, placement_of, tier_of
 from edgerv_operator.pods import PodFacts, PodWatch
 from edgerv_operator.pods import login as pods_login
 from edgerv_operator.status import Event, Survey, invalid, moved, refreshed
 
 log = logging.getLogger("edgerv.operator")
-MONITORS = ("edgerv.io", "v1alpha1", "monitors")
 STATUS_SECONDS = 5.0
 
 
@@ -95,6 +96,15 @@ class Operator:
     def client(self, pod: HandlerPod) -> HandlerClient:
         return HandlerClient(self.config.url(pod.address), self.config.token, self.config.tls)
 
+    def target(self, pod: HandlerPod) -> Target:
+        """The pod as the placement rounds poll it."""
+        return Target(pod.tier or "", self.config.url(pod.address))
+
+    def seen(self, pods: Sequence[HandlerPod]) -> dict[HandlerPod, HandlerReport]:
+        """The pods' loads as the placement rounds last read them (a pod not read yet: none)."""
+        found = ((p, self.orchestrator.seen.get(self.target(p))) for p in pods)
+        return {p: report for p, report in found if report is not None}
+
 
 def _operator(memo: kopf.Memo) -> Operator:
     op = memo.get("edgerv")
@@ -103,13 +113,20 @@ def _operator(memo: kopf.Memo) -> Operator:
     return op
 
 
+CONFIG = "config"  # the memo's key of the settings edgerv-operator read
+
+
 @kopf.on.startup()
 def startup(settings: kopf.OperatorSettings, memo: kopf.Memo, **_: Any) -> None:
-    try:
-        config = OperatorConfig.from_env()
-    except ConfigError as exc:
-        raise kopf.PermanentError(f"edgerv operator: {exc}") from None
-    settings.persistence.finalizer = "edgerv.io/monitor"
+    """The settings ``edgerv-operator`` read (in the memo), or, started by ``kopf run``,
+    read now; the pods' watch started, the :class:`Operator` in the memo."""
+    config = memo.get(CONFIG)
+    if not isinstance(config, OperatorConfig):
+        try:
+            config = OperatorConfig.from_env()
+        except ConfigError as exc:
+            raise kopf.PermanentError(f"edgerv operator: {exc}") from None
+    settings.persistence.finalizer = FINALIZER
     # Neither namespaces nor CRDs observed (Kopf's strict mode): the namespaces are the
     # ones named, the Monitor CRD the one served at startup; no cluster-wide read of
     # either (helm/README.md, "RBAC").
@@ -117,10 +134,8 @@ def startup(settings: kopf.OperatorSettings, memo: kopf.Memo, **_: Any) -> None:
     # Kopf's own "handler succeeded" lines stay in the log; Events are the ones this
     # operator posts (kopf.event), and Kopf's warnings and errors.
     settings.posting.level = logging.WARNING
-    policy = Orchestrator(
-        [], PolicyConfig(tiers=config.tiers), config.token, starts=False, tls=config.tls
-    )
-    pods = PodWatch(config.namespace)
+    policy = Orchestrator([], config.policy, config.token, starts=False, tls=config.tls)
+    pods = PodWatch(config.namespace, config.selector_labels)
     pods.start()
     if not pods.wait_listed():
         log.warning("no pod listed in %s yet: going on with no handler pod known", config.namespace)
@@ -264,7 +279,7 @@ def tend(op: Operator, handlers: Handlers) -> None:
             op.placed_at = time.monotonic()
             by_url = {op.config.url(h.address): h for h in ready}
             op.orchestrator.set_targets(
-                [Target(h.tier, url) for url, h in by_url.items() if h.tier in op.config.tiers]
+                [op.target(h) for h in by_url.values() if h.tier in op.config.tiers]
             )
             for record in op.orchestrator.round():
                 log.info("placement: %s", record)
@@ -396,11 +411,15 @@ def place(
     try:
         reports = {p: op.client(p).monitor(hname, timeout=5.0) for p in ready}
         running = [p for p, r in reports.items() if r and r.get("active")]
-        target = running[0] if running else choose(ready, tier_of(spec), op.config.tiers)
+        placement = placement_of(spec)
+        policy = op.orchestrator.config
+        target = running[0] if running else choose(ready, placement, policy, op.seen(ready))
         if target is None:
-            home = tier_of(spec) if tier_of(spec) in op.config.tiers else op.config.tiers[0]
+            home = placement.tier if placement.tier in op.config.tiers else op.config.tiers[0]
+            budget = placement.max_latency_ms
+            allowed = f" within {budget:g} ms (placement.maxLatencyMs)" if budget else ""
             raise kopf.TemporaryError(
-                f"no handler of tier {home} or above is ready (tiers, lowest first: "
+                f"no handler of tier {home} or above{allowed} is ready (tiers, lowest first: "
                 f"{','.join(op.config.tiers)}): it starts when one is",
                 delay=15,
             )

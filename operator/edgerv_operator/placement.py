@@ -1,8 +1,9 @@
 """Where the operator runs a monitor, and what a change of its spec asks for.
 
-Pure: no Kubernetes and no network (tests/unit/test_operator.py). The orchestration
-policy itself (moves on pressure, back down when calm) is
-:mod:`edgerv.core.placement`, shared with ``edgerv orchestrate``.
+Pure: no Kubernetes and no network (tests/unit/test_operator.py). Where a monitor starts
+is the placement policy's rule (:func:`edgerv.control.placement.start_on`), the one
+``edgerv orchestrate`` follows too, as are the moves on pressure and back down when calm;
+the operator's own are the moves it is asked for (a tier edit, a pod going away).
 """
 
 from __future__ import annotations
@@ -10,6 +11,9 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any, Literal
 
+from edgerv.control.placement import HandlerReport, PolicyConfig, start_on
+from edgerv.control.wire import placement_from_json
+from edgerv.core.documents import Placement
 from edgerv_operator.documents import HandlerPod
 
 Change = Literal["none", "placement", "move", "redefine"]
@@ -22,22 +26,35 @@ def _ranked(handlers: Sequence[HandlerPod], tiers: Sequence[str]) -> list[Handle
 
 
 def choose(
-    handlers: Sequence[HandlerPod], tier: str | None, tiers: Sequence[str]
+    handlers: Sequence[HandlerPod],
+    placement: Placement,
+    config: PolicyConfig,
+    seen: Mapping[HandlerPod, HandlerReport] | None = None,
 ) -> HandlerPod | None:
-    """Where a monitor starts, as the placement policy starts one: on its home tier
-    (``placement.tier``; the lowest tier when it names none or one not in ``tiers``),
-    else on the nearest tier above that has a handler among ``handlers`` (the ready
-    ones: its home tier's may still be starting; the policy brings it back down when
-    that handler is calm). Never below its home tier: None when none is found."""
-    home = tiers.index(tier) if tier in tiers else 0
-    above = [h for h in _ranked(handlers, tiers) if tiers.index(h.tier or "") >= home]
-    return above[0] if above else None
+    """Where a monitor starts: the placement policy's rule (:func:`start_on`) over
+    ``handlers`` (the ready ones: its home tier's may still be starting), each as the
+    placement rounds last saw it in ``seen`` (one not seen yet: no load). Its home tier
+    (``placement.tier``; the lowest when it names none or one not in the tiers), else the
+    nearest tier above that has one and that ``placement.maxLatencyMs`` allows; there
+    the least loaded, then by node. Never below its home tier: None when none is found."""
+    seen = seen or {}
+    reports = [
+        (seen.get(h) or HandlerReport(h.node, h.tier, 0.0), h)
+        for h in handlers
+        if h.tier is not None and h.tier in config.tiers
+    ]
+    chosen = start_on(placement, [r for r, _ in reports], config)
+    return next((h for r, h in reports if r is chosen), None)
+
+
+def placement_of(spec: Mapping[str, Any] | None) -> Placement:
+    """A Monitor resource's ``spec.placement`` (the defaults where it says nothing)."""
+    placement = (spec or {}).get("placement") or {}
+    return placement_from_json(placement) if isinstance(placement, Mapping) else Placement()
 
 
 def tier_of(spec: Mapping[str, Any] | None) -> str | None:
-    placement = (spec or {}).get("placement") or {}
-    tier = placement.get("tier")
-    return str(tier) if tier else None
+    return placement_of(spec).tier or None
 
 
 def change(old: Mapping[str, Any] | None, new: Mapping[str, Any]) -> Change:

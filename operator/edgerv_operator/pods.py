@@ -31,7 +31,7 @@ from typing import Any
 
 import kopf
 
-from edgerv_operator.config import selector_labels
+from edgerv_operator.constants import SERVICE_ACCOUNT_TOKEN
 
 log = logging.getLogger("edgerv.operator")
 INDEX = "handler_pods"
@@ -40,7 +40,7 @@ LISTED_SECONDS = 20.0  # how long the main operator's startup waits for the firs
 
 def login(**kwargs: Any) -> kopf.ConnectionInfo | None:
     """In a pod: its service account; elsewhere: $KUBECONFIG as it is now."""
-    if os.path.exists("/var/run/secrets/kubernetes.io/serviceaccount/token"):
+    if os.path.exists(SERVICE_ACCOUNT_TOKEN):
         return kopf.login_via_client(**kwargs)
     return kopf.login_with_kubeconfig(**kwargs)
 
@@ -96,10 +96,12 @@ class _SignalsLeftToTheMainThread(logging.Filter):
 
 
 class PodWatch:
-    """The pods operator's thread, its index, and whether its first listing is done."""
+    """The pods operator's thread, its index, and whether its first listing is done:
+    the pods of ``namespace`` that carry ``labels`` (the handler pods')."""
 
-    def __init__(self, namespace: str) -> None:
+    def __init__(self, namespace: str, labels: Mapping[str, str] | None = None) -> None:
         self.namespace = namespace
+        self.labels = dict(labels or {})
         self.index: Mapping[str, Any] = {}  # Kopf's index (the same object, kept up to date)
         self.listed = threading.Event()  # every pod of the namespace indexed once
         self.stopping = threading.Event()  # Kopf's stop flag
@@ -129,8 +131,7 @@ class PodWatch:
         """Its own registry: the pods index, the login, and this watch's two handlers."""
         registry = kopf.OperatorRegistry()
         kopf.on.login(registry=registry)(login)
-        labels = selector_labels()  # the handler pods' (EDGERV_HANDLER_SELECTOR)
-        kopf.index("", "v1", "pods", id=INDEX, labels=labels, registry=registry)(handler_pods)
+        kopf.index("", "v1", "pods", id=INDEX, labels=self.labels, registry=registry)(handler_pods)
 
         @kopf.on.startup(id="pods watch", registry=registry)
         def started(settings: kopf.OperatorSettings, **kwargs: Any) -> None:

@@ -15,8 +15,9 @@ import sys
 
 from kubernetes import client, config
 
-from edgerv.handler.client import ApiError, HandlerClient
+from edgerv.control.client import ApiError, HandlerClient
 from edgerv_operator.config import ConfigError, OperatorConfig
+from edgerv_operator.constants import SERVICE_ACCOUNT_TOKEN
 
 
 def main() -> int:
@@ -25,7 +26,7 @@ def main() -> int:
     except ConfigError as exc:
         print(f"edgerv selftest: {exc}", file=sys.stderr)
         return 2
-    if os.path.exists("/var/run/secrets/kubernetes.io/serviceaccount/token"):
+    if os.path.exists(SERVICE_ACCOUNT_TOKEN):
         config.load_incluster_config()
     else:
         config.load_kube_config()
@@ -38,7 +39,7 @@ def main() -> int:
     if not running:
         print(
             f"edgerv selftest: no handler pod runs in {cfg.namespace} ({cfg.selector}): "
-            "label nodes with their tier (kubectl label node NODE edgerv.io/tier=edge)",
+            f"label nodes with their tier (kubectl label node NODE {cfg.tier_label}=edge)",
             file=sys.stderr,
         )
         return 1

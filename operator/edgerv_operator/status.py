@@ -20,7 +20,7 @@ from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal, NamedTuple, TypedDict
 
-from edgerv.handler.payloads import MonitorReport as MonitorReport
+from edgerv.control.wire import MonitorReport as MonitorReport
 from edgerv_operator.documents import HandlerPod
 
 ConditionStatus = Literal["True", "False", "Unknown"]

@@ -1,10 +1,10 @@
 """``python -m edgerv_operator.uninstall``: what ``helm uninstall`` runs first (a pre-delete
 hook), so that no Monitor is left stuck on the operator's finalizer once it is gone.
 
-The operator puts its finalizer (``edgerv.io/monitor``) on every Monitor it places, and
-takes it off when it has removed the monitor from the handlers. Uninstalled, it would
-never take it off again: a Monitor deleted afterwards, and with it its namespace, would
-hang for ever. So, in this order:
+The operator puts its finalizer (:data:`~edgerv_operator.constants.FINALIZER`) on every
+Monitor it places, and takes it off when it has removed the monitor from the handlers.
+Uninstalled, it would never take it off again: a Monitor deleted afterwards, and with it
+its namespace, would hang for ever. So, in this order:
 
 1. the operator's Deployment is scaled to 0 and its pods are waited for (a running
    operator would put its finalizer back on the Monitors it sees change);
@@ -14,7 +14,8 @@ hang for ever. So, in this order:
 The Monitors themselves stay (the CRD is kept by default: ``crds.keep``): a later
 install's operator takes them up again. Settings: EDGERV_NAMESPACE (the release's),
 EDGERV_OPERATOR_DEPLOYMENT (its name; empty: no operator in the cluster) and
-EDGERV_WATCH_NAMESPACES (as the operator's; empty: every namespace).
+EDGERV_WATCH_NAMESPACES (as the operator's; empty: every namespace), read by
+:class:`~edgerv_operator.config.UninstallConfig`.
 """
 
 from __future__ import annotations
@@ -27,8 +28,9 @@ from typing import Any, cast
 from kubernetes import client, config
 from kubernetes.client.exceptions import ApiException
 
-FINALIZER = "edgerv.io/monitor"  # the operator's (handlers.py: settings.persistence)
-GROUP, VERSION, PLURAL = "edgerv.io", "v1alpha1", "monitors"
+from edgerv_operator.config import ConfigError, UninstallConfig
+from edgerv_operator.constants import FINALIZER, GROUP, PLURAL, SERVICE_ACCOUNT_TOKEN, VERSION
+
 STOP_SECONDS = 120.0  # the operator's grace is 75 s: a move in progress ends first
 
 
@@ -95,19 +97,20 @@ def release_monitors(custom: client.CustomObjectsApi, namespaces: list[str]) -> 
 
 
 def main() -> int:
-    ns = os.environ.get("EDGERV_NAMESPACE", "")
-    if not ns:
-        print("edgerv uninstall: EDGERV_NAMESPACE: not set", file=sys.stderr)
+    try:
+        settings = UninstallConfig.from_env()
+    except ConfigError as exc:
+        print(f"edgerv uninstall: {exc}", file=sys.stderr)
         return 2
-    watched = [n.strip() for n in os.environ.get("EDGERV_WATCH_NAMESPACES", "").split(",")]
-    if os.path.exists("/var/run/secrets/kubernetes.io/serviceaccount/token"):
+    if os.path.exists(SERVICE_ACCOUNT_TOKEN):
         config.load_incluster_config()
     else:
         config.load_kube_config()
-    deployment = os.environ.get("EDGERV_OPERATOR_DEPLOYMENT", "")
-    if deployment:
-        stop_operator(client.AppsV1Api(), client.CoreV1Api(), ns, deployment)
-    release_monitors(client.CustomObjectsApi(), [n for n in watched if n])
+    if settings.deployment:
+        stop_operator(
+            client.AppsV1Api(), client.CoreV1Api(), settings.namespace, settings.deployment
+        )
+    release_monitors(client.CustomObjectsApi(), list(settings.watch_namespaces))
     return 0
 
 

@@ -21,9 +21,9 @@ import pytest
 import yaml
 from kopf.testing import KopfRunner
 
-from edgerv.handler.client import ApiError, HandlerClient, Untrusted, WrongScheme
-from edgerv.handler.migrate import migrate
-from edgerv.handler.tls import ClientTls
+from edgerv.control.client import ApiError, HandlerClient, Untrusted, WrongScheme
+from edgerv.control.migrate import migrate
+from edgerv.control.tls import ClientTls
 from kit.chart import (
     CHART,
     RELEASE,

@@ -167,9 +167,9 @@ def crash_mid_handoff(tmp_path: Path, lab: Lab, domain: int, crash: str) -> None
     victim = {"edge": edge, "cloud": cloud}[crash]
     driver_code = (
         "import sys\n"
-        "from edgerv.handler.client import ApiError, HandlerClient\n"
-        "from edgerv.handler.migrate import migrate\n"
-        "from edgerv.handler.tls import ClientTls\n"
+        "from edgerv.control.client import ApiError, HandlerClient\n"
+        "from edgerv.control.migrate import migrate\n"
+        "from edgerv.control.tls import ClientTls\n"
         f"tls = ClientTls({str(shared_pki().ca)!r}, {NAME!r})\n"
         "def pause():\n"
         "    print('released', flush=True)\n"

@@ -10,8 +10,8 @@ import socket
 import threading
 from dataclasses import dataclass
 
+from edgerv.control.client import HandlerClient
 from edgerv.handler.api import ControlApi
-from edgerv.handler.client import HandlerClient
 from edgerv.handler.engine import Engine
 from kit.documents import compiled
 

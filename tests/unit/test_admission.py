@@ -19,12 +19,12 @@ from pathlib import Path
 import pytest
 from prometheus_client import CollectorRegistry
 
+from edgerv.control.client import HandlerClient
+from edgerv.control.tls import ClientTls, server_context
 from edgerv.handler.admission import Pool
 from edgerv.handler.api import ControlApi
-from edgerv.handler.client import HandlerClient
 from edgerv.handler.engine import Engine
 from edgerv.handler.limits import Limits
-from edgerv.handler.tls import ClientTls, server_context
 from kit.documents import compiled
 from kit.pki import make_pki
 

@@ -28,11 +28,11 @@ from typing import Any
 import pytest
 from prometheus_client import CollectorRegistry
 
+from edgerv.control.client import HandlerClient
 from edgerv.core import handoff
 from edgerv.core.handoff import bundle, encode
 from edgerv.core.pipeline import MonitorRuntime
 from edgerv.handler.api import MAX_BODY, MAX_EPOCH, ControlApi
-from edgerv.handler.client import HandlerClient
 from edgerv.handler.engine import Engine
 from edgerv.handler.limits import Limits
 from kit.documents import compiled, monitor_doc

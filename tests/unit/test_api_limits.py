@@ -16,8 +16,8 @@ from collections.abc import Iterator
 import pytest
 from prometheus_client import CollectorRegistry
 
+from edgerv.control.client import HandlerClient
 from edgerv.handler.api import ControlApi
-from edgerv.handler.client import HandlerClient
 from edgerv.handler.engine import Engine
 from edgerv.handler.limits import Limits
 from edgerv.handler.main import add_arguments, load

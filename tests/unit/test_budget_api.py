@@ -12,10 +12,10 @@ from collections.abc import Iterator
 import pytest
 from prometheus_client import CollectorRegistry
 
+from edgerv.control.client import HandlerClient
 from edgerv.core.documents import load_monitors_text
 from edgerv.handler.api import ControlApi
 from edgerv.handler.budget import MemoryBudget, MiB, Shares, monitor_cost
-from edgerv.handler.client import HandlerClient
 from edgerv.handler.engine import Engine
 
 TOKEN = "budget-token"

@@ -5,8 +5,7 @@ from __future__ import annotations
 import pytest
 
 from edgerv.core.diagnostics import InputError
-from edgerv.core.documents import load_monitors, load_monitors_text
-from edgerv.core.placement import Placement
+from edgerv.core.documents import Placement, load_monitors, load_monitors_text
 
 HEAD = "apiVersion: edgerv.io/v1alpha1\nkind: Monitor\nmetadata: {name: m}\n"
 GOOD = HEAD + (

@@ -52,19 +52,19 @@ from typing import Any
 import pytest
 from prometheus_client import CollectorRegistry
 
-from edgerv.core.monitor import CompiledMonitor
-from edgerv.core.pipeline import Verdict
-from edgerv.handler.api import ControlApi
-from edgerv.handler.client import ApiError, HandlerClient
-from edgerv.handler.engine import Engine
-from edgerv.handler.handoff_steps import HANDOFF_EXPIRES
-from edgerv.handler.migrate import (
+from edgerv.control.client import ApiError, HandlerClient
+from edgerv.control.migrate import (
     MigrationFailed,
     NotMoved,
     Unsettled,
     migrate,
     settle,
 )
+from edgerv.control.wire import HANDOFF_EXPIRES
+from edgerv.core.monitor import CompiledMonitor
+from edgerv.core.pipeline import Verdict
+from edgerv.handler.api import ControlApi
+from edgerv.handler.engine import Engine
 from kit.counts import scaled
 from kit.documents import compiled
 from kit.engines import ManualClock

@@ -15,10 +15,10 @@ import time
 import pytest
 import yaml
 
-from edgerv.handler.client import Conflict, HandlerClient
+from edgerv.control.client import Conflict, HandlerClient
+from edgerv.control.migrate import MigrationFailed, Unsettled, migrate
+from edgerv.control.wire import HANDOFF_EXPIRES
 from edgerv.handler.engine import Engine
-from edgerv.handler.handoff_steps import HANDOFF_EXPIRES
-from edgerv.handler.migrate import MigrationFailed, Unsettled, migrate
 from kit.documents import compiled, monitor_doc
 from kit.engines import ManualClock
 from kit.handoff_pair import TOKEN, Gate, Pair
@@ -204,7 +204,7 @@ def cli(argv: list[str]) -> int:
     """`edgerv migrate ARGV` in this process (its exit code; stderr to capsys)."""
     import argparse
 
-    from edgerv.handler import migrate as command
+    from edgerv.control import migrate_command as command
 
     parser = argparse.ArgumentParser()
     command.add_arguments(parser)
@@ -284,8 +284,8 @@ def test_an_operator_that_restarts_mid_handoff_settles_it(
 ) -> None:
     """The operator's driver is gone after the release (cut off, then restarted): the new
     one's first survey finds the monitor held and settles it where it runs, one copy."""
-    from edgerv.core.placement import PolicyConfig
-    from edgerv.handler.orchestrate import Orchestrator
+    from edgerv.control.orchestrate import Orchestrator
+    from edgerv.control.placement import PolicyConfig
     from edgerv_operator.config import OperatorConfig
     from edgerv_operator.documents import HandlerPod
     from edgerv_operator.handlers import Operator, settle_orphans
@@ -314,8 +314,8 @@ def test_a_stopping_operator_ends_its_move_and_settles_what_it_left(pair: Pair) 
     handlers afresh (its last survey predates it)."""
     import kopf
 
-    from edgerv.core.placement import PolicyConfig
-    from edgerv.handler.orchestrate import Orchestrator
+    from edgerv.control.orchestrate import Orchestrator
+    from edgerv.control.placement import PolicyConfig
     from edgerv_operator.config import OperatorConfig
     from edgerv_operator.documents import HandlerPod
     from edgerv_operator.handlers import Operator, stopping

@@ -26,11 +26,11 @@ import pytest
 from prometheus_client import CollectorRegistry
 
 from edgerv.cli import main as cli_main
+from edgerv.control.client import HandlerClient, Unreachable, WrongScheme
+from edgerv.control.migrate import NotMoved, migrate
+from edgerv.control.tls import ClientTls, server_context
 from edgerv.handler.api import ControlApi
-from edgerv.handler.client import HandlerClient, Unreachable, WrongScheme
 from edgerv.handler.engine import Engine
-from edgerv.handler.migrate import NotMoved, migrate
-from edgerv.handler.tls import ClientTls, server_context
 from kit.documents import compiled
 from kit.engines import robot_feed
 from kit.handoff_pair import TOKEN, Gate, edge_and_cloud
@@ -337,7 +337,7 @@ def test_the_command_to_run_again_is_the_one_given_quoted() -> None:
     quoted for a shell; the monitors once each, in order."""
     import argparse
 
-    from edgerv.handler import migrate as command
+    from edgerv.control import migrate_command as command
 
     parser = argparse.ArgumentParser()
     command.add_arguments(parser)

@@ -6,20 +6,25 @@ import argparse
 
 import pytest
 
-from edgerv.core.diagnostics import InputError
-from edgerv.core.placement import DeadlineReading, Placement, PolicyConfig
-from edgerv.handler.migrate import MigrationFailed
-from edgerv.handler.orchestrate import (
+from edgerv.control.client import HandlerClient
+from edgerv.control.migrate import MigrationFailed
+from edgerv.control.orchestrate import (
     Counters,
     Orchestrator,
     Target,
-    add_arguments,
     build_reports,
-    config_from,
     deadline_reading,
+)
+from edgerv.control.orchestrate_command import (
+    add_arguments,
+    config_from,
     parse_handlers,
     parse_pairs,
 )
+from edgerv.control.placement import DeadlineReading, PolicyConfig
+from edgerv.control.wire import LoadReport, parse_load
+from edgerv.core.diagnostics import InputError
+from edgerv.core.documents import Placement
 
 
 def test_handlers_flag() -> None:
@@ -35,7 +40,8 @@ def test_handlers_flag() -> None:
         parse_pairs("cloud=far", "--tier-latency")
 
 
-def load(t: float, cpu: float, events: int, **extra: object) -> dict[str, object]:
+def load(t: float, cpu: float, events: int, **extra: object) -> LoadReport:
+    """A handler's load report (``GET /v1/load``), as the client reads it."""
     monitor = {
         "active": True,
         "handoff": None,
@@ -44,13 +50,15 @@ def load(t: float, cpu: float, events: int, **extra: object) -> dict[str, object
         "placement": {"tier": "cloud", "migrate": "pinned", "maxLatencyMs": 20},
     }
     monitor.update(extra)
-    return {
-        "handler": "h1",
-        "monotonic": t,
-        "cpuSeconds": cpu,
-        "ingestLag": 0.2,
-        "monitors": {"m": monitor},
-    }
+    return parse_load(
+        {
+            "handler": "h1",
+            "monotonic": t,
+            "cpuSeconds": cpu,
+            "ingestLag": 0.2,
+            "monitors": {"m": monitor},
+        }
+    )
 
 
 def test_rates_come_from_two_polls() -> None:
@@ -71,18 +79,20 @@ def test_rates_come_from_two_polls() -> None:
     assert (m.events_per_second, m.in_handoff, m.migration_wanted) == (500.0, True, True)
 
 
-class Reports:
+class Reports(HandlerClient):
     """A handler's API as the orchestrator reads it: a load report, or silence."""
 
-    def __init__(self, load: dict[str, object] | None) -> None:
-        self.load, self.base, self.calls = load, "http://x", []
+    def __init__(self, answer: LoadReport | None) -> None:
+        super().__init__("http://x", None)
+        self.answer = answer
+        self.calls: list[str] = []
 
     def get(self, path: str, timeout: float = 10.0) -> object:
-        if self.load is None:
+        if self.answer is None:
             raise MigrationFailed("unreachable")
-        return self.load
+        return self.answer
 
-    def call(self, path: str, **_: object) -> tuple[int, bytes]:
+    def call(self, path: str, *_: object, **__: object) -> tuple[int, bytes]:
         self.calls.append(path)
         return 200, b"{}"
 
@@ -95,7 +105,7 @@ def test_no_monitor_starts_while_a_handler_is_silent() -> None:
     silent, answering = Reports(None), Reports(idle)
     o.clients = {edge: silent, cloud: answering}  # type: ignore[dict-item]
     assert o.round() == []  # m may run on the silent edge: not started in the cloud
-    silent.load = load(1.0, 0.0, 0, active=False)
+    silent.answer = load(1.0, 0.0, 0, active=False)
     records = o.round()
     assert [(r["monitors"], r["reason"], r["ok"]) for r in records] == [(["m"], "start", True)]
     assert answering.calls == ["/v1/monitors/m/activate"]  # its placement.tier: cloud
@@ -135,7 +145,7 @@ def test_the_deadline_of_a_load_report_becomes_the_policys_reading() -> None:
         "missesTotal": 7,
         "messagesTotal": 400,
     }
-    (r,), _, _ = build_reports({edge: report}, {})
+    (r,), _, _ = build_reports({edge: parse_load(report)}, {})
     assert r.deadline == DeadlineReading(budget=0.125, p95=0.13, count=40)
     empty = {"budgetMs": 125.0, "count": 0, "p95Ms": None}
     assert deadline_reading(empty) == DeadlineReading(0.125, None, 0)
@@ -184,9 +194,9 @@ def test_an_unsettled_move_is_not_done_and_is_settled_before_the_monitor_moves_a
     """`edgerv migrate` ended unsettled (a handler did not answer: the edge may hold m
     released): the record says so, not ok; each later round settles m on the edge first,
     and the policy's moves of m wait until that succeeded."""
-    import edgerv.handler.orchestrate as orchestrate
-    from edgerv.core.placement import Move
-    from edgerv.handler.migrate import Moved, Unsettled
+    import edgerv.control.orchestrate as orchestrate
+    from edgerv.control.migrate import Moved, Unsettled
+    from edgerv.control.placement import Move
 
     edge, cloud = Target("edge", "e:1"), Target("cloud", "c:1")
     o = Orchestrator([edge, cloud], PolicyConfig(tiers=("edge", "cloud")), token=None)

@@ -12,20 +12,21 @@ from typing import Any
 import pytest
 from prometheus_client import CollectorRegistry
 
-from edgerv.core.placement import (
+from edgerv.control import orchestrate_command
+from edgerv.control.client import HandlerClient
+from edgerv.control.orchestrate import Idle, Orchestrator, Target, why_nothing_moves
+from edgerv.control.placement import (
     DeadlineReading,
     HandlerReport,
     MonitorLoad,
     Move,
-    Placement,
     PolicyConfig,
     PolicyMemory,
     plan,
 )
-from edgerv.handler import orchestrate
+from edgerv.core.documents import Placement
 from edgerv.handler.api import ControlApi
 from edgerv.handler.engine import Engine
-from edgerv.handler.orchestrate import Idle, Orchestrator, Target, why_nothing_moves
 from kit.documents import compiled
 
 CONFIG = PolicyConfig(tiers=("edge", "cloud"), tier_latency_ms={"edge": 0.0, "cloud": 40.0})
@@ -241,14 +242,15 @@ def load(name: str, t: float, p95_ms: float | None, active: bool = True) -> dict
     }
 
 
-class Reports:
+class Reports(HandlerClient):
     """A handler's API as the orchestrator reads it (its load report, set by the test)."""
 
-    def __init__(self, load: dict[str, object]) -> None:
-        self.load, self.base = load, "http://x"
+    def __init__(self, answer: dict[str, object]) -> None:
+        super().__init__("http://x", None)
+        self.answer = answer
 
     def get(self, path: str, timeout: float = 10.0) -> object:
-        return self.load
+        return self.answer
 
 
 def test_a_reason_is_said_once_each_time_it_changes() -> None:
@@ -256,18 +258,18 @@ def test_a_reason_is_said_once_each_time_it_changes() -> None:
     targets = [Target("edge", "e:1"), Target("cloud", "c:1")]
     o = Orchestrator(targets, CONFIG, token=None, on_idle=said.append)
     edge_api, cloud_api = Reports(load("edge-1", 1, 80)), Reports(load("cloud-1", 1, None))
-    cloud_api.load["deadline"] = None
-    cloud_api.load["monitors"]["a"]["active"] = False  # type: ignore[index]
+    cloud_api.answer["deadline"] = None
+    cloud_api.answer["monitors"]["a"]["active"] = False  # type: ignore[index]
     o.clients = dict(zip(targets, [edge_api, cloud_api], strict=True))  # type: ignore[arg-type]
     for t, p95 in ((1, 80), (2, 81), (3, 79.5)):  # the numbers change, the reason does not
-        edge_api.load = load("edge-1", t, p95)
+        edge_api.answer = load("edge-1", t, p95)
         assert o.round() == []
     assert [i.kind for i in said] == ["deadline met"]
     assert "80.0 ms" in said[0].text
-    edge_api.load = load("edge-1", 4, None)  # the task stopped publishing
+    edge_api.answer = load("edge-1", 4, None)  # the task stopped publishing
     assert o.round() == [] and o.round() == []
     assert [i.kind for i in said] == ["deadline met", "no deadline signal"]
-    edge_api.load = load("edge-1", 5, 82)
+    edge_api.answer = load("edge-1", 5, 82)
     o.round()
     assert [i.kind for i in said] == ["deadline met", "no deadline signal", "deadline met"]
 
@@ -296,12 +298,12 @@ def test_the_command_says_why_on_stderr(
 ) -> None:
     monkeypatch.setenv("EDGERV_TOKEN", "t")
     parser = argparse.ArgumentParser()
-    orchestrate.add_arguments(parser)
+    orchestrate_command.add_arguments(parser)
     edge, cloud = (f"127.0.0.1:{api.port}" for api in handlers)
     args = parser.parse_args(
         ["--handlers", f"edge={edge},cloud={cloud}", "--once", "--interval", "0.05"]
     )
-    assert orchestrate.run(args) == 0
+    assert orchestrate_command.run(args) == 0
     out, err = capsys.readouterr()
     assert out == ""  # no action: stdout has one JSON line per action only
     assert err.startswith(

@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import pytest
 
-from edgerv.core.placement import (
+from edgerv.control.placement import (
     DeadlineReading,
     HandlerReport,
     MonitorLoad,
     Move,
-    Placement,
     PolicyConfig,
     PolicyConfigError,
     PolicyMemory,
     plan,
 )
+from edgerv.core.documents import Placement
 
 CONFIG = PolicyConfig(
     tiers=("edge", "fog", "cloud"), tier_latency_ms={"edge": 0.0, "fog": 5.0, "cloud": 40.0}

@@ -21,20 +21,20 @@ import pytest
 from prometheus_client import CollectorRegistry
 
 from edgerv.cli import main as cli_main
-from edgerv.core.diagnostics import InputError
-from edgerv.handler.api import ControlApi
-from edgerv.handler.client import (
+from edgerv.control.client import (
     HandlerClient,
     ServerError,
     Unauthorized,
     Untrusted,
     WrongScheme,
 )
+from edgerv.control.migrate import migrate
+from edgerv.control.tls import ClientTls, server_context
+from edgerv.core.diagnostics import InputError
+from edgerv.handler.api import ControlApi
 from edgerv.handler.engine import Engine
 from edgerv.handler.limits import Limits
 from edgerv.handler.main import add_arguments, serving_tls
-from edgerv.handler.migrate import migrate
-from edgerv.handler.tls import ClientTls, server_context
 from kit.documents import compiled
 from kit.engines import robot_feed
 from kit.pki import NAME, Pki, make_pki

@@ -11,10 +11,10 @@ from pathlib import Path
 import pytest
 from prometheus_client import CollectorRegistry
 
+from edgerv.control.client import HandlerClient, Unauthorized
+from edgerv.control.token import TokenFile
 from edgerv.handler.api import ControlApi
-from edgerv.handler.client import HandlerClient, Unauthorized
 from edgerv.handler.engine import Engine
-from edgerv.handler.token import TokenFile
 from edgerv_operator.config import ConfigError, OperatorConfig
 
 
@@ -42,7 +42,7 @@ def test_a_token_file_is_read_again_when_it_changes(
     mounted(tmp_path, "second", 2)
     assert token.value() == "second"
     (tmp_path / "..v2" / "token").write_text("  \n")  # emptied: the last token is kept
-    with caplog.at_level(logging.WARNING, logger="edgerv.handler.token"):
+    with caplog.at_level(logging.WARNING, logger="edgerv.control.token"):
         assert token.value() == "second" and token.value() == "second"
     assert [r.getMessage() for r in caplog.records].count(
         f"{path}: cannot read the token (it is empty): keeping the last"

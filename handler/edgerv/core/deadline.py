@@ -10,7 +10,7 @@ the deadline when the makespan is longer than DURATION (the budget).
 :class:`MakespanWindow` keeps the makespans of the last ``window`` of publish
 time and answers with their count, misses, median, 95th percentile, maximum and
 the last one: the reading the orchestration policy weighs against the budget
-(:mod:`edgerv.core.placement`, "deadline pressure"). No ROS here: the handler's
+(:mod:`edgerv.control.placement`, "deadline pressure"). No ROS here: the handler's
 ROS layer feeds it what it takes.
 """
 

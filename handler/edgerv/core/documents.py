@@ -21,7 +21,6 @@ import yaml
 
 from edgerv.core.diagnostics import Diagnostic, InputError, Location, did_you_mean
 from edgerv.core.msgtypes import FieldError, ValueKind, field_kind, normalize_type, require_type
-from edgerv.core.placement import Placement
 from edgerv.core.reactions import (
     DEFAULT_CALL_TIMEOUT,
     Call,
@@ -97,6 +96,15 @@ class SignalSpec:
     initial: Value | None
     location: Location
     qos: QosSpec = dataclasses.field(default_factory=QosSpec)
+
+
+@dataclass(frozen=True)
+class Placement:
+    """``spec.placement``: where a monitor runs (the control plane's policy reads it)."""
+
+    tier: str | None = None  # home tier: where it starts and comes back to (default: lowest)
+    migrate: Literal["auto", "pinned"] = "auto"
+    max_latency_ms: float | None = None
 
 
 @dataclass(frozen=True)

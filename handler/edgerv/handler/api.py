@@ -53,6 +53,15 @@ from aiohttp.web_protocol import RequestHandler, RequestPayloadError
 from aiohttp.web_request import BaseRequest
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
 
+from edgerv.control.token import Token, current
+from edgerv.control.wire import (
+    AdoptAnswer,
+    CutAnswer,
+    HandoffRequest,
+    OutcomesAnswer,
+    StepAnswer,
+    WaitingAnswer,
+)
 from edgerv.core.diagnostics import Diagnostic, InputError
 from edgerv.core.documents import MonitorSpec, parse_monitors_text
 from edgerv.core.handoff import (
@@ -69,15 +78,6 @@ from edgerv.handler.admission import Connection, Pool
 from edgerv.handler.engine import Engine
 from edgerv.handler.handoff_state import HandoffState
 from edgerv.handler.limits import Limits
-from edgerv.handler.payloads import (
-    AdoptAnswer,
-    CutAnswer,
-    HandoffRequest,
-    OutcomesAnswer,
-    StepAnswer,
-    WaitingAnswer,
-)
-from edgerv.handler.token import Token, current
 
 log = logging.getLogger("edgerv.handler.api")
 http_log = logging.getLogger("edgerv.handler.api.http")  # aiohttp's server logs here
@@ -809,7 +809,7 @@ class ControlApi:
         return self.connections
 
     def start(self, host: str, port: int, tls: ssl.SSLContext | None = None) -> None:
-        """Serve in a thread, HTTPS with ``tls`` (:func:`edgerv.handler.tls.server_context`);
+        """Serve in a thread, HTTPS with ``tls`` (:func:`edgerv.control.tls.server_context`);
         returns once listening (``self.port`` is the bound port)."""
         _room_for(self.limits)
         started = threading.Event()

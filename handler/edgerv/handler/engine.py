@@ -24,6 +24,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from edgerv.control.wire import LoadReport, MonitorReport, placement_json
 from edgerv.core import arrivals as batches
 from edgerv.core.deadline import MakespanWindow
 from edgerv.core.diagnostics import Diagnostic, InputError
@@ -31,14 +32,12 @@ from edgerv.core.documents import MonitorSpec
 from edgerv.core.handoff import HandoffError
 from edgerv.core.monitor import CompiledMonitor, compile_monitor
 from edgerv.core.pipeline import MonitorRuntime, Router, TopicRoute, Verdict
-from edgerv.core.placement import placement_json
 from edgerv.core.reactions import Reaction
 from edgerv.handler.budget import MemoryBudget, monitor_cost
 from edgerv.handler.clock import Clock, SystemClock
 from edgerv.handler.handoff_state import HandoffState
 from edgerv.handler.handoff_steps import HandoffSteps
 from edgerv.handler.host import read_host_cpu
-from edgerv.handler.payloads import MonitorReport
 from edgerv.handler.slot import MonitorSlot
 
 log = logging.getLogger("edgerv.handler")
@@ -752,7 +751,7 @@ class Engine(HandoffSteps):
                 )
                 return left
 
-    def load(self) -> dict[str, Any]:
+    def load(self) -> LoadReport:
         """The load report the orchestrator reads (``GET /v1/load``): counters, not rates;
         ``deadline`` is the makespan window's reading (null without ``--deadline``)."""
         now_ns = int(self.clock.monotonic() * 1e9)

@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable, Collection, Sequence
 from typing import Any
 
+from edgerv.control.wire import HANDOFF_EXPIRES
 from edgerv.core.handoff import HandoffError, Snapshot, cut_point
 from edgerv.core.pipeline import MonitorRuntime, Router
 from edgerv.handler.clock import Clock
@@ -26,7 +27,6 @@ from edgerv.handler.slot import MonitorSlot
 log = logging.getLogger("edgerv.handler")
 
 SENDING, RELEASED, RECEIVING = HandoffState.SENDING, HandoffState.RELEASED, HandoffState.RECEIVING
-HANDOFF_EXPIRES = 120.0  # seconds a handoff may wait for its next step before it is undone
 PREHOLD_SECONDS = 0.002  # a scheduler round's time for the buffers of monitors being handed off
 ADOPTIONS_KEPT = 64  # per monitor: the epochs of the latest handoffs a handler adopted
 

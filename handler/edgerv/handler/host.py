@@ -14,6 +14,8 @@ from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 
+from edgerv.control.wire import HostLoad
+
 # /proc/stat's "cpuN" lines: user nice system idle iowait irq softirq steal (guest and
 # guest_nice are counted in user and nice already). Idle time: idle and iowait.
 IDLE_FIELDS = (3, 4)
@@ -26,7 +28,7 @@ class HostCpu:
     busy_seconds: float  # those CPUs together, since boot
     total_seconds: float
 
-    def json(self) -> dict[str, float | int]:
+    def json(self) -> HostLoad:
         return {
             "cores": self.cores,
             "busySeconds": self.busy_seconds,

@@ -26,6 +26,8 @@ import threading
 import time
 from pathlib import Path
 
+from edgerv.control.tls import is_loopback, server_context
+from edgerv.control.token import Token, TokenFile
 from edgerv.core.deadline import MakespanWindow, parse_deadline
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
 from edgerv.core.documents import MonitorSpec, read_monitors
@@ -46,8 +48,6 @@ from edgerv.handler.limits import Limits
 from edgerv.handler.outbox import ITEM_BYTES, QUEUED, Outbox, ReactionLane
 from edgerv.handler.ros import types as ros_types
 from edgerv.handler.sinks import VerdictLog, ViolationLines
-from edgerv.handler.tls import is_loopback, server_context
-from edgerv.handler.token import Token, TokenFile
 
 log = logging.getLogger("edgerv.handler")
 EXIT_INPUT = 2

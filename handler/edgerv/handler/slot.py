@@ -5,12 +5,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from edgerv.control.wire import LastVerdict, MonitorReport, placement_json
 from edgerv.core.handoff import Snapshot
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import MonitorRuntime, Verdict
-from edgerv.core.placement import placement_json
 from edgerv.handler.handoff_state import HandoffState
-from edgerv.handler.payloads import LastVerdict, MonitorReport
 
 RECEIVING, RELEASED = HandoffState.RECEIVING, HandoffState.RELEASED
 

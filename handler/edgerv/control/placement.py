@@ -1,4 +1,4 @@
-"""The orchestration policy: where monitors should run, from the handlers' load reports.
+"""The placement policy: where monitors should run, from the handlers' load reports.
 
 A pure function of its inputs (and of :class:`PolicyMemory`, which it updates),
 shared by the local orchestrator and the Kubernetes operator. It decides; the
@@ -28,18 +28,23 @@ migration protocol moves.
   pushed back up within a cooldown of coming down (a bounce) waits twice as long
   before the next descent. Moving *up* is never delayed but for that
   ``deadline_wait``: the robot's deadlines come first.
-* **Start**: a monitor active on no handler (handlers started with ``--active
-  none``) starts on the least loaded handler of its home tier (``placement.tier``,
-  default the lowest), or of the nearest tier above that has one.
+* **Start** (:func:`start_on`, the one rule for it: the orchestrator's rounds and the
+  operator's new Monitors both ask it): a monitor active on no handler (handlers
+  started with ``--active none``) starts on the least loaded handler of its home tier
+  (``placement.tier``, default the lowest), or of the nearest tier above that has one
+  and that ``placement.maxLatencyMs`` allows; never below its home tier. Least loaded:
+  not under pressure first, then the lowest CPU, then the name.
 * ``placement.migrate: pinned`` never moves; ``placement.maxLatencyMs`` forbids
   tiers whose latency from the robot is larger.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+
+from edgerv.core.documents import Placement
 
 
 @dataclass(frozen=True)
@@ -71,27 +76,6 @@ class HandlerReport:
 
     def active(self) -> list[str]:
         return [m for m, load in self.monitors.items() if load.active]
-
-
-@dataclass(frozen=True)
-class Placement:
-    tier: str | None = None  # home tier: where it starts and comes back to (default: lowest)
-    migrate: Literal["auto", "pinned"] = "auto"
-    max_latency_ms: float | None = None
-
-
-def placement_json(p: Placement) -> dict[str, object]:
-    """The placement as the API and the Monitor resource spell it."""
-    return {"tier": p.tier, "migrate": p.migrate, "maxLatencyMs": p.max_latency_ms}
-
-
-def placement_from_json(d: Mapping[str, object]) -> Placement:
-    tier, migrate, budget = d.get("tier"), d.get("migrate", "auto"), d.get("maxLatencyMs")
-    return Placement(
-        tier if isinstance(tier, str) else None,
-        "pinned" if migrate == "pinned" else "auto",
-        float(budget) if isinstance(budget, int | float) else None,
-    )
 
 
 class PolicyConfigError(ValueError):
@@ -136,6 +120,22 @@ class PolicyConfig:
             raise PolicyConfigError("need deadline_wait >= 0 seconds", "deadline_wait")
         if not 1 <= self.max_moves_down <= 100_000:
             raise PolicyConfigError("need 1 <= max_moves_down <= 100000", "max_moves_down")
+
+
+def tier_latencies(text: str) -> dict[str, float]:
+    """``edge=0,cloud=40``: each tier's latency from the robot in milliseconds, a finite
+    number from 0 (:attr:`PolicyConfig.tier_latency_ms`). Raises :class:`ValueError`
+    naming the first item that is not NAME=NUMBER."""
+    out = {}
+    for item in filter(None, (p.strip() for p in text.split(","))):
+        key, eq, value = item.partition("=")
+        try:
+            if not eq or not key.strip() or not 0 <= float(value) < math.inf:
+                raise ValueError
+        except ValueError:
+            raise ValueError(f"'{item}' is not NAME=NUMBER (a number from 0)") from None
+        out[key.strip()] = float(value)
+    return out
 
 
 @dataclass(frozen=True)
@@ -210,11 +210,34 @@ def _shed_enough(
     return shed / total >= excess and (floor is None or shed >= floor)
 
 
+def _by_load(c: PolicyConfig) -> Callable[[HandlerReport], tuple[bool, float, str]]:
+    """The order of the least loaded first: not under pressure, the lowest CPU, the name."""
+    return lambda h: (is_pressured(h, c), h.cpu, h.name)
+
+
 def _least_loaded(
     handlers: Sequence[HandlerReport], tier: str, c: PolicyConfig
 ) -> HandlerReport | None:
     fit = [h for h in handlers if h.tier == tier and not is_pressured(h, c)]
-    return min(fit, key=lambda h: (h.cpu, h.name)) if fit else None
+    return min(fit, key=_by_load(c)) if fit else None
+
+
+def start_on(
+    placement: Placement, handlers: Sequence[HandlerReport], config: PolicyConfig
+) -> HandlerReport | None:
+    """Where a monitor that runs nowhere starts, among ``handlers`` (those that may run
+    it): the least loaded handler of its home tier (``placement.tier``; the lowest tier
+    when it names none, or one not in the tiers), else of the nearest tier above that
+    has one and that ``placement.maxLatencyMs`` allows. None: no such handler (never
+    below its home tier). ``placement.migrate: pinned`` forbids moves once it runs, not
+    where it starts."""
+    c = config
+    home = c.tiers.index(placement.tier) if placement.tier in c.tiers else 0
+    for tier in c.tiers[home:]:
+        fit = [h for h in handlers if h.tier == tier]
+        if fit and tier_allowed(tier, placement, c):
+            return min(fit, key=_by_load(c))
+    return None
 
 
 def plan(
@@ -242,15 +265,12 @@ def plan(
         m for h in handlers for m, load in h.monitors.items() if load.active or load.in_handoff
     }
     for m in sorted({m for h in handlers for m in h.monitors} - placed):
-        p = placements.get(m, Placement())
-        for tier in c.tiers[rank.get(p.tier or "", 0) :]:
-            fit = [h for h in handlers if h.tier == tier and m in h.monitors]
-            if fit and tier_allowed(tier, p, c):
-                start = min(fit, key=lambda h: (is_pressured(h, c), h.cpu, h.name))
-                moves.append(Move(m, "", start.name, "start"))
-                moved.add(m)
-                memory.last_move[m] = now
-                break
+        defining = [h for h in handlers if m in h.monitors]
+        start = start_on(placements.get(m, Placement()), defining, c)
+        if start is not None:
+            moves.append(Move(m, "", start.name, "start"))
+            moved.add(m)
+            memory.last_move[m] = now
 
     def movable(name: str, tier: str) -> bool:
         p = placements.get(name, Placement())
@@ -313,7 +333,7 @@ def plan(
         ]
         if not below:
             continue
-        destination = min(below, key=lambda b: (b.cpu, b.name))
+        destination = min(below, key=_by_load(c))  # calm: none under pressure
         for m in sorted(h.active()):
             p = placements.get(m, Placement())
             if rank[h.tier] <= rank.get(p.tier or "", 0) or not movable(m, down):

@@ -14,7 +14,6 @@ loopback address, or when asked for by name (``--plain-http``).
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import http.client
 import ipaddress
@@ -133,27 +132,3 @@ def is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host.strip("[]")).is_loopback
     except ValueError:
         return False
-
-
-def add_client_arguments(p: argparse.ArgumentParser) -> None:
-    """A caller's TLS options (``edgerv migrate``, ``edgerv orchestrate``)."""
-    p.add_argument(
-        "--ca-file",
-        metavar="FILE",
-        help="verify the handlers' certificates against this CA (PEM; default: the "
-        "system's CAs). A HOST:PORT is reached over HTTPS, except a loopback one when "
-        "neither this nor --tls-server-name is given; http://HOST:PORT asks for plain HTTP",
-    )
-    p.add_argument(
-        "--tls-server-name",
-        metavar="NAME",
-        help="the name the handlers' certificates carry, when it is not the address "
-        "(the chart's: RELEASE-handler.NAMESPACE.svc)",
-    )
-
-
-def client_tls(args: argparse.Namespace) -> ClientTls | None:
-    """:class:`ClientTls` from :func:`add_client_arguments`'s options (None if neither)."""
-    if args.ca_file is None and args.tls_server_name is None:
-        return None
-    return ClientTls(args.ca_file, args.tls_server_name)

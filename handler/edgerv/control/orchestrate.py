@@ -1,10 +1,12 @@
-"""``edgerv orchestrate``: a local orchestrator that polls handlers and moves monitors.
+"""The orchestrator: it polls handlers and moves monitors, in rounds (:class:`Orchestrator`;
+``edgerv orchestrate`` runs it, :mod:`edgerv.control.orchestrate_command`, and so do
+the operator's placement rounds).
 
 Each round it reads every handler's load report (``GET /v1/load``), turns the
 counters into rates (:func:`build_reports`), asks the policy
-(:func:`edgerv.core.placement.plan`) what to do, and does it: ``start`` activates
+(:func:`edgerv.control.placement.plan`) what to do, and does it: ``start`` activates
 a monitor that runs nowhere, the other moves run the handoff of
-:mod:`edgerv.handler.migrate`. Each action is printed as one JSON line on stdout.
+:mod:`edgerv.control.migrate`. Each action is a record (a JSON line of the command).
 A handler that does not answer is left out of that round (its monitors are not
 moved: it may only be slow), and no monitor is started that round (it may run
 on the silent one). A move that ends unsettled (``edgerv migrate``'s exit 3: a
@@ -12,55 +14,38 @@ handler did not answer, so where its monitors run is not confirmed) is recorded
 with ``"ok": false`` and ``unsettled``; its monitors are settled at the start of
 each later round (a record with ``"settle": true``) and not moved again until
 that succeeds. A round that moves nothing says why (:func:`why_nothing_moves`), once
-each time the reason changes. Authenticates with ``EDGERV_TOKEN`` like the handlers.
+each time the reason changes.
 """
 
 from __future__ import annotations
 
-import argparse
-import contextlib
-import json
 import logging
 import math
-import os
-import signal
-import sys
-import threading
 import time
 from collections.abc import Callable, Collection, Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
-from edgerv.core.diagnostics import Diagnostic, InputError, Location
-from edgerv.core.placement import (
+from edgerv.control.client import ApiError, HandlerClient
+from edgerv.control.migrate import NotMoved, Unsettled, migrate, settle
+from edgerv.control.placement import (
     DeadlineReading,
     HandlerReport,
     MonitorLoad,
     Move,
-    Placement,
     PolicyConfig,
-    PolicyConfigError,
     PolicyMemory,
     deadline_at_risk,
     deadline_ratio,
     is_loaded,
     is_pressured,
-    placement_from_json,
     plan,
     tier_allowed,
 )
-from edgerv.handler.client import ApiError, HandlerClient, address_problem
-from edgerv.handler.migrate import (
-    HelpFormatter,
-    NotMoved,
-    Unsettled,
-    migrate,
-    seconds_above_zero,
-    seconds_from_zero,
-    settle,
-)
-from edgerv.handler.tls import ClientTls, add_client_arguments, client_tls
-from edgerv.handler.token import Token
+from edgerv.control.tls import ClientTls
+from edgerv.control.token import Token
+from edgerv.control.wire import LoadReport, placement_from_json
+from edgerv.core.documents import Placement
 
 log = logging.getLogger("edgerv.orchestrate")
 
@@ -69,48 +54,6 @@ log = logging.getLogger("edgerv.orchestrate")
 class Target:
     tier: str
     address: str
-
-
-def parse_handlers(text: str) -> list[Target]:
-    """``edge=HOST:PORT,cloud=HOST:PORT`` (a tier may have several handlers)."""
-    targets: list[Target] = []
-    for i, item in enumerate(p.strip() for p in text.split(",")):
-        tier, eq, address = (part.strip() for part in item.partition("="))
-        problem = ""
-        if not eq or not tier or not address:
-            problem = f"item {i + 1} '{item}' is not TIER=HOST:PORT"
-        elif bad := address_problem(address):
-            problem = f"item {i + 1} '{item}': {bad}"
-        elif any(t.address == address for t in targets):
-            problem = f"item {i + 1} '{item}': {address} is listed already"
-        if problem:
-            raise InputError(
-                [
-                    Diagnostic(
-                        Location("--handlers"),
-                        problem,
-                        hint="e.g. --handlers edge=10.0.0.2:8080,cloud=10.0.0.9:8080",
-                    )
-                ]
-            )
-        targets.append(Target(tier, address))
-    return targets
-
-
-def parse_pairs(text: str, flag: str) -> dict[str, float]:
-    """``edge=0,cloud=40``: a finite number from 0 for each name."""
-    out = {}
-    for item in filter(None, (p.strip() for p in text.split(","))):
-        key, eq, value = item.partition("=")
-        try:
-            if not eq or not key.strip() or not 0 <= float(value) < math.inf:
-                raise ValueError
-            out[key.strip()] = float(value)
-        except ValueError:
-            raise InputError(
-                [Diagnostic(Location(flag), f"'{item}' is not NAME=NUMBER (a number from 0)")]
-            ) from None
-    return out
 
 
 def _number(value: object) -> float | None:
@@ -138,7 +81,7 @@ class Counters:
 
 
 def build_reports(
-    loads: Mapping[Target, Mapping[str, Any]],
+    loads: Mapping[Target, LoadReport],
     previous: dict[Target, Counters],
 ) -> tuple[list[HandlerReport], dict[str, Placement], dict[str, Target]]:
     """Load reports -> the policy's inputs; updates ``previous`` (the last counters).
@@ -152,10 +95,10 @@ def build_reports(
     placements: dict[str, Placement] = {}
     where: dict[str, Target] = {}
     for target, load in loads.items():
-        name = str(load["handler"])
-        now, cpu_s = float(load["monotonic"]), float(load["cpuSeconds"])
+        name = load["handler"]
+        now, cpu_s = load["monotonic"], load["cpuSeconds"]
         monitors = load["monitors"]
-        events = {m: int(d["events"]) for m, d in monitors.items()}
+        events = {m: d["events"] for m, d in monitors.items()}
         last = previous.get(target)
         span = now - last.monotonic if last else 0.0
         cpu = (cpu_s - last.cpu_seconds) / span if last and span > 0 else 0.0
@@ -169,14 +112,14 @@ def build_reports(
                 name=name,
                 tier=target.tier,
                 cpu=max(0.0, cpu),
-                ingest_lag=float(load.get("ingestLag", 0.0)),
-                deadline=deadline_reading(load.get("deadline")),
+                ingest_lag=load["ingestLag"],
+                deadline=deadline_reading(load["deadline"]),
                 monitors={
                     m: MonitorLoad(
-                        active=bool(d["active"]),
+                        active=d["active"],
                         events_per_second=max(0.0, rates[m]),
-                        migration_wanted=bool(d["migrationWanted"]),
-                        in_handoff=d.get("handoff") is not None,
+                        migration_wanted=d["migrationWanted"],
+                        in_handoff=d["handoff"] is not None,
                     )
                     for m, d in monitors.items()
                 },
@@ -184,7 +127,7 @@ def build_reports(
         )
         where[name] = target
         for m, d in monitors.items():
-            placements.setdefault(m, placement_from_json(d.get("placement") or {}))
+            placements.setdefault(m, placement_from_json(d["placement"]))
     return reports, placements, where
 
 
@@ -573,6 +516,7 @@ class Orchestrator:
         self.targets: list[Target] = []
         self.clients: dict[Target, HandlerClient] = {}
         self.previous: dict[Target, Counters] = {}
+        self.seen: dict[Target, HandlerReport] = {}  # each handler as the last poll read it
         self.set_targets(targets)
         self.starts = starts  # start monitors that run nowhere (off: someone else does)
         self.memory = PolicyMemory()
@@ -590,12 +534,13 @@ class Orchestrator:
         self.targets = list(targets)
         self.clients = {t: self.clients.get(t) or self._new_client(t) for t in targets}
         self.previous = {t: c for t, c in self.previous.items() if t in targets}
+        self.seen = {t: r for t, r in self.seen.items() if t in targets}
 
-    def poll(self) -> dict[Target, Mapping[str, Any]]:
+    def poll(self) -> dict[Target, LoadReport]:
         loads = {}
         for t, client in self.clients.items():
             try:
-                loads[t] = client.get("/v1/load", timeout=5.0)
+                loads[t] = client.load(timeout=5.0)
             except ApiError as exc:
                 log.warning("%s (%s) left out of this round: %s", t.address, t.tier, exc)
         return loads
@@ -604,8 +549,9 @@ class Orchestrator:
         """Poll, decide, act; return what was done, one record per action."""
         loads = self.poll()
         done = self._settle(loads)
-        first = {str(load["handler"]) for t, load in loads.items() if t not in self.previous}
+        first = {load["handler"] for t, load in loads.items() if t not in self.previous}
         reports, placements, where = build_reports(loads, self.previous)
+        self.seen.update({where[r.name]: r for r in reports})
         for m, p in placements.items():
             if p.tier is not None and p.tier not in self.config.tiers and m not in self.warned:
                 self.warned.add(m)
@@ -706,7 +652,7 @@ class Orchestrator:
     def _new_client(self, target: Target) -> HandlerClient:
         return HandlerClient(target.address, self.token, self.tls)
 
-    def _settle(self, loads: Mapping[Target, Mapping[str, Any]]) -> list[dict[str, Any]]:
+    def _settle(self, loads: Mapping[Target, LoadReport]) -> list[dict[str, Any]]:
         """First the moves of ours that ended unsettled: their sources settle what they
         still hold of them (:func:`settle`: ask the receiver, commit or resume; resume
         what sent nothing yet), retried each round until it is done. Then monitors any
@@ -728,7 +674,7 @@ class Orchestrator:
             names = [
                 m
                 for m, d in load["monitors"].items()
-                if d.get("handoff") == "released" and m not in tried
+                if d["handoff"] == "released" and m not in tried
             ]
             if names:
                 done.append(self._settled(self._client(target), names, {}))
@@ -750,199 +696,3 @@ class Orchestrator:
         except ApiError as exc:
             record["ok"], record["error"] = False, str(exc)
         return record
-
-
-def positive_number(text: str) -> float:
-    """A finite number above 0 (a ratio, a fraction)."""
-    with contextlib.suppress(ValueError):
-        if 0 < (value := float(text)) < math.inf:
-            return value
-    raise argparse.ArgumentTypeError(f"'{text}' is not a number above 0")
-
-
-DESCRIPTION = """\
-Poll the handlers' load reports (GET /v1/load) every --interval seconds, ask the
-placement policy where each monitor should run, and do it: start a monitor that
-runs nowhere, move the others by the handoff of edgerv migrate. Each action is
-printed as one JSON line on stdout. A round that moves nothing says why on
-stderr, once each time the reason changes ("edgerv orchestrate: nothing to
-move: ..."). A handler that does not answer is left out of that round, and no
-monitor is started that round (it may run on the silent one). A move that ends
-unsettled (a handler did not answer, so where its monitors run is not
-confirmed) is printed with "ok": false and "unsettled"; its monitors are settled
-at the start of each later round, and not moved again until that succeeds.
-Authenticates with the token in EDGERV_TOKEN, as the handlers do.
-"""
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.description = DESCRIPTION
-    p.formatter_class = HelpFormatter
-    add_client_arguments(p)
-    p.add_argument(
-        "--handlers",
-        required=True,
-        metavar="TIER=HOST:PORT,...",
-        help="the handlers and their tiers, e.g. edge=10.0.0.2:8080,cloud=10.0.0.9:8080 "
-        "(HTTPS unless loopback: --ca-file; TIER=http://HOST:PORT asks for plain HTTP)",
-    )
-    p.add_argument(
-        "--tiers",
-        metavar="LOW,...,HIGH",
-        help="the tiers in order, closest to the robot first (default: as --handlers lists them)",
-    )
-    p.add_argument(
-        "--tier-latency",
-        default="",
-        metavar="TIER=MS,...",
-        help="each tier's latency from the robot in milliseconds, for placement.maxLatencyMs "
-        "(default: 0 for each)",
-    )
-    p.add_argument(
-        "--interval",
-        type=seconds_above_zero,
-        default=1.0,
-        metavar="SECONDS",
-        help="between two rounds",
-    )
-    p.add_argument(
-        "--calm",
-        type=seconds_from_zero,
-        default=30.0,
-        metavar="SECONDS",
-        help="how long the handler below must be calm before a monitor comes back down",
-    )
-    p.add_argument(
-        "--cooldown",
-        type=seconds_from_zero,
-        default=60.0,
-        metavar="SECONDS",
-        help="a monitor comes back down no sooner than this after its last move, doubled "
-        "after each bounce",
-    )
-    defaults = {f.name: f.default for f in fields(PolicyConfig)}
-    p.add_argument(
-        "--max-moves-down",
-        type=int,
-        default=defaults["max_moves_down"],
-        metavar="N",
-        help="monitors brought down a tier per round below a calm handler",
-    )
-    p.add_argument(
-        "--deadline-high",
-        type=positive_number,
-        default=defaults["deadline_high"],
-        metavar="RATIO",
-        help="deadline pressure: a handler's p95 makespan / budget at or above this "
-        "(handlers started with --deadline)",
-    )
-    p.add_argument(
-        "--deadline-low",
-        type=positive_number,
-        default=defaults["deadline_low"],
-        metavar="RATIO",
-        help="calm needs p95 makespan / budget at or below this",
-    )
-    p.add_argument(
-        "--deadline-shed",
-        type=positive_number,
-        default=defaults["deadline_shed"],
-        metavar="FRACTION",
-        help="under deadline pressure, move at least this share of the handler's movable "
-        "event load up a tier, busiest first",
-    )
-    p.add_argument(
-        "--deadline-wait",
-        type=seconds_from_zero,
-        default=defaults["deadline_wait"],
-        metavar="SECONDS",
-        help="after such a move, leave that handler's deadline alone this long",
-    )
-    p.add_argument(
-        "--timeout",
-        type=seconds_above_zero,
-        default=30.0,
-        metavar="SECONDS",
-        help="per migration; after a failure, as long again to settle it",
-    )
-    p.add_argument("--once", action="store_true", help="one round (after a first poll), then exit")
-
-
-def config_from(args: argparse.Namespace, targets: Sequence[Target]) -> PolicyConfig:
-    tiers = (
-        [t.strip() for t in args.tiers.split(",") if t.strip()]
-        if args.tiers
-        else list(dict.fromkeys(t.tier for t in targets))
-    )
-    unknown = sorted({t.tier for t in targets} - set(tiers))
-    if unknown:
-        raise InputError(
-            [
-                Diagnostic(
-                    Location("--handlers"),
-                    f"tier {', '.join(unknown)} is not in --tiers {','.join(tiers)}",
-                )
-            ]
-        )
-    latency = parse_pairs(args.tier_latency, "--tier-latency")
-    strangers = sorted(set(latency) - set(tiers))
-    if strangers:
-        raise InputError(
-            [
-                Diagnostic(
-                    Location("--tier-latency"),
-                    f"tier {', '.join(strangers)} is not one of the tiers {','.join(tiers)}",
-                )
-            ]
-        )
-    try:
-        return PolicyConfig(
-            tiers=tuple(tiers),
-            tier_latency_ms=latency,
-            calm_seconds=args.calm,
-            cooldown_seconds=args.cooldown,
-            max_moves_down=args.max_moves_down,
-            deadline_high=args.deadline_high,
-            deadline_low=args.deadline_low,
-            deadline_shed=args.deadline_shed,
-            deadline_wait=args.deadline_wait,
-        )
-    except PolicyConfigError as exc:
-        flag, said = "--" + exc.setting.replace("_", "-"), str(exc)
-        if exc.setting == "deadline_low":  # the two marks: name the one given
-            marks = f"--deadline-low {args.deadline_low:g}, --deadline-high {args.deadline_high:g}"
-            given_high = args.deadline_high != PolicyConfig.deadline_high
-            if given_high and args.deadline_low == PolicyConfig.deadline_low:
-                flag = "--deadline-high"
-            said = f"{said} ({marks})"
-        raise InputError([Diagnostic(Location(flag), said)]) from None
-    except ValueError as exc:
-        raise InputError([Diagnostic(Location("--tiers"), str(exc))]) from None
-
-
-def run(args: argparse.Namespace) -> int:
-    try:
-        targets = parse_handlers(args.handlers)
-        config = config_from(args, targets)
-        tls = client_tls(args)
-    except InputError as exc:
-        print(exc, file=sys.stderr)
-        return 2
-
-    def say(idle: Idle) -> None:
-        print(f"edgerv orchestrate: nothing to move: {idle.text}", file=sys.stderr, flush=True)
-
-    orchestrator = Orchestrator(
-        targets, config, os.environ.get("EDGERV_TOKEN"), args.timeout, tls=tls, on_idle=say
-    )
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    if args.once:  # two polls: the first gives the counters the rates start from
-        build_reports(orchestrator.poll(), orchestrator.previous)
-        time.sleep(min(args.interval, 1.0))
-    while True:
-        for record in orchestrator.round():
-            print(json.dumps(record), flush=True)
-        if args.once or stop.wait(args.interval):
-            return 0

@@ -14,7 +14,7 @@ import threading
 import time
 from pathlib import Path
 
-log = logging.getLogger("edgerv.handler.token")
+log = logging.getLogger("edgerv.control.token")
 
 CHECK_EVERY = 1.0  # seconds between two looks at the file (a stat, not a read)
 

@@ -31,9 +31,16 @@ import urllib.parse
 from collections.abc import Sequence
 from typing import Any, Literal, cast
 
-from edgerv.handler.payloads import ErrorBody, HandoffRequest, MonitorListing, MonitorReport
-from edgerv.handler.tls import ClientTls, is_loopback, speaks_tls
-from edgerv.handler.token import Token, current
+from edgerv.control.tls import ClientTls, is_loopback, speaks_tls
+from edgerv.control.token import Token, current
+from edgerv.control.wire import (
+    ErrorBody,
+    HandoffRequest,
+    LoadReport,
+    MonitorListing,
+    MonitorReport,
+    parse_load,
+)
 
 
 class ApiError(Exception):
@@ -298,6 +305,13 @@ class HandlerClient:
         if wait is not None:
             request["wait"] = wait
         return self.call(f"/v1/handoff/{step}", request, check=check, timeout=timeout)
+
+    def load(self, timeout: float = 10.0) -> LoadReport:
+        """``GET /v1/load``: its load report (:class:`BadAnswer` when it is not one)."""
+        try:
+            return parse_load(self.get("/v1/load", timeout=timeout))
+        except ValueError as exc:
+            raise BadAnswer(f"{self.base} answered /v1/load with no load report: {exc}") from None
 
     # -- monitors -------------------------------------------------------------------------
 

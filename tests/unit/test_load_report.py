@@ -1,0 +1,130 @@
+"""The load report (``GET /v1/load``) is typed on both sides: what the handler's server
+sends (``Engine.load``, a ``LoadReport``) is what the client reads back through
+``parse_load``, field by field; an answer that is not one is a ``BadAnswer``, and the
+orchestrator leaves that handler out of its round instead of failing on it."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+from prometheus_client import CollectorRegistry
+
+from edgerv.control.client import BadAnswer, HandlerClient
+from edgerv.control.orchestrate import Orchestrator, Target
+from edgerv.control.placement import PolicyConfig
+from edgerv.control.wire import parse_load
+from edgerv.core.deadline import MakespanWindow
+from edgerv.handler.api import ControlApi
+from edgerv.handler.engine import Engine
+from kit.documents import compiled
+
+MS = 1_000_000
+
+
+@pytest.fixture
+def api() -> Iterator[ControlApi]:
+    """A handler running m with a --deadline of 125 ms, its API on loopback."""
+    window = MakespanWindow("/cmd_vel", 125 * MS)
+    engine = Engine("edge-1", flush_after=1e9, deadline=window)
+    engine.put(compiled("always (a -> x < 5)", {"a": "bool", "x": "float"}), active=True)
+    now = time.monotonic_ns()
+    for i in range(6):
+        window.add(50_000 * MS + i * 50 * MS, 50_000 * MS + i * 50 * MS - 100 * MS, now)
+    served = ControlApi(engine, CollectorRegistry(), "t", on_change=lambda: None)
+    served.start("127.0.0.1", 0)
+    yield served
+    served.stop()
+
+
+def test_what_the_handler_sends_reads_back_as_sent(api: ControlApi) -> None:
+    sent = api.engine.load()
+    assert parse_load(json.loads(json.dumps(sent))) == sent
+    read = HandlerClient(f"127.0.0.1:{api.port}", "t").load()
+    assert read["handler"] == "edge-1" and read["deadline"] is not None
+    assert read["deadline"]["count"] == 6 and read["deadline"]["p95Ms"] == 100.0
+    m = read["monitors"]["m"]
+    assert (m["active"], m["handoff"], m["migrationWanted"], m["events"]) == (
+        True,
+        None,
+        False,
+        0,
+    )
+    assert m["placement"] == {"tier": None, "migrate": "auto", "maxLatencyMs": None}
+
+
+def test_what_a_handler_may_leave_out_reads_as_its_default() -> None:
+    report = parse_load(
+        {
+            "handler": "h",
+            "monotonic": 1,
+            "cpuSeconds": 0.5,
+            "monitors": {"m": {"active": False, "events": 3, "migrationWanted": False}},
+        }
+    )
+    assert (report["ingestLag"], report["deadline"], report["monotonic"]) == (0.0, None, 1.0)
+    assert report["monitors"]["m"] == {
+        "active": False,
+        "handoff": None,
+        "epoch": 0,
+        "peer": None,
+        "events": 3,
+        "migrationWanted": False,
+        "placement": {"tier": None, "migrate": "auto", "maxLatencyMs": None},
+    }
+
+
+GOOD: dict[str, Any] = {
+    "handler": "h",
+    "monotonic": 1.0,
+    "cpuSeconds": 0.5,
+    "monitors": {"m": {"active": True, "events": 3, "migrationWanted": False}},
+}
+
+
+@pytest.mark.parametrize(
+    ("change", "said"),
+    [
+        ({"handler": 7}, "handler is not a string"),
+        ({"monotonic": "soon"}, "monotonic is not a number"),
+        ({"cpuSeconds": None}, "cpuSeconds is not a number"),
+        ({"ingestLag": True}, "ingestLag is not a number"),
+        ({"monitors": []}, "monitors is not an object"),
+        ({"monitors": {"m": 1}}, "monitors.m is not an object"),
+        ({"monitors": {"m": {"active": "yes", "events": 1}}}, "monitors.m.active is not true"),
+        ({"monitors": {"m": {"active": True, "events": 1.5, "migrationWanted": False}}},
+         "monitors.m.events is not a whole number"),
+        ({"deadline": "fast"}, "deadline is not an object or null"),
+        ({"deadline": {"count": 4}}, "deadline.budgetMs is not a number"),
+        ({"deadline": {"budgetMs": 125, "count": 4, "p95Ms": "1"}}, "deadline.p95Ms is not"),
+    ],
+)  # fmt: skip
+def test_what_is_not_a_load_report_says_what_is_wrong(change: dict[str, Any], said: str) -> None:
+    with pytest.raises(ValueError, match=said):
+        parse_load({**GOOD, **change})
+    with pytest.raises(ValueError, match="it is not an object"):
+        parse_load([GOOD])
+
+
+class Answers(HandlerClient):
+    """A handler's API that answers ``GET /v1/load`` with ``answer``."""
+
+    def __init__(self, answer: object) -> None:
+        super().__init__("http://x", None)
+        self.answer = answer
+
+    def get(self, path: str, timeout: float = 10.0) -> object:
+        return self.answer
+
+
+def test_a_handler_that_answers_no_load_report_is_left_out_of_the_round() -> None:
+    with pytest.raises(BadAnswer, match=r"http://x answered /v1/load with no load report: "):
+        Answers({**GOOD, "monotonic": "soon"}).load()
+    edge, cloud = Target("edge", "e:1"), Target("cloud", "c:1")
+    o = Orchestrator([edge, cloud], PolicyConfig(tiers=("edge", "cloud")), token=None)
+    o.clients = {edge: Answers(GOOD), cloud: Answers({"handler": "c"})}
+    assert list(o.poll()) == [edge]
+    assert o.round() == [] and list(o.seen) == [edge]
