@@ -54,6 +54,8 @@ def test_what_the_handler_sends_reads_back_as_sent(api: ControlApi) -> None:
         0,
     )
     assert m["placement"] == {"tier": None, "migrate": "auto", "maxLatencyMs": None}
+    assert m["cpuSeconds"] == 0.0  # active, but nothing taken nor evaluated yet
+    assert read["host"] is not None and read["host"]["cores"] >= 1  # (this is Linux)
 
 
 def test_what_a_handler_may_leave_out_reads_as_its_default() -> None:
@@ -66,12 +68,14 @@ def test_what_a_handler_may_leave_out_reads_as_its_default() -> None:
         }
     )
     assert (report["ingestLag"], report["deadline"], report["monotonic"]) == (0.0, None, 1.0)
+    assert report["host"] is None
     assert report["monitors"]["m"] == {
         "active": False,
         "handoff": None,
         "epoch": 0,
         "peer": None,
         "events": 3,
+        "cpuSeconds": 0.0,
         "migrationWanted": False,
         "placement": {"tier": None, "migrate": "auto", "maxLatencyMs": None},
     }
@@ -97,6 +101,14 @@ GOOD: dict[str, Any] = {
         ({"monitors": {"m": {"active": "yes", "events": 1}}}, "monitors.m.active is not true"),
         ({"monitors": {"m": {"active": True, "events": 1.5, "migrationWanted": False}}},
          "monitors.m.events is not a whole number"),
+        ({"monitors": {"m": {"active": True, "events": 1, "cpuSeconds": "x",
+                             "migrationWanted": False}}},
+         "monitors.m.cpuSeconds is not a number"),
+        ({"host": 2}, "host is not an object or null"),
+        ({"host": {"cores": 1.5, "busySeconds": 1, "totalSeconds": 2}},
+         "host.cores is not a whole number"),
+        ({"host": {"cores": 1, "busySeconds": float("nan"), "totalSeconds": 2}},
+         "host.busySeconds is not a number"),
         ({"deadline": "fast"}, "deadline is not an object or null"),
         ({"deadline": {"count": 4}}, "deadline.budgetMs is not a number"),
         ({"deadline": {"budgetMs": 125, "count": 4, "p95Ms": "1"}}, "deadline.p95Ms is not"),
