@@ -69,3 +69,12 @@ every render (pin one with tls.existingSecret).
 {{- define "edgerv.image" -}}
 {{- if .digest }}{{ .repository }}@{{ .digest }}{{ else }}{{ .repository }}:{{ .tag }}{{ end }}
 {{- end }}
+
+{{/* operator.tierLatencyMs as EDGERV_TIER_LATENCY reads it: TIER=MS,... in tier order */}}
+{{- define "edgerv.tierLatency" -}}
+{{- $pairs := list -}}
+{{- range $tier, $ms := .Values.operator.tierLatencyMs -}}
+{{- $pairs = append $pairs (printf "%s=%v" $tier $ms) -}}
+{{- end -}}
+{{- join "," $pairs -}}
+{{- end -}}
