@@ -1,0 +1,1 @@
+"""The planner's levers on a handler from outside it: never imports edgerv.handler."""
