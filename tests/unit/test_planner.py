@@ -33,8 +33,10 @@ CLOUD_MS = 40.0
 ROOMY = PlannerConfig(time_budget=5.0)  # a loaded machine solves 12 monitors well within it
 
 
-def edge(headroom: float, p95: float | None, cloud_ms: float = CLOUD_MS) -> EdgeState:
-    return EdgeState(headroom, DEADLINE, p95, cloud_ms)
+def edge(
+    headroom: float, p95: float | None, cloud_ms: float = CLOUD_MS, handler: float | None = None
+) -> EdgeState:
+    return EdgeState(headroom, DEADLINE, p95, cloud_ms, handler)
 
 
 def on(
@@ -96,7 +98,9 @@ def instances(
         room = draw(st.integers(20, 100)) * here // 100
     else:
         room = here + draw(st.integers(-10, 110)) * away // 100
-    return ms, edge(max(0, room) / MICRO / (1 - config.margin), p95), config
+    # the handler's whole CPU on the edge, when known: its monitors' and up to 0.3 more
+    handler = draw(st.one_of(st.none(), st.integers(0, 300_000).map(lambda b: (here + b) / MICRO)))
+    return ms, edge(max(0, room) / MICRO / (1 - config.margin), p95, handler=handler), config
 
 
 AT_RISK = instances(st.integers(100, 150), 4, 0.8)  # ratio 1.0 .. 1.5, most on the edge
@@ -116,9 +120,23 @@ def allowed(e: EdgeState, c: PlannerConfig) -> int:
 
 
 def need(ms: Sequence[MonitorCost], e: EdgeState, c: PlannerConfig) -> int:
-    v, ratio = verification(ms), e.ratio
+    v, ratio, h = verification(ms), e.ratio, e.handler_cpu
     assert ratio is not None
-    return max(v - allowed(e, c), math.ceil(v * (1 - c.low / ratio)))
+    if h is None:  # the share of verification by which the p95 is over the calm mark
+        shed = math.ceil(v * (1 - c.low / ratio))
+    else:  # processor sharing: the makespan stretches by 1 / (1 - h)
+        shed = math.ceil(max(0.0, 1 - h) * (ratio / c.low - 1) * MICRO)
+    return max(v - allowed(e, c), shed)
+
+
+def room(ms: Sequence[MonitorCost], e: EdgeState, c: PlannerConfig) -> int:
+    ratio, h = e.ratio, e.handler_cpu
+    assert ratio is not None
+    fits = allowed(e, c) - verification(ms)
+    if h is None:
+        return fits
+    keeps = math.floor(max(0.0, 1 - h) * max(0.0, 1 - ratio / c.low) * (1 - c.margin) * MICRO)
+    return min(fits, keeps)
 
 
 def may_go_up(m: MonitorCost, e: EdgeState) -> bool:
@@ -205,9 +223,9 @@ def test_home_is_the_optimum_of_an_exhaustive_search(
     p = plan_moves(ms, e, c)
     event(f"method {p.method}")
     candidates = items([m for m in ms if may_come_home(m)])
-    room = allowed(e, c) - verification(ms)
+    fits = room(ms, e, c)
     limit = len(candidates) if c.max_home is None else min(c.max_home, len(candidates))
-    best = most_then_most_events(candidates, room, limit)
+    best = most_then_most_events(candidates, fits, limit)
     assert p.up == ()
     if best[0] == 0:
         assert (p.down, p.method) == ((), "none")
@@ -215,6 +233,7 @@ def test_home_is_the_optimum_of_an_exhaustive_search(
     assert p.method in ("milp", "all"), p.reason
     assert p.objective == best
     assert verification(ms) + cost_of(p.down, ms) <= allowed(e, c)
+    assert cost_of(p.down, ms) <= fits
 
 
 def test_up_moves_the_fewest_then_the_fewest_events_where_the_greedy_rule_does_not() -> None:
@@ -380,3 +399,24 @@ def test_inputs_out_of_range_are_refused() -> None:
     with pytest.raises(ValueError, match="time_budget"):
         PlannerConfig(time_budget=math.inf)
     assert isinstance(plan_moves([], edge(1.0, 0.2)), Plan)
+
+
+def test_the_deadline_is_sized_by_processor_sharing_when_the_handlers_cpu_is_known() -> None:
+    """The real-time task shares its core with the handler: its makespan stretches by
+    1 / (1 - h). At h = 0.3 and a p95 of 130% of the deadline, bringing it to the calm
+    mark (95%) takes h to 1 - 0.7 * 1.3 / 0.95 = 0.042: 0.258 cores to free, where the
+    first-order share (27% of the monitors' 0.25 cores) would free 0.068."""
+    ms = [on("edge", f"m{i}", 0.05, 10.0) for i in range(5)]  # 0.25 cores of monitors
+    known = plan_moves(ms, edge(1.0, 0.13, handler=0.3), ROOMY)
+    assert known.target_microcores == math.ceil(0.7 * (1.3 / 0.95 - 1) * MICRO)
+    assert len(known.up) == 5  # 0.25 < 0.258: all of them, and the plan says it falls short
+    assert known.method == "all" and "short" in known.reason
+    unknown = plan_moves(ms, edge(1.0, 0.13), ROOMY)
+    assert unknown.target_microcores == math.ceil(250_000 * (1 - 0.95 / 1.3))
+    assert len(unknown.up) == 2
+    # coming home at a p95 of 50%: by the model, at most 0.7 * (1 - 0.5 / 0.95) * 0.9 = 0.298
+    away = [on("cloud", f"c{i}", 0.05, 10.0) for i in range(10)]
+    home = plan_moves(away, edge(1.0, 0.05, handler=0.3), ROOMY)
+    assert len(home.down) == 5 and home.target_microcores == math.floor(
+        0.7 * (1 - 0.5 / 0.95) * 0.9 * MICRO
+    )

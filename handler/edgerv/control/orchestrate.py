@@ -23,7 +23,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Collection, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from edgerv.control.client import ApiError, HandlerClient
@@ -78,6 +78,8 @@ class Counters:
     monotonic: float
     cpu_seconds: float
     events: Mapping[str, int]
+    monitor_cpu: Mapping[str, float] = field(default_factory=dict)  # cpuSeconds per monitor
+    host: tuple[float, float] | None = None  # its CPUs' busy and total seconds
 
 
 def build_reports(
@@ -90,6 +92,9 @@ def build_reports(
     path is one Python thread); events per second likewise per monitor. On the
     first poll of a handler both are 0: nothing moves for load before a rate is known.
     A handler's ``deadline`` (``--deadline``) is a reading already: it counts at once.
+    A monitor's ``cpu`` (cores) is known from its second poll on where it runs (None
+    before, and after its counter restarted: it moved or was redefined); the handler's
+    ``headroom`` (cores its CPUs idle, plus what its monitors take) from its second.
     """
     reports: list[HandlerReport] = []
     placements: dict[str, Placement] = {}
@@ -106,7 +111,21 @@ def build_reports(
             m: (n - last.events.get(m, n)) / span if last and span > 0 else 0.0
             for m, n in events.items()
         }
-        previous[target] = Counters(now, cpu_s, events)
+        spent = {m: d["cpuSeconds"] for m, d in monitors.items() if d["active"]}
+        costs: dict[str, float | None] = {}
+        for m, seconds in spent.items():
+            before = last.monitor_cpu.get(m) if last else None
+            ok = before is not None and seconds >= before and span > 0
+            costs[m] = (seconds - before) / span if ok and before is not None else None
+        host = load["host"]
+        busy_total = None if host is None else (host["busySeconds"], host["totalSeconds"])
+        headroom = None
+        if host is not None and busy_total and last and last.host:
+            (busy, total), (busy0, total0) = busy_total, last.host
+            if total > total0:  # its CPUs' idle share since the last poll, in cores
+                idle = host["cores"] * min(1.0, max(0.0, 1.0 - (busy - busy0) / (total - total0)))
+                headroom = idle + sum(v for v in costs.values() if v is not None)
+        previous[target] = Counters(now, cpu_s, events, spent, busy_total)
         reports.append(
             HandlerReport(
                 name=name,
@@ -120,9 +139,11 @@ def build_reports(
                         events_per_second=max(0.0, rates[m]),
                         migration_wanted=d["migrationWanted"],
                         in_handoff=d["handoff"] is not None,
+                        cpu=costs.get(m),
                     )
                     for m, d in monitors.items()
                 },
+                headroom=headroom,
             )
         )
         where[name] = target
@@ -607,10 +628,12 @@ class Orchestrator:
             record["ms"] = round((time.monotonic() - started) * 1000, 1)
             done.append(record)
         batches: dict[tuple[str, str, str], list[str]] = {}
+        plans: dict[tuple[str, str, str], str] = {}  # a planned batch: its plan in words
         for move in (m for m in moves if m.source):  # one handoff per pair of handlers
-            batches.setdefault((move.source, move.destination, move.reason), []).append(
-                move.monitor
-            )
+            key = (move.source, move.destination, move.reason)
+            batches.setdefault(key, []).append(move.monitor)
+            if move.plan:
+                plans[key] = move.plan
         for (source, destination, reason), names in batches.items():
             src, dst = self.clients[where[source]], self.clients[where[destination]]
             record = {
@@ -620,6 +643,8 @@ class Orchestrator:
                 "to": dst.base,
                 "reason": reason,
             }
+            if (source, destination, reason) in plans:
+                record["plan"] = plans[source, destination, reason]
             started = time.monotonic()
             try:
                 moved = migrate(src, dst, names, self.timeout, self.grace)

@@ -40,11 +40,13 @@ migration protocol moves.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from edgerv.core.documents import Placement
+from edgerv.core.planner import EdgeState, MonitorCost, PlannerConfig, plan_moves
 
 
 @dataclass(frozen=True)
@@ -53,6 +55,7 @@ class MonitorLoad:
     events_per_second: float = 0.0
     migration_wanted: bool = False
     in_handoff: bool = False  # being moved right now (by anyone): placed, leave it alone
+    cpu: float | None = None  # cores its handler spends on it (measured); None: not yet known
 
 
 @dataclass(frozen=True)
@@ -73,6 +76,9 @@ class HandlerReport:
     ingest_lag: float = 0.0  # seconds
     monitors: Mapping[str, MonitorLoad] = field(default_factory=dict)
     deadline: DeadlineReading | None = None  # None: the handler measures no deadline
+    # cores its CPUs leave for verification: what they idle, and what its monitors take
+    # (None: not known yet, or its machine does not say)
+    headroom: float | None = None
 
     def active(self) -> list[str]:
         return [m for m, load in self.monitors.items() if load.active]
@@ -106,6 +112,13 @@ class PolicyConfig:
     deadline_shed: float = 0.5
     deadline_wait: float = 2.0
     deadline_min_count: int = 4  # fewer makespans in the window: no information
+    # The planner (edgerv.core.planner) sizes deadline moves, up and home, from the
+    # monitors' measured costs once every one of a handler's is known; else the rule above.
+    # planner_margin: the share of the headroom verification leaves free; planner_seconds:
+    # the exact solver's time budget (0: its greedy rule only).
+    planner: bool = True
+    planner_margin: float = 0.1
+    planner_seconds: float = 0.2
 
     def __post_init__(self) -> None:
         if not self.tiers or len(set(self.tiers)) != len(self.tiers):
@@ -120,6 +133,10 @@ class PolicyConfig:
             raise PolicyConfigError("need deadline_wait >= 0 seconds", "deadline_wait")
         if not 1 <= self.max_moves_down <= 100_000:
             raise PolicyConfigError("need 1 <= max_moves_down <= 100000", "max_moves_down")
+        if not 0 <= self.planner_margin < 1:
+            raise PolicyConfigError("need 0 <= planner_margin < 1", "planner_margin")
+        if not 0 <= self.planner_seconds < float("inf"):
+            raise PolicyConfigError("need planner_seconds >= 0", "planner_seconds")
 
 
 def tier_latencies(text: str) -> dict[str, float]:
@@ -144,6 +161,7 @@ class Move:
     source: str  # handler names; "" to start a monitor that runs nowhere
     destination: str
     reason: str
+    plan: str = ""  # a planned move: the plan's method and reason, in words
 
 
 @dataclass
@@ -156,6 +174,9 @@ class PolicyMemory:
     bounces: dict[str, int] = field(default_factory=dict)  # monitor -> up soon after down
     # handler -> when monitors were last shed from it for its deadline
     deadline_shed: dict[str, float] = field(default_factory=dict)
+    # monitor -> tier -> what it last cost there (cores): a monitor away from home is
+    # planned home at what it cost there, not at what it costs where it runs now
+    costs: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 def is_loaded(h: HandlerReport, c: PolicyConfig) -> bool:
@@ -240,6 +261,52 @@ def start_on(
     return None
 
 
+def _planner_config(c: PolicyConfig) -> PlannerConfig:
+    return PlannerConfig(
+        high=c.deadline_high,
+        low=c.deadline_low,
+        margin=c.planner_margin,
+        time_budget=c.planner_seconds,
+    )
+
+
+def _edge_state(h: HandlerReport, c: PolicyConfig, above: str) -> EdgeState | None:
+    """``h``'s reading as the planner takes it (``above``: the tier it would move
+    monitors to), or None when it has no headroom or deadline reading."""
+    d = h.deadline
+    if h.headroom is None or d is None or d.budget <= 0:
+        return None
+    return EdgeState(
+        headroom=max(0.0, h.headroom),
+        deadline=d.budget,
+        p95=d.p95 if d.count >= c.deadline_min_count else None,
+        cloud_latency_ms=c.tier_latency_ms.get(above, 0.0),
+        handler_cpu=h.cpu,
+    )
+
+
+def _costs_here(h: HandlerReport, pinned: Callable[[str], bool]) -> list[MonitorCost] | None:
+    """The monitors running on ``h`` (or in a handoff there) as the planner weighs
+    them, or None when one's cost is not known yet."""
+    out = []
+    for m, load in sorted(h.monitors.items()):
+        if not (load.active or load.in_handoff):
+            continue
+        if load.cpu is None and not load.in_handoff:
+            return None
+        out.append(
+            MonitorCost(
+                m,
+                "edge",
+                load.cpu or 0.0,
+                load.events_per_second,
+                pinned=pinned(m),
+                in_handoff=load.in_handoff,
+            )
+        )
+    return out
+
+
 def plan(
     handlers: Sequence[HandlerReport],
     placements: Mapping[str, Placement],
@@ -257,6 +324,10 @@ def plan(
             memory.calm_since.setdefault(h.name, now)
         else:
             memory.calm_since.pop(h.name, None)
+    for h in handlers:  # what each monitor costs where it runs (planned home at it)
+        for m, load in h.monitors.items():
+            if load.active and load.cpu is not None:
+                memory.costs.setdefault(m, {})[h.tier] = load.cpu
     moves: list[Move] = []
     moved: set[str] = set()
 
@@ -276,6 +347,24 @@ def plan(
         p = placements.get(name, Placement())
         return p.migrate == "auto" and tier_allowed(tier, p, c) and name not in moved
 
+    def held(name: str) -> bool:
+        """Never moved by a plan: pinned, or moved (started) already this round."""
+        return placements.get(name, Placement()).migrate == "pinned" or name in moved
+
+    def latency_of(name: str) -> float | None:
+        return placements.get(name, Placement()).max_latency_ms
+
+    def plan_up(h: HandlerReport, up: str) -> tuple[tuple[str, ...], str] | None:
+        """The planner's monitors to move up from ``h`` for its deadline, or None when
+        it cannot plan (no headroom or reading, a cost not known yet)."""
+        state = _edge_state(h, c, up)
+        here = _costs_here(h, held)
+        if state is None or state.p95 is None or here is None:
+            return None
+        here = [dataclasses.replace(m, max_latency_ms=latency_of(m.name)) for m in here]
+        planned = plan_moves(here, state, _planner_config(c))
+        return planned.up, f"{planned.method}: {planned.reason}"
+
     # Up: relieve each handler under pressure.
     for h in sorted(handlers, key=lambda h: (rank[h.tier], h.name)):
         loaded = is_loaded(h, c)
@@ -288,6 +377,18 @@ def plan(
         up = c.tiers[rank[h.tier] + 1]
         destination = _least_loaded(handlers, up, c)
         if destination is None:
+            continue
+        planned = plan_up(h, up) if deadline and not loaded and c.planner else None
+        if planned is not None:  # the deadline alone, every cost known: one planned batch
+            names, why = planned
+            for m in names:
+                moves.append(Move(m, h.name, destination.name, "deadline", why))
+                moved.add(m)
+                memory.last_move[m] = now
+                if now - memory.last_down.get(m, float("-inf")) < c.cooldown_seconds:
+                    memory.bounces[m] = memory.bounces.get(m, 0) + 1
+            if names:
+                memory.deadline_shed[h.name] = now  # its window must refill first
             continue
         candidates = [m for m in h.active() if movable(m, up)]
         # those that want to migrate first; then what frees most per millisecond added
@@ -318,10 +419,35 @@ def plan(
             if now - memory.last_down.get(m, float("-inf")) < c.cooldown_seconds:
                 memory.bounces[m] = memory.bounces.get(m, 0) + 1  # it came down too soon
 
+    # monitors planned home this round, per destination: they count there for the next plan
+    coming: dict[str, list[MonitorCost]] = {}
+
+    def plan_home(
+        b: HandlerReport, h: HandlerReport, candidates: list[str]
+    ) -> tuple[tuple[str, ...], str] | None:
+        """The planner's monitors of ``candidates`` (on ``h``) to bring home to the calm
+        ``b``, or None when it cannot plan (no headroom or reading there, a cost there not
+        known yet)."""
+        state = _edge_state(b, c, h.tier)
+        here = _costs_here(b, held)
+        if state is None or state.p95 is None or here is None:
+            return None
+        away = []
+        for m in candidates:
+            cost = memory.costs.get(m, {}).get(b.tier, h.monitors[m].cpu)
+            if cost is not None:  # (its cost known nowhere yet: it waits a round)
+                rate = h.monitors[m].events_per_second
+                away.append(MonitorCost(m, "cloud", cost, rate, latency_of(m)))
+        planned = plan_moves(here + coming.get(b.name, []) + away, state, _planner_config(c))
+        coming.setdefault(b.name, []).extend(
+            dataclasses.replace(a, tier="edge") for a in away if a.name in planned.down
+        )
+        return planned.down, f"{planned.method}: {planned.reason}"
+
     # Down: bring monitors above their home tier back one tier, below a calm handler.
     budget = c.max_moves_down
     for h in sorted(handlers, key=lambda h: (-rank[h.tier], h.name)):
-        if rank[h.tier] == 0 or budget <= 0:
+        if rank[h.tier] == 0:
             continue
         down = c.tiers[rank[h.tier] - 1]
         below = [
@@ -334,6 +460,7 @@ def plan(
         if not below:
             continue
         destination = min(below, key=_by_load(c))  # calm: none under pressure
+        candidates = []
         for m in sorted(h.active()):
             p = placements.get(m, Placement())
             if rank[h.tier] <= rank.get(p.tier or "", 0) or not movable(m, down):
@@ -341,10 +468,20 @@ def plan(
             wait = c.cooldown_seconds * 2 ** memory.bounces.get(m, 0)
             if now - memory.last_move.get(m, float("-inf")) < wait:
                 continue
+            candidates.append(m)
+        planned = plan_home(destination, h, candidates) if c.planner and candidates else None
+        if planned is not None:  # what fits the headroom and the deadline: one batch
+            names, why = planned
+            for m in names:
+                moves.append(Move(m, h.name, destination.name, "calm below", why))
+                moved.add(m)
+                memory.last_move[m] = memory.last_down[m] = now
+            continue
+        for m in candidates:
+            if budget <= 0:
+                break
             moves.append(Move(m, h.name, destination.name, "calm below"))
             moved.add(m)
             memory.last_move[m] = memory.last_down[m] = now
             budget -= 1
-            if budget <= 0:
-                break
     return moves

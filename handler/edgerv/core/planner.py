@@ -12,21 +12,28 @@ With ``ratio = p95 / deadline``, *verification* the cost of what runs on the edg
 monitor in a handoff counts there, wherever it is bound: it may not have left, or be
 arriving) and *allowed* ``headroom * (1 - margin)``:
 
-* **Up** when ``ratio >= high``: free ``need = max(verification - allowed,
-  ceil(verification * (1 - low / ratio)))``: bring verification within the headroom less
-  its margin, and at least the share of it by which the p95 is over the calm mark ``low``
-  (a first-order model: the makespan taken as growing with the verification it competes
-  with). Movable: on the edge, not pinned, not in a handoff, ``maxLatencyMs`` (if any) at
-  least the cloud's latency. The plan frees at least ``need`` with, lexicographically,
-  (1) the fewest monitors: each moved monitor's verdicts gain the cloud's latency, and
-  each is a state transfer in the handoff; (2) of those, the fewest events/s: the
-  verdicts per second made later and the traffic the link must carry. When the movable
-  monitors cannot free ``need``, all of them move and the plan says by how much it falls
-  short.
+* **Up** when ``ratio >= high``: free ``need = max(verification - allowed, shed)``:
+  bring verification within the headroom less its margin, and at least ``shed``, what
+  the deadline asks. Given the handler's whole CPU ``h`` on the edge (``handler_cpu``:
+  its monitors, and what it spends besides them), ``shed = (1 - h) * (ratio / low -
+  1)``: the real-time task shares its CPU with the handler, so its makespan stretches by
+  ``1 / (1 - h)`` (processor sharing: the paper's 200 monitors at 15% of a core took the
+  demo's loop from 102 to 121 ms, 102 / 0.85 = 120); bringing the p95 to the calm mark
+  ``low`` takes ``h`` down to ``1 - (1 - h) * ratio / low``. Without ``handler_cpu``,
+  ``shed = verification * (1 - low / ratio)``, the share of it by which the p95 is over
+  the calm mark (a first-order model). Movable: on the edge, not pinned, not in a
+  handoff, ``maxLatencyMs`` (if any) at least the cloud's latency. The plan frees at
+  least ``need`` with, lexicographically, (1) the fewest monitors: each moved monitor's
+  verdicts gain the cloud's latency, and each is a state transfer in the handoff; (2) of
+  those, the fewest events/s: the verdicts per second made later and the traffic the
+  link must carry. When the movable monitors cannot free ``need``, all of them move and
+  the plan says by how much it falls short.
 * **Home** when ``ratio <= low``: monitors on the cloud whose home is the edge (not
   pinned, not in a handoff) come back, their summed cost at most ``allowed -
-  verification`` (the room), at most ``max_home`` of them, with (1) the most monitors,
-  (2) of those, the most events/s.
+  verification`` (the room; given ``handler_cpu``, also at most ``(1 - h) * (1 - ratio /
+  low) * (1 - margin)``: by the same model, what keeps the p95 under the calm mark, so
+  that what comes home does not send monitors up again), at most ``max_home`` of them,
+  with (1) the most monitors, (2) of those, the most events/s.
 * **Neither** between the two marks (the hysteresis band), without a deadline signal
   (``p95`` None), or when nothing may or needs to move.
 
@@ -111,8 +118,12 @@ class EdgeState:
     deadline: float  # the task's budget, seconds
     p95: float | None  # its makespans' 95th percentile, seconds; None: no signal
     cloud_latency_ms: float  # the cloud tier's latency from the robot (the link's RTT)
+    # the handler's whole CPU on the edge, cores (its monitors and the rest); None: unknown
+    handler_cpu: float | None = None
 
     def __post_init__(self) -> None:
+        if self.handler_cpu is not None and not _finite_at_least(self.handler_cpu, 0.0):
+            raise ValueError(f"handler CPU {self.handler_cpu} is not >= 0 cores")
         if not _finite_at_least(self.headroom, 0.0):
             raise ValueError(f"headroom {self.headroom} is not >= 0 cores")
         if not (math.isfinite(self.deadline) and self.deadline > 0):
@@ -207,7 +218,24 @@ def plan_moves(
             f"hysteresis: {deadline} is between the marks {c.low:.0%} (monitors come home "
             f"at or below) and {c.high:.0%} (they move up at or above)",
         )
-    return _home(ordered, c, verification, allowed, deadline)
+    return _home(ordered, c, verification, allowed, deadline, deadline_room(edge, c, ratio))
+
+
+def deadline_shed(edge: EdgeState, c: PlannerConfig, verification: int, ratio: float) -> int:
+    """What the deadline asks to free (microcores), by the module's model."""
+    h = edge.handler_cpu
+    if h is None:
+        return math.ceil(verification * (1 - c.low / ratio))
+    return math.ceil(max(0.0, 1.0 - h) * (ratio / c.low - 1.0) * MICRO)
+
+
+def deadline_room(edge: EdgeState, c: PlannerConfig, ratio: float) -> int | None:
+    """What may come home (microcores) and keep the p95 under the calm mark, by the
+    module's model, less the margin; None without ``handler_cpu``."""
+    h = edge.handler_cpu
+    if h is None:
+        return None
+    return math.floor(max(0.0, 1.0 - h) * max(0.0, 1.0 - ratio / c.low) * (1 - c.margin) * MICRO)
 
 
 def _up(
@@ -222,7 +250,7 @@ def _up(
     at_risk = f"the deadline is at risk ({deadline}, high mark {c.high:.0%})"
     if verification <= 0:
         return Plan((), (), "none", f"{at_risk}, but no verification runs on the edge")
-    need = max(verification - allowed, math.ceil(verification * (1 - c.low / ratio)))
+    need = max(verification - allowed, deadline_shed(edge, c, verification, ratio))
     on_edge = [m for m in ordered if m.tier == "edge"]
     pinned = [m.name for m in on_edge if m.pinned]
     moving = [m.name for m in on_edge if m.in_handoff and not m.pinned]
@@ -274,7 +302,12 @@ def _up(
 
 
 def _home(
-    ordered: list[MonitorCost], c: PlannerConfig, verification: int, allowed: int, deadline: str
+    ordered: list[MonitorCost],
+    c: PlannerConfig,
+    verification: int,
+    allowed: int,
+    deadline: str,
+    deadline_room: int | None,
 ) -> Plan:
     calm = f"the deadline is met ({deadline}, low mark {c.low:.0%})"
     away = [m for m in ordered if m.tier == "cloud" and m.home == "edge"]
@@ -291,6 +324,10 @@ def _home(
         f"the headroom less its {c.margin:.0%} margin allows {_cores(allowed)}, verification "
         f"takes {_cores(verification)} on the edge: {_cores(max(0, room))} of room"
     )
+    if deadline_room is not None and deadline_room < room:
+        room = deadline_room
+        sizing += f", {_cores(room)} by the deadline"
+
     limit = len(items) if c.max_home is None else min(c.max_home, len(items))
     greedy = _smallest_first(items, room, limit)
     if not greedy:

@@ -1,0 +1,153 @@
+"""The policy with the planner (issue 37): once every monitor's cost on a handler is
+measured and its CPUs' headroom is known, deadline pressure moves exactly the planner's
+set up in one batch, and a calm edge takes home what fits its headroom and its deadline
+in one batch; without them, today's rule. And the orchestrator's rates: each monitor's
+cost and the headroom from two load reports."""
+
+from __future__ import annotations
+
+import math
+
+from edgerv.control.orchestrate import Counters, Target, build_reports
+from edgerv.control.placement import (
+    DeadlineReading,
+    HandlerReport,
+    MonitorLoad,
+    PolicyConfig,
+    PolicyMemory,
+    plan,
+)
+from edgerv.control.wire import LoadReport
+from edgerv.core.documents import Placement
+from edgerv.core.planner import EdgeState, MonitorCost, PlannerConfig, plan_moves
+
+CONFIG = PolicyConfig(tiers=("edge", "cloud"), tier_latency_ms={"edge": 0.0, "cloud": 40.0})
+BUDGET = 0.125  # the loop's deadline, seconds
+
+
+def costed(cpu: float | None, rate: float = 50.0) -> MonitorLoad:
+    return MonitorLoad(active=True, events_per_second=rate, cpu=cpu)
+
+
+def edge(
+    p95_ms: float, monitors: dict[str, MonitorLoad], cpu: float, headroom: float | None
+) -> HandlerReport:
+    reading = DeadlineReading(BUDGET, p95_ms / 1000, 40)
+    return HandlerReport("edge-1", "edge", cpu, 0.0, monitors, reading, headroom)
+
+
+def cloud(**monitors: MonitorLoad) -> HandlerReport:
+    return HandlerReport("cloud-1", "cloud", 0.1, monitors=monitors)
+
+
+SIX = {f"m{i}": costed(0.02 * (i + 1), rate=10.0 * (6 - i)) for i in range(6)}  # 0.42 cores
+
+
+def test_deadline_pressure_moves_the_planners_set_in_one_batch() -> None:
+    handlers = [edge(160.0, SIX, cpu=0.5, headroom=0.45), cloud()]
+    moves = plan(handlers, {}, CONFIG, PolicyMemory(), now=0)
+    expected = plan_moves(
+        [
+            MonitorCost(m, "edge", load.cpu or 0.0, load.events_per_second)
+            for m, load in SIX.items()
+        ],
+        EdgeState(0.45, BUDGET, 0.16, 40.0, handler_cpu=0.5),
+        PlannerConfig(time_budget=CONFIG.planner_seconds),
+    )
+    assert expected.up  # (the instance asks for moves)
+    assert sorted(m.monitor for m in moves) == sorted(expected.up)
+    assert {(m.source, m.destination, m.reason) for m in moves} == {
+        ("edge-1", "cloud-1", "deadline")
+    }
+    assert all(m.plan.startswith(("milp:", "greedy:", "all:")) for m in moves)
+    # processor sharing: (1 - 0.5) * (1.28 / 0.95 - 1) = 0.174 cores to free
+    freed = sum(SIX[m.monitor].cpu or 0.0 for m in moves)
+    assert freed >= 0.5 * (160 / 125 / 0.95 - 1) - 1e-9
+
+
+def test_a_cost_not_known_yet_leaves_the_move_to_todays_rule() -> None:
+    monitors = {**SIX, "new": costed(None)}
+    handlers = [edge(160.0, monitors, cpu=0.5, headroom=0.45), cloud()]
+    moves = plan(handlers, {}, CONFIG, PolicyMemory(), now=0)
+    assert moves and all(m.plan == "" and m.reason == "deadline" for m in moves)
+    without_headroom = [edge(160.0, SIX, cpu=0.5, headroom=None), cloud()]
+    assert all(m.plan == "" for m in plan(without_headroom, {}, CONFIG, PolicyMemory(), now=0))
+
+
+def test_the_plan_never_moves_pinned_nor_latency_bound_monitors() -> None:
+    placements = {
+        "m5": Placement(migrate="pinned"),  # the costliest two, held
+        "m4": Placement(max_latency_ms=10.0),  # the cloud is 40 ms away
+    }
+    handlers = [edge(200.0, SIX, cpu=0.5, headroom=0.45), cloud()]
+    moves = plan(handlers, placements, CONFIG, PolicyMemory(), now=0)
+    assert moves and not {"m4", "m5"} & {m.monitor for m in moves}
+    assert "pinned: m5" in moves[0].plan and "m4" in moves[0].plan
+
+
+def test_a_calm_edge_takes_home_what_fits_in_one_batch_at_what_it_cost_there() -> None:
+    memory = PolicyMemory(costs={f"m{i}": {"edge": 0.05} for i in range(6)})
+    away = {f"m{i}": costed(0.01) for i in range(6)}  # cheaper in the cloud: not the measure
+    config = PolicyConfig(
+        tiers=("edge", "cloud"), tier_latency_ms={"cloud": 40.0}, calm_seconds=0, cooldown_seconds=0
+    )
+    calm = edge(60.0, {}, cpu=0.1, headroom=0.9)
+    plan([calm, cloud(**away)], {}, config, memory, now=0)  # calm from now
+    moves = plan([calm, cloud(**away)], {}, config, memory, now=1)
+    # the headroom allows 0.81, the deadline (1 - 0.1) * (1 - 0.48 / 0.95) * 0.9 = 0.401:
+    # 8 at 0.05 would fit; all 6 away come home, in one batch (max_moves_down is 1)
+    room = 0.9 * (1 - 60 / 125 / 0.95) * 0.9
+    assert math.floor(room / 0.05) >= 6
+    assert len(moves) == 6 and {m.reason for m in moves} == {"calm below"}
+    tight = edge(110.0, {}, cpu=0.1, headroom=0.9)  # 88%: room for (0.9)(0.074)(0.9) = 0.06
+    memory = PolicyMemory(costs={f"m{i}": {"edge": 0.05} for i in range(6)})
+    plan([tight, cloud(**away)], {}, config, memory, now=0)
+    assert len(plan([tight, cloud(**away)], {}, config, memory, now=1)) == 1
+
+
+def test_inside_the_band_nothing_moves_either_way() -> None:
+    config = PolicyConfig(tiers=("edge", "cloud"), calm_seconds=0, cooldown_seconds=0)
+    memory = PolicyMemory(costs={"a": {"edge": 0.05}})
+    band = edge(122.0, SIX, cpu=0.5, headroom=0.45)  # 97.6%: between 95% and 100%
+    assert plan([band, cloud(a=costed(0.05))], {}, config, memory, now=0) == []
+    assert plan([band, cloud(a=costed(0.05))], {}, config, memory, now=5) == []
+
+
+def load(t: float, cpu: float, monitors: dict[str, float], busy: float, total: float) -> LoadReport:
+    return {
+        "handler": "edge-1",
+        "monotonic": t,
+        "cpuSeconds": cpu,
+        "host": {"cores": 2, "busySeconds": busy, "totalSeconds": total},
+        "ingestLag": 0.0,
+        "deadline": None,
+        "monitors": {
+            m: {
+                "active": True,
+                "handoff": None,
+                "epoch": 0,
+                "peer": None,
+                "events": 0,
+                "cpuSeconds": s,
+                "migrationWanted": False,
+                "placement": {"tier": None, "migrate": "auto", "maxLatencyMs": None},
+            }
+            for m, s in monitors.items()
+        },
+    }
+
+
+def test_the_orchestrator_reads_each_monitors_cost_and_the_headroom_from_two_reports() -> None:
+    target, previous = Target("edge", "e:1"), dict[Target, Counters]()
+    first, _, _ = build_reports({target: load(10.0, 5.0, {"a": 1.0, "b": 2.0}, 100, 400)}, previous)
+    assert first[0].headroom is None and first[0].monitors["a"].cpu is None  # one reading
+    # 2 s later: a spent 0.2 s (0.1 core), b's counter restarted (it moved back: unknown);
+    # the two CPUs were busy 1.0 of their 4.0 s: 1.5 cores idle, plus a's 0.1
+    second, _, _ = build_reports(
+        {target: load(12.0, 5.6, {"a": 1.2, "b": 0.1}, 101, 404)}, previous
+    )
+    report = second[0]
+    assert math.isclose(report.monitors["a"].cpu or 0.0, 0.1)
+    assert report.monitors["b"].cpu is None
+    assert report.headroom is not None and math.isclose(report.headroom, 1.5 + 0.1)
+    assert math.isclose(report.cpu, 0.3)
