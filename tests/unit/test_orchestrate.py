@@ -188,6 +188,16 @@ def test_max_moves_down_sets_the_policy_and_is_checked() -> None:
         config_from(orchestrate_args("--max-moves-down", "0"), targets)
 
 
+def test_the_plan_flags_set_the_policy_and_default_to_planning() -> None:
+    targets = parse_handlers("edge=e:1,cloud=c:1")
+    config = config_from(orchestrate_args(), targets)
+    assert (config.planner, config.planner_margin) == (True, 0.1)
+    config = config_from(orchestrate_args("--no-plan", "--plan-margin", "0.3"), targets)
+    assert (config.planner, config.planner_margin) == (False, 0.3)
+    with pytest.raises(InputError, match="--plan-margin: error: need 0 <= planner_margin < 1"):
+        config_from(orchestrate_args("--plan-margin", "1"), targets)
+
+
 def test_an_unsettled_move_is_not_done_and_is_settled_before_the_monitor_moves_again(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

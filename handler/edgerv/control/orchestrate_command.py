@@ -166,6 +166,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="after such a move, leave that handler's deadline alone this long",
     )
     p.add_argument(
+        "--plan",
+        action=argparse.BooleanOptionalAction,
+        default=defaults["planner"],
+        help="size deadline moves up and home by the planner from the monitors' measured "
+        "costs, one handoff each (docs/protocol.md, 'What it plans'); --no-plan: the rule "
+        "above always",
+    )
+    p.add_argument(
+        "--plan-margin",
+        type=finite("a fraction from 0 below 1", zero=True),
+        default=defaults["planner_margin"],
+        metavar="FRACTION",
+        help="the share of the edge's headroom a plan leaves free, up and home",
+    )
+    p.add_argument(
         "--timeout",
         type=seconds_above_zero,
         default=30.0,
@@ -213,9 +228,13 @@ def config_from(args: argparse.Namespace, targets: Sequence[Target]) -> PolicyCo
             deadline_low=args.deadline_low,
             deadline_shed=args.deadline_shed,
             deadline_wait=args.deadline_wait,
+            planner=args.plan,
+            planner_margin=args.plan_margin,
         )
     except PolicyConfigError as exc:
-        flag, said = "--" + exc.setting.replace("_", "-"), str(exc)
+        flags = {"planner_margin": "--plan-margin"}  # (a setting whose flag is not its name)
+        flag = flags.get(exc.setting, "--" + exc.setting.replace("_", "-"))
+        said = str(exc)
         if exc.setting == "deadline_low":  # the two marks: name the one given
             marks = f"--deadline-low {args.deadline_low:g}, --deadline-high {args.deadline_high:g}"
             given_high = args.deadline_high != PolicyConfig.deadline_high
