@@ -290,6 +290,8 @@ class Phase:
     orchestrated: bool = False
     settle: float = 8.0  # robot idle before the goal: the policy sees the loop meanwhile
     wait_verdict: bool = False  # run until the goal monitor's deadline has passed
+    plan: bool = True  # orchestrated: the planner (edgerv orchestrate --plan) or the rule
+    mission: bool = True  # False: the phase ends once the policy settled, no goal given
 
 
 @dataclass
@@ -427,6 +429,16 @@ class Demo:
             Phase("baseline", (), full, settle=6.0),
             Phase("paperConfig", ("edge",), self.paper_monitors, settle=6.0),
             Phase("edgeOnly", ("edge",), full, settle=6.0 if short else 10.0, wait_verdict=True),
+            # today's rule, as the planner's baseline: how it recovers, no mission after
+            Phase(
+                "heuristicBaseline",
+                ("edge", "cloud"),
+                full,
+                orchestrated=True,
+                settle=8.0,
+                plan=False,
+                mission=False,
+            ),
             Phase("orchestrated", ("edge", "cloud"), full, orchestrated=True, settle=8.0),
         ]
         if short:  # the integration test: the three phases of the paper's figure
@@ -512,6 +524,7 @@ class Demo:
                     str(COOLDOWN_SECONDS),
                     "--max-moves-down",
                     "100",
+                    "--plan" if phase.plan else "--no-plan",
                 ],
                 self.other_cpus,
             )
@@ -557,6 +570,34 @@ class Demo:
         self.sleep(phase.settle, log)
         if phase.orchestrated:
             result.settled_after = phase.settle + self.await_policy(phase.name, log)
+        if phase.mission:
+            self.mission(phase, result, log)
+        else:
+            result.goal_time = result.end_time = time.time()
+            result.on_edge_at_goal = self.view.on_edge
+        result.stop_time = time.time()
+        self.procs.stop("slam")
+        self.procs.stop("base")
+        time.sleep(1.0)  # the handlers' clocks pass the recording's end
+        if phase.orchestrated:
+            self.procs.stop(f"{phase.name}-orchestrate")
+            result.migrations = self.moves(phase.name)
+        for tier in phase.handlers:
+            self.procs.stop(f"{phase.name}-{tier}")
+        self.procs.stop(f"{phase.name}-recorder")
+        log.poll()
+        self.measure(result, log)
+        result.verdict_check = self.compare(phase, bag)
+        result.monitors = phase.monitors
+        result.goal_verdict = self.goal_verdict(phase, bag, result) if phase.mission else "n/a"
+        self.view.done.append(result)
+        return result
+
+    def mission(self, phase: Phase, result: PhaseResult, log: RobotLog) -> None:
+        """Send the robot to its goal and wait for it (or its goal monitor's window),
+        then, orchestrated, park it until the monitors are back."""
+        logs = self.out / "logs"
+        assert self.planner is not None
         if self.work is None:
             if not self.procs.wait_for_line("slam", "calibrated", 10):
                 raise SystemExit(
@@ -590,23 +631,6 @@ class Demo:
         self.note_placement(result, final=True)
         if phase.orchestrated and log.event("arrived", result.goal_time) is not None:
             self.park(phase, result, log)
-        result.stop_time = time.time()
-        self.procs.stop("slam")
-        self.procs.stop("base")
-        time.sleep(1.0)  # the handlers' clocks pass the recording's end
-        if phase.orchestrated:
-            self.procs.stop(f"{phase.name}-orchestrate")
-            result.migrations = self.moves(phase.name)
-        for tier in phase.handlers:
-            self.procs.stop(f"{phase.name}-{tier}")
-        self.procs.stop(f"{phase.name}-recorder")
-        log.poll()
-        self.measure(result, log)
-        result.verdict_check = self.compare(phase, bag)
-        result.monitors = phase.monitors
-        result.goal_verdict = self.goal_verdict(phase, bag, result)
-        self.view.done.append(result)
-        return result
 
     def park(self, phase: Phase, result: PhaseResult, log: RobotLog) -> None:
         """The robot parked at its goal: its real-time stage idles, the deadline pressure
@@ -843,6 +867,17 @@ class Demo:
             "machine": machine(),
             "short": self.args.short,
         }
+        rule = results.get("heuristicBaseline")
+        if rule is not None:  # the same raised load, today's rule (--no-plan), no mission
+            ok = [m for m in rule.migrations if m.get("from") and m.get("ok")]
+            summary["heuristicBaseline"] = {
+                "recovery": rule.recovery,
+                "migrations": len(ok),
+                "monitorsMoved": sum(len(m["monitors"]) for m in ok),
+                "note": "the orchestrated phase's start with edgerv orchestrate --no-plan "
+                "(today's rule: half the movable event load at a time, then waiting for "
+                "fresh makespans), ended once the policy settled (no mission)",
+            }
         problems = []
         b, e, o = (r.figures() for r in (base, edge, orch))
         if not base.arrived or (b["p95Ms"] or 1e9) > DEADLINE_MS * 1.1:
@@ -1086,8 +1121,10 @@ def print_table(summary: dict[str, Any]) -> None:
         f"reasons {', '.join(summary['migrationReasons']) or '-'}); monitors whose live "
         f"verdicts differ from edgerv check on the recording: {differ}{said}"
     )
-    for name, p in summary["phases"].items():
-        r = p.get("recovery")
+    recovered = {name: p.get("recovery") for name, p in summary["phases"].items()}
+    if "heuristicBaseline" in summary:
+        recovered["today's rule (--no-plan)"] = summary["heuristicBaseline"]["recovery"]
+    for name, r in recovered.items():
         if r:
             back = "never" if r["seconds"] is None else f"in {r['seconds']} s"
             console.print(

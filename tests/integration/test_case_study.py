@@ -78,6 +78,10 @@ def test_the_policy_brings_the_loop_back_under_its_deadline_and_says_how_fast(
     assert recovery["deadlineMisses"] >= 1, recovery
     on_edge = summary["raisedLoad"]["monitors"] - recovery["monitorsInCloud"]
     assert recovery["monitorsInCloud"] > 0 and on_edge >= 0, recovery
+    # today's rule on the same load, in the same run (edgerv orchestrate --no-plan): measured
+    # the same way, for the README's comparison (how much better is the machine's to say)
+    rule = summary["heuristicBaseline"]
+    assert rule["recovery"] is not None and rule["migrations"] >= 1, rule
 
 
 def test_once_the_robot_parks_the_policy_brings_monitors_back_down(
@@ -105,7 +109,7 @@ def test_live_verdicts_across_moves_equal_edgerv_check_on_the_recorded_bag(
     whose publisher's history overflowed: counted and logged, never silent; the robot's
     history of 10 s makes it rare). A difference nothing explains fails."""
     _, summary, _ = run
-    for phase in ("edgeOnly", "orchestrated"):
+    for phase in ("edgeOnly", "heuristicBaseline", "orchestrated"):
         check = summary["verdictChecks"][phase]
         assert check["monitors"] == summary["raisedLoad"]["monitors"]
         assert check["verdictsOffline"] > 0, (phase, check)
