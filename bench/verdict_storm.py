@@ -18,6 +18,9 @@ from pathlib import Path
 
 from ros_env import ros_env
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from kit import int32_publisher
+
 MONITORS = int(os.environ.get("STORM_MONITORS", 5000))
 SECONDS = 10
 RATE = 1000
@@ -30,24 +33,6 @@ spec:
     x: {{topic: /storm, type: std_msgs/msg/Int32, field: data}}
   bufferCapacity: 64
   sortThreshold: 1
-"""
-PUBLISH = r"""
-import sys, time, rclpy
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Int32
-count, rate = int(sys.argv[1]), int(sys.argv[2])
-rclpy.init()
-node = rclpy.create_node("storm_publisher")
-qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-pub = node.create_publisher(Int32, "/storm", qos)
-while pub.get_subscription_count() == 0:
-    time.sleep(0.05)
-time.sleep(0.5)
-start = time.monotonic()
-for i in range(count):
-    pub.publish(Int32(data=i))
-    time.sleep(max(0.0, start + (i + 1) / rate - time.monotonic()))
-print(time.monotonic() - start, flush=True)
 """
 
 
@@ -97,7 +82,7 @@ def main() -> None:
     threading.Thread(target=sample, daemon=True).start()
     started = time.monotonic()
     pub = subprocess.run(
-        [sys.executable, "-c", PUBLISH, str(RATE * SECONDS), str(RATE)],
+        int32_publisher.argv("/storm", RATE, RATE * SECONDS, wait=3600, name="storm_publisher"),
         env=env, capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     time.sleep(2.0)  # the handler catches up with what it took
@@ -114,7 +99,7 @@ def main() -> None:
             {
                 "monitors": MONITORS,
                 "published": RATE * SECONDS,
-                "publish_seconds": float(pub.stdout.strip() or 0),
+                "publish_seconds": int32_publisher.publish_seconds(pub.stdout),
                 "taken": m.get("edgerv_messages_total", 0),
                 "lost": m.get("edgerv_messages_lost_total", 0),
                 "verdicts_reached": m.get("edgerv_verdicts_total", 0),

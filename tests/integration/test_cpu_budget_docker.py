@@ -26,9 +26,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from edgerv.core.placement import PolicyConfig
 
 from edgerv.control.cpu_budget import CpuBudgetError, DockerCpuBudget, cores_between
+from edgerv.control.placement import PolicyConfig
 from kit import dockerimage
 from kit.cpu_budget import (
     Diagnostics,

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
+from kit import int32_publisher
 from kit.ros import HandlerProcess, ros_env, wait_for
 
 MONITORS = 2000
@@ -29,27 +29,6 @@ spec:
     x: {{topic: /storm, type: std_msgs/msg/Int32, field: data}}
   bufferCapacity: 64
   sortThreshold: 1
-"""
-
-PUBLISH = r"""
-import sys, time, rclpy
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Int32
-count = int(sys.argv[1])
-rclpy.init()
-node = rclpy.create_node("storm_publisher")
-qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-pub = node.create_publisher(Int32, "/storm", qos)
-deadline = time.monotonic() + 30
-while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
-    time.sleep(0.05)
-time.sleep(0.5)
-start = time.monotonic()
-for i in range(count):
-    pub.publish(Int32(data=i))
-    time.sleep(max(0.0, start + (i + 1) / 1000 - time.monotonic()))
-time.sleep(1.0)
-print("published", count, flush=True)
 """
 
 
@@ -83,7 +62,7 @@ def test_a_verdict_storm_stays_in_budget_counts_what_it_lost_and_stops_in_time(
     sampler.start()
     try:
         pub = subprocess.run(
-            [sys.executable, "-c", PUBLISH, str(MESSAGES)],
+            int32_publisher.argv("/storm", 1000, MESSAGES, wait=30, name="storm_publisher"),
             env=ros_env(domain),
             capture_output=True,
             text=True,

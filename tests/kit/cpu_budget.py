@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from kit import dockerimage
+from kit import dockerimage, int32_publisher
 from kit.pki import shared_pki
 from kit.robotrun import https
 from kit.ros import free_port, robot_env
@@ -45,34 +45,11 @@ def load_monitors(n: int) -> str:
     return "---\n".join(LOAD_DOC.format(i=i) for i in range(n))
 
 
-# A robot's node: publishes 0, 1, 2, ... on /load at a steady rate (reliable, as a robot's
-# default), once the handler's subscription is matched, until it is killed.
-PUBLISH = r"""
-import sys, time, rclpy
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Int32
-rate = float(sys.argv[1])
-rclpy.init()
-node = rclpy.create_node("load_publisher")
-qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-pub = node.create_publisher(Int32, "/load", qos)
-deadline = time.monotonic() + 60
-while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
-    time.sleep(0.05)
-print("matched" if pub.get_subscription_count() else "unmatched", flush=True)
-start, i = time.monotonic(), 0
-while True:
-    pub.publish(Int32(data=i % 2**31))
-    i += 1
-    time.sleep(max(0.0, start + i / rate - time.monotonic()))
-"""
-
-
 def load_publisher(domain: int, rate: float) -> subprocess.Popen[str]:
     """The robot's publisher on :data:`LOAD_TOPIC` at ``rate`` messages a second; its first
     line says "matched" once the handler subscribed (or "unmatched" after 60 s)."""
     return subprocess.Popen(
-        [sys.executable, "-c", PUBLISH, str(rate)],
+        int32_publisher.argv(LOAD_TOPIC, rate, name="load_publisher"),
         env=robot_env(domain, "SUBNET"),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
