@@ -285,20 +285,24 @@ def _edge_state(h: HandlerReport, c: PolicyConfig, above: str) -> EdgeState | No
     )
 
 
-def _costs_here(h: HandlerReport, pinned: Callable[[str], bool]) -> list[MonitorCost] | None:
+def _costs_here(
+    h: HandlerReport, pinned: Callable[[str], bool], memory: PolicyMemory
+) -> list[MonitorCost] | None:
     """The monitors running on ``h`` (or in a handoff there) as the planner weighs
-    them, or None when one's cost is not known yet."""
+    them: at what they cost there now, else (just arrived: no rate yet) at what they last
+    cost on its tier; None when one's cost is known neither way."""
     out = []
     for m, load in sorted(h.monitors.items()):
         if not (load.active or load.in_handoff):
             continue
-        if load.cpu is None and not load.in_handoff:
+        cost = load.cpu if load.cpu is not None else memory.costs.get(m, {}).get(h.tier)
+        if cost is None and not load.in_handoff:
             return None
         out.append(
             MonitorCost(
                 m,
                 "edge",
-                load.cpu or 0.0,
+                cost or 0.0,
                 load.events_per_second,
                 pinned=pinned(m),
                 in_handoff=load.in_handoff,
@@ -358,7 +362,7 @@ def plan(
         """The planner's monitors to move up from ``h`` for its deadline, or None when
         it cannot plan (no headroom or reading, a cost not known yet)."""
         state = _edge_state(h, c, up)
-        here = _costs_here(h, held)
+        here = _costs_here(h, held, memory)
         if state is None or state.p95 is None or here is None:
             return None
         here = [dataclasses.replace(m, max_latency_ms=latency_of(m.name)) for m in here]
@@ -429,7 +433,7 @@ def plan(
         ``b``, or None when it cannot plan (no headroom or reading there, a cost there not
         known yet)."""
         state = _edge_state(b, c, h.tier)
-        here = _costs_here(b, held)
+        here = _costs_here(b, held, memory)
         if state is None or state.p95 is None or here is None:
             return None
         away = []

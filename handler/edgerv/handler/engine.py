@@ -71,10 +71,12 @@ INLINE_MONITORS = 512
 # is in flight stays bounded, however many monitors violate at once (the verdict storm).
 EVALUATE_CHUNK = 4096
 # What each monitor costs here (its runtime's ``cost_ns``, the load report's
-# ``cpuSeconds`` per monitor) is estimated from timings of one message in COST_SAMPLE and
-# one evaluation round in COST_SAMPLE, chosen at random (unbiased, whatever the topics'
-# rhythm), each scaled by COST_SAMPLE: timing every one would cost more than the budget
-# of the edge allows (a clock read is ~50 ns, a monitor's step ~1 us).
+# ``cpuSeconds`` per monitor) is estimated from the CPU time (the thread's clock, not the
+# wall's: on a core shared with the robot's real-time task a preempted step would count
+# the task's time too) of one message in COST_SAMPLE and one evaluation round in
+# COST_SAMPLE, chosen at random (unbiased, whatever the topics' rhythm), each scaled by
+# COST_SAMPLE: timing every one would cost more than the edge's budget allows (a read of
+# the thread's clock is ~0.5 us, a monitor's step ~1 us).
 COST_SAMPLE = 16
 
 
@@ -411,9 +413,9 @@ class Engine(HandoffSteps):
             if untimed:
                 ready = offer(route, stamp, values, admit)
             else:  # a timed message: its cost shared by its readers
-                start = time.perf_counter_ns()
+                start = time.thread_time_ns()
                 ready = offer(route, stamp, values, admit)
-                share = (time.perf_counter_ns() - start) * self.cost_every / len(route.readers)
+                share = (time.thread_time_ns() - start) * self.cost_every / len(route.readers)
                 for reader, _ in route.readers:
                     reader.cost_ns += share
                 untimed = self.cost_gap()
@@ -438,7 +440,7 @@ class Engine(HandoffSteps):
         (:meth:`~edgerv.core.pipeline.MonitorRuntime.take_arrivals`): it takes and drops
         exactly what :meth:`_ingest_each` would. A batch with fewer than COLUMNS_FROM
         messages on every topic goes to :meth:`_ingest_each` whole."""
-        began = time.perf_counter_ns()  # every such batch timed: a clock read is nothing here
+        began = time.thread_time_ns()  # every such batch timed: 0.5 us is nothing here
         routes, slots = self.router.routes, self.slots
         stamps_, topics, rows = (list(c) for c in zip(*batch, strict=True))
         by_topic = batches.positions_by_topic(topics, routes)
@@ -462,7 +464,7 @@ class Engine(HandoffSteps):
         stamps: Any = None
         own = 0  # ns spent on one monitor at a time; the rest is shared by all of them
         for name, mine in reads.items():
-            start = time.perf_counter_ns()
+            start = time.thread_time_ns()
             runtime, slot = runtimes[name], slots[name]
             if runtime.past is None:  # columns.compress may make its letters: arrays
                 if stamps is None:
@@ -490,7 +492,7 @@ class Engine(HandoffSteps):
                 slot.pending_since = now if runtime.events else None
                 self.waiting[name] = runtime
                 woke = woke or len(runtime.letters) >= WAKE_LETTERS
-            spent = time.perf_counter_ns() - start
+            spent = time.thread_time_ns() - start
             runtime.cost_ns += spent
             own += spent
         for topic, at in by_topic.items():
@@ -501,7 +503,7 @@ class Engine(HandoffSteps):
             if top > self.newest.get(topic, top - 1):
                 self.newest[topic] = top
         if runtimes:
-            share = (time.perf_counter_ns() - began - own) / len(runtimes)
+            share = (time.thread_time_ns() - began - own) / len(runtimes)
             for runtime in runtimes.values():
                 runtime.cost_ns += share
         return woke
@@ -550,9 +552,9 @@ class Engine(HandoffSteps):
             if slot is None or slot.runtime is not rt:
                 continue  # removed or redefined since
             if timed:
-                start = time.perf_counter_ns()
+                start = time.thread_time_ns()
                 reached = rt.evaluate()
-                rt.cost_ns += (time.perf_counter_ns() - start) * self.cost_every
+                rt.cost_ns += (time.thread_time_ns() - start) * self.cost_every
             else:
                 reached = rt.evaluate()
             for v in reached:
