@@ -14,7 +14,9 @@ queues hold), and once messages are lost its status on ``/diagnostics`` is WARN;
 then moves monitors instead.
 
 What goes wrong with the daemon or the container is a :class:`CpuBudgetError`, whose
-message says what failed and what to do; a budget that is not a number is a ValueError.
+message says what failed and what to do (the Docker SDK not installed too: it is the
+``planner`` extra's, imported by :class:`DockerCpuBudget` only); a budget that is not a
+number is a ValueError.
 """
 
 from __future__ import annotations
@@ -26,10 +28,11 @@ from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Any, Protocol
+from types import ModuleType
+from typing import TYPE_CHECKING, Any, Protocol
 
-import docker  # type: ignore[import-untyped, unused-ignore]  # (typed with types-docker)
-import docker.errors  # type: ignore[import-untyped, unused-ignore]
+if TYPE_CHECKING:  # (imported by DockerCpuBudget: the rest of the module needs no Docker SDK)
+    import docker  # type: ignore[import-untyped, unused-ignore]  # (typed with types-docker)
 
 FLOOR_CORES = 0.05  # the least budget set: the handler still answers its API, and stops
 PERIOD_US = 100_000  # the CFS period when the container has none of its own (the kernel's)
@@ -144,6 +147,19 @@ def cpu_use(stats: Mapping[str, Any]) -> CpuUse | None:
     )
 
 
+def docker_sdk() -> ModuleType:
+    """The Docker SDK (``docker``, with ``docker.errors``); a :class:`CpuBudgetError`
+    saying how to install it when it is not."""
+    try:
+        import docker  # type: ignore[import-untyped, unused-ignore]
+        import docker.errors  # type: ignore[import-untyped, unused-ignore]
+    except ImportError as exc:
+        raise CpuBudgetError(
+            f"the Docker SDK for Python is not installed ({exc}): pip install 'edgerv[planner]'"
+        ) from exc
+    return docker
+
+
 class DockerCpuBudget:
     """The CPU budget of the handler in Docker container ``container`` (its name or id),
     set as its CFS quota (``cpu_period``, ``cpu_quota``) through the Docker SDK;
@@ -163,10 +179,11 @@ class DockerCpuBudget:
             raise ValueError(f"the floor is a number of cores above 0, not {floor}")
         self.name = container
         self._daemon = os.environ.get("DOCKER_HOST") or DEFAULT_SOCKET
+        sdk = docker_sdk()
         self._own_client = client is None  # closed by close()
         if client is None:
             with self._answers("connect to it"):
-                client = docker.from_env()
+                client = sdk.from_env()
         else:  # a local socket's URL is http+docker://localhost (docker-py's), saying nothing
             url = client.api.base_url
             self._daemon = "the client's socket" if url.startswith("http+docker:") else url
@@ -223,10 +240,11 @@ class DockerCpuBudget:
     def use(self) -> CpuUse:
         """The container's CPU counters now; :func:`cores_between` of two readings is the
         mean number of cores it used between them."""
+        sdk = docker_sdk()
         with self._answers(f"read the CPU use of container '{self.name}'"):
             try:
                 stats = self._container.stats(stream=False, one_shot=True)
-            except docker.errors.InvalidVersion:  # a daemon older than API 1.41
+            except sdk.errors.InvalidVersion:  # a daemon older than API 1.41
                 stats = self._container.stats(stream=False)
         if not isinstance(stats, Mapping):
             raise CpuBudgetError(f"the Docker daemon at {self._daemon} sent no stats")
@@ -252,19 +270,20 @@ class DockerCpuBudget:
     @contextmanager
     def _answers(self, what: str) -> Iterator[None]:
         """The Docker SDK's errors as a :class:`CpuBudgetError` saying what to do."""
+        sdk = docker_sdk()
         try:
             yield
-        except docker.errors.NotFound as exc:
+        except sdk.errors.NotFound as exc:
             raise CpuBudgetError(
                 f"no container '{self.name}' on the Docker daemon at {self._daemon}: "
                 "`docker ps --all` lists them; give the name `docker run --name` gave the "
                 "handler's container, or its id"
             ) from exc
-        except docker.errors.APIError as exc:
+        except sdk.errors.APIError as exc:
             raise CpuBudgetError(
                 f"the Docker daemon at {self._daemon} refused to {what}: {exc.explanation or exc}"
             ) from exc
-        except (docker.errors.DockerException, OSError) as exc:  # requests' errors are OSErrors
+        except (sdk.errors.DockerException, OSError) as exc:  # requests' errors are OSErrors
             raise CpuBudgetError(
                 f"the Docker daemon at {self._daemon} does not answer ({exc}): start it "
                 "(`systemctl start docker`), or set DOCKER_HOST to where it listens; the "

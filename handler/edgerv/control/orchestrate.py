@@ -14,7 +14,11 @@ handler did not answer, so where its monitors run is not confirmed) is recorded
 with ``"ok": false`` and ``unsettled``; its monitors are settled at the start of
 each later round (a record with ``"settle": true``) and not moved again until
 that succeeds. A round that moves nothing says why (:func:`why_nothing_moves`), once
-each time the reason changes.
+each time the reason changes. Given a :class:`BudgetLever` (the container of one
+handler, the edge's), each round after its moves sets that handler's CPU budget by
+:func:`edgerv.core.planner.handler_budget` when it changes: a record with ``budget``
+and ``from`` (cores); a :class:`~edgerv.control.cpu_budget.CpuBudgetError` is a record
+with ``"ok": false``, once until it changes or a budget is set, and the rounds go on.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from edgerv.control.client import ApiError, HandlerClient
+from edgerv.control.cpu_budget import CpuBudget, CpuBudgetError
 from edgerv.control.migrate import NotMoved, Unsettled, migrate, settle
 from edgerv.control.placement import (
     DeadlineReading,
@@ -46,6 +51,7 @@ from edgerv.control.tls import ClientTls
 from edgerv.control.token import Token
 from edgerv.control.wire import LoadReport, placement_from_json
 from edgerv.core.documents import Placement
+from edgerv.core.planner import BudgetConfig, EdgeState, PlannerConfig, handler_budget
 
 log = logging.getLogger("edgerv.orchestrate")
 
@@ -519,6 +525,37 @@ def why_nothing_moves(
     )
 
 
+@dataclass
+class BudgetLever:
+    """The CPU budget of ``handler``'s container, which the orchestrator sets each round
+    within ``bounds`` (:func:`~edgerv.core.planner.handler_budget`)."""
+
+    budget: CpuBudget
+    handler: Target
+    bounds: BudgetConfig
+    container: str = ""  # its name, for the records
+    changed_at: float = -math.inf  # monotonic: when a round last changed it
+    failed: str = ""  # the last error reported (not said again until it changes)
+
+
+def budget_reading(h: HandlerReport, c: PolicyConfig) -> tuple[EdgeState | None, float]:
+    """``h``'s reading as :func:`~edgerv.core.planner.handler_budget` takes it (None: no
+    headroom or deadline reading yet), and the cores of its monitors counted in the
+    headroom (those whose cost is known)."""
+    d = h.deadline
+    verification = sum(m.cpu for m in h.monitors.values() if m.active and m.cpu is not None)
+    if h.headroom is None or d is None or d.budget <= 0:
+        return None, verification
+    state = EdgeState(
+        headroom=max(0.0, h.headroom),
+        deadline=d.budget,
+        p95=d.p95 if d.count >= c.deadline_min_count else None,
+        cloud_latency_ms=0.0,
+        handler_cpu=h.cpu,
+    )
+    return state, verification
+
+
 class Orchestrator:
     def __init__(
         self,
@@ -530,8 +567,10 @@ class Orchestrator:
         starts: bool = True,
         tls: ClientTls | None = None,
         on_idle: Callable[[Idle], None] | None = None,
+        lever: BudgetLever | None = None,
     ) -> None:
         self.config = config
+        self.lever = lever  # a handler's CPU budget, set each round (None: not ours)
         self.token = token
         self.tls = tls
         self.targets: list[Target] = []
@@ -663,7 +702,60 @@ class Orchestrator:
                 self.unsettled.update(dict.fromkeys(names, (where[source], where[destination])))
             record["ms"] = round((time.monotonic() - started) * 1000, 1)
             done.append(record)
+        done.extend(self._budget(reports, where, now))
         return done
+
+    def _budget(
+        self, reports: Sequence[HandlerReport], where: Mapping[str, Target], now: float
+    ) -> list[dict[str, Any]]:
+        """Set the lever's handler's CPU budget for this round's reading, if it changes:
+        its record (none when it stays, or when an error was reported already)."""
+        lever = self.lever
+        if lever is None:
+            return []
+        found = [r for r in reports if where.get(r.name) == lever.handler]
+        name = found[0].name if found else lever.handler.address
+        c = self.config
+        try:
+            current = lever.budget.cores()
+            state, verification = budget_reading(found[0], c) if found else (None, 0.0)
+            decided = handler_budget(
+                state,
+                current,
+                lever.bounds,
+                PlannerConfig(high=c.deadline_high, low=c.deadline_low, margin=c.planner_margin),
+                verification,
+                now - lever.changed_at,
+            )
+            if not decided.changed:
+                lever.failed = ""
+                return []
+            in_force = lever.budget.set_cores(decided.cores)
+        except CpuBudgetError as exc:
+            if str(exc) == lever.failed:
+                return []
+            lever.failed = str(exc)
+            return [
+                {
+                    "at": round(time.time(), 3),
+                    "handler": name,
+                    "container": lever.container,
+                    "ok": False,
+                    "error": str(exc),
+                }
+            ]
+        lever.changed_at, lever.failed = now, ""
+        return [
+            {
+                "at": round(time.time(), 3),
+                "budget": round(in_force, 4),
+                "from": round(decided.previous, 4),
+                "handler": name,
+                "container": lever.container,
+                "reason": decided.reason,
+                "ok": True,
+            }
+        ]
 
     def _said(self, idle: Idle) -> None:
         """Say why this round moves nothing, unless the last round said it already."""

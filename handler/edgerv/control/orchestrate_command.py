@@ -13,10 +13,11 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import fields
 
 from edgerv.control.client import address_problem
+from edgerv.control.cpu_budget import FLOOR_CORES, CpuBudget, CpuBudgetError, DockerCpuBudget
 from edgerv.control.migrate_command import (
     HelpFormatter,
     add_client_arguments,
@@ -25,9 +26,10 @@ from edgerv.control.migrate_command import (
     seconds_above_zero,
     seconds_from_zero,
 )
-from edgerv.control.orchestrate import Idle, Orchestrator, Target, build_reports
+from edgerv.control.orchestrate import BudgetLever, Idle, Orchestrator, Target, build_reports
 from edgerv.control.placement import PolicyConfig, PolicyConfigError, tier_latencies
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
+from edgerv.core.planner import BudgetConfig
 
 
 def parse_handlers(text: str) -> list[Target]:
@@ -78,6 +80,10 @@ monitor is started that round (it may run on the silent one). A move that ends
 unsettled (a handler did not answer, so where its monitors run is not
 confirmed) is printed with "ok": false and "unsettled"; its monitors are settled
 at the start of each later round, and not moved again until that succeeds.
+With --budget-container, each round also sets the CPU budget (CFS quota) of
+the edge handler's Docker container: lowered when its deadline is at risk,
+raised while it is calm and the robot's tasks leave headroom, each change one
+JSON line ("budget", "from", in cores); see docs/protocol.md, "What it plans".
 Authenticates with the token in EDGERV_TOKEN, as the handlers do.
 """
 
@@ -181,6 +187,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the share of the edge's headroom a plan leaves free, up and home",
     )
     p.add_argument(
+        "--budget-container",
+        metavar="CONTAINER[=HOST:PORT]",
+        help="set the CPU budget of this Docker container, the edge handler's, each round "
+        "(DOCKER_HOST's daemon, else the local one; needs pip install 'edgerv[planner]'); "
+        "=HOST:PORT names the handler of --handlers it runs, needed when the lowest tier "
+        "has several",
+    )
+    p.add_argument(
+        "--budget-floor",
+        type=positive_number,
+        metavar="CORES",
+        help=f"the least budget set (default {FLOOR_CORES:g}): the handler keeps answering",
+    )
+    p.add_argument(
+        "--budget-ceiling",
+        type=positive_number,
+        metavar="CORES",
+        help="the most budget set (default: the machine's cores)",
+    )
+    p.add_argument(
+        "--budget-hysteresis",
+        type=finite("a fraction from 0 below 1", zero=True),
+        metavar="FRACTION",
+        help="a new budget within this share of the budget in force is not set (default 0.1)",
+    )
+    p.add_argument(
         "--timeout",
         type=seconds_above_zero,
         default=30.0,
@@ -246,11 +278,89 @@ def config_from(args: argparse.Namespace, targets: Sequence[Target]) -> PolicyCo
         raise InputError([Diagnostic(Location("--tiers"), str(exc))]) from None
 
 
+def parse_budget_container(text: str, targets: Sequence[Target], lowest: str) -> tuple[str, Target]:
+    """``CONTAINER[=HOST:PORT]``: the container and the handler of ``targets`` it runs
+    (without HOST:PORT: the one handler of the ``lowest`` tier)."""
+
+    def wrong(problem: str) -> InputError:
+        hint = "e.g. --budget-container edgerv-edge, or edgerv-edge=10.0.0.2:8080"
+        return InputError([Diagnostic(Location("--budget-container"), problem, hint=hint)])
+
+    container, eq, address = (part.strip() for part in text.partition("="))
+    if not container or (eq and not address):
+        raise wrong(f"'{text}' is not CONTAINER or CONTAINER=HOST:PORT")
+    if eq:
+        named = [t for t in targets if t.address == address]
+        if not named:
+            listed = ", ".join(t.address for t in targets)
+            raise wrong(f"{address} is not one of --handlers ({listed})")
+        return container, named[0]
+    edge = [t for t in targets if t.tier == lowest]
+    if len(edge) != 1:
+        listed = ", ".join(t.address for t in edge) or "none"
+        raise wrong(
+            f"the lowest tier, {lowest}, has {len(edge)} handlers ({listed}): name the one "
+            f"in container {container}, {container}=HOST:PORT"
+        )
+    return container, edge[0]
+
+
+def docker_budget(container: str, floor: float) -> CpuBudget:
+    """The budget of a Docker container of the environment's daemon (``DOCKER_HOST``)."""
+    return DockerCpuBudget(container, floor=floor)
+
+
+def budget_lever(
+    args: argparse.Namespace,
+    targets: Sequence[Target],
+    config: PolicyConfig,
+    budget_of: Callable[[str, float], CpuBudget] | None = None,
+) -> BudgetLever | None:
+    """The lever of ``--budget-container`` (None without it); ``budget_of(container,
+    floor)`` the container's budget, by default a
+    :class:`~edgerv.control.cpu_budget.DockerCpuBudget`. An :class:`InputError` for a flag
+    that is wrong, a container not found, or a daemon that does not answer."""
+    given = [
+        flag
+        for flag in ("--budget-floor", "--budget-ceiling", "--budget-hysteresis")
+        if getattr(args, flag[2:].replace("-", "_")) is not None
+    ]
+    if args.budget_container is None:
+        if given:
+            raise InputError(
+                [Diagnostic(Location(given[0]), "needs --budget-container: whose budget?")]
+            )
+        return None
+    container, target = parse_budget_container(args.budget_container, targets, config.tiers[0])
+    floor = FLOOR_CORES if args.budget_floor is None else args.budget_floor
+    try:
+        budget = (budget_of or docker_budget)(container, floor)
+    except CpuBudgetError as exc:
+        raise InputError([Diagnostic(Location("--budget-container"), str(exc))]) from None
+    except ValueError as exc:  # the floor above the machine's cores
+        raise InputError([Diagnostic(Location("--budget-floor"), str(exc))]) from None
+    ceiling = budget.ceiling if args.budget_ceiling is None else args.budget_ceiling
+    try:
+        bounds = BudgetConfig(
+            floor=floor,
+            ceiling=min(ceiling, budget.ceiling),
+            hysteresis=0.1 if args.budget_hysteresis is None else args.budget_hysteresis,
+            wait=config.deadline_wait,
+        )
+    except ValueError as exc:
+        flag = "--budget-ceiling" if args.budget_ceiling is not None else "--budget-floor"
+        raise InputError(
+            [Diagnostic(Location(flag), f"{exc} (the machine has {budget.ceiling:g} cores)")]
+        ) from None
+    return BudgetLever(budget, target, bounds, container)
+
+
 def run(args: argparse.Namespace) -> int:
     try:
         targets = parse_handlers(args.handlers)
         config = config_from(args, targets)
         tls = client_tls(args)
+        lever = budget_lever(args, targets, config)
     except InputError as exc:
         print(exc, file=sys.stderr)
         return 2
@@ -259,7 +369,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"edgerv orchestrate: nothing to move: {idle.text}", file=sys.stderr, flush=True)
 
     orchestrator = Orchestrator(
-        targets, config, os.environ.get("EDGERV_TOKEN"), args.timeout, tls=tls, on_idle=say
+        targets,
+        config,
+        os.environ.get("EDGERV_TOKEN"),
+        args.timeout,
+        tls=tls,
+        on_idle=say,
+        lever=lever,
     )
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):

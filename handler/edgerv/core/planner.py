@@ -52,6 +52,12 @@ optimal in the number of monitors; only the events/s may be worse. ``Plan.method
 which made the plan. SciPy is imported at the first solve (0.4 s); where it is not
 installed (the ``planner`` extra: a handler's image has none) the greedy rule plans, and
 the plan's reason says why.
+
+The second lever, :func:`handler_budget`: the edge handler's CPU budget (a cgroup quota,
+cores) by the same model, lowered to the calm mark's ``1 - (1 - h) * ratio / low`` when
+the deadline is at risk, raised to what the real-time tasks leave less the margin when
+it is calm, within :class:`BudgetConfig`'s floor and ceiling and changed only past its
+hysteresis and wait.
 """
 
 from __future__ import annotations
@@ -476,3 +482,116 @@ def _solve(
     if len(chosen) != k or (cost < bound if up else cost > bound):
         return None, seconds, "the solver's answer failed the exact check"
     return chosen, seconds, ""
+
+
+@dataclass(frozen=True)
+class BudgetConfig:
+    """The edge handler's CPU budget's bounds (cores) and its hysteresis."""
+
+    floor: float  # the least budget: the handler still answers and keeps its state
+    ceiling: float  # the most: the machine's cores, or less
+    hysteresis: float = 0.1  # a change smaller than this share of the budget is not made
+    wait: float = 2.0  # seconds after a change before the next (the p95's window refills)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.ceiling) and 0 < self.floor <= self.ceiling):
+            raise ValueError(
+                f"need 0 < floor <= ceiling (floor {self.floor}, ceiling {self.ceiling})"
+            )
+        if not 0 <= self.hysteresis < 1:
+            raise ValueError("need 0 <= hysteresis < 1")
+        if not _finite_at_least(self.wait, 0.0):
+            raise ValueError("need wait >= 0 seconds")
+
+
+@dataclass(frozen=True)
+class Budget:
+    """The budget to be in force (cores) and why; ``previous`` the budget read before."""
+
+    cores: float
+    previous: float
+    reason: str
+
+    @property
+    def changed(self) -> bool:
+        return self.cores != self.previous
+
+
+def handler_budget(
+    edge: EdgeState | None,
+    current: float,
+    bounds: BudgetConfig,
+    config: PlannerConfig | None = None,
+    verification: float = 0.0,
+    since_change: float = math.inf,
+) -> Budget:
+    """The edge handler's CPU budget (a cgroup quota, cores) for this reading; ``current``
+    the budget in force, ``verification`` the cores of the monitors counted in
+    ``edge.headroom``, ``since_change`` seconds since the budget last changed. Always
+    within [floor, ceiling] (a budget outside is brought in at once); else, by the
+    module's processor-sharing model with ``h = handler_cpu``:
+
+    * **At risk** (``ratio >= high``): ``1 - (1 - h) * ratio / low``, the handler's CPU at
+      which the p95 is at the calm mark; never raised.
+    * **Calm** (``ratio <= low``): what the real-time tasks leave the handler less the
+      margin, ``(headroom + h - verification) * (1 - margin)`` (the headroom counts the
+      monitors' cost; the rest of the handler's CPU, its ingestion and API, is its own
+      too), at most what keeps the p95 under the calm mark, ``h + deadline_room``, so that
+      a raised budget does not put the deadline at risk; never below ``h``: a calm
+      deadline is not helped by throttling what the handler does now.
+    * **Unchanged** in the band, without a reading (no edge state, ``p95`` or
+      ``handler_cpu``), within ``wait`` of the last change (the p95's window must
+      refill first, or each round would lower it again for the same makespans), or when
+      the new budget differs from ``current`` by at most ``hysteresis`` of it.
+    """
+    c = config or PlannerConfig()
+    lo, hi = bounds.floor, bounds.ceiling
+    given = float(current)
+    held = min(max(given, lo), hi)
+    if held != given:
+        return Budget(held, given, f"the budget {given:.3g} cores is outside [{lo:g}, {hi:g}]")
+    h = None if edge is None else edge.handler_cpu
+    ratio = None if edge is None else edge.ratio
+    if edge is None or ratio is None or h is None:
+        return Budget(held, held, "no deadline or handler CPU reading: the budget stays")
+    deadline = f"p95 {edge.p95 or 0.0:.4g} s of a {edge.deadline:.4g} s deadline ({ratio:.0%})"
+    if since_change < bounds.wait:
+        return Budget(
+            held,
+            held,
+            f"changed {since_change:.1f} s ago: it stays {bounds.wait:g} s, until the "
+            "deadline's window holds makespans measured since",
+        )
+    if ratio >= c.high:
+        calm_mark = 1.0 - (1.0 - h) * ratio / c.low
+        target = min(held, calm_mark)
+        why = (
+            f"the deadline is at risk ({deadline}, high mark {c.high:.0%}): the handler's "
+            f"CPU {h:.3g} cores at {max(0.0, calm_mark):.3g} brings the p95 to the calm mark "
+            f"{c.low:.0%}" + (f", floor {lo:g}" if calm_mark < lo else "")
+        )
+    elif ratio <= c.low:
+        left = edge.headroom + max(0.0, h - verification)
+        share = left * (1 - c.margin)
+        keeps = h + (deadline_room(edge, c, ratio) or 0) / MICRO
+        target = min(share, keeps)
+        why = (
+            f"the deadline is met ({deadline}, low mark {c.low:.0%}): the real-time tasks "
+            f"leave the handler {left:.3g} cores, {share:.3g} less the {c.margin:.0%} margin; "
+            f"{keeps:.3g} keep the p95 under the calm mark; it uses {h:.3g}"
+        )
+        target = max(h, target)
+    else:
+        return Budget(
+            held,
+            held,
+            f"hysteresis: {deadline} is between the marks {c.low:.0%} and {c.high:.0%}",
+        )
+    target = min(hi, max(lo, target))
+    if abs(target - held) <= bounds.hysteresis * held:
+        return Budget(
+            held,
+            held,
+            f"{why}: {target:.3g} cores is within {bounds.hysteresis:.0%} of {held:.3g}, it stays",
+        )
+    return Budget(target, held, f"{why}: {held:.3g} -> {target:.3g} cores")
