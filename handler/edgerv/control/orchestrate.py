@@ -42,6 +42,7 @@ from edgerv.control.placement import (
     PolicyMemory,
     deadline_at_risk,
     deadline_ratio,
+    edge_state,
     is_loaded,
     is_pressured,
     plan,
@@ -542,17 +543,8 @@ def budget_reading(h: HandlerReport, c: PolicyConfig) -> tuple[EdgeState | None,
     """``h``'s reading as :func:`~edgerv.core.planner.handler_budget` takes it (None: no
     headroom or deadline reading yet), and the cores of its monitors counted in the
     headroom (those whose cost is known)."""
-    d = h.deadline
     verification = sum(m.cpu for m in h.monitors.values() if m.active and m.cpu is not None)
-    if h.headroom is None or d is None or d.budget <= 0:
-        return None, verification
-    state = EdgeState(
-        headroom=max(0.0, h.headroom),
-        deadline=d.budget,
-        p95=d.p95 if d.count >= c.deadline_min_count else None,
-        cloud_latency_ms=0.0,
-        handler_cpu=h.cpu,
-    )
+    state = edge_state(h, c, None)
     return state, verification
 
 

@@ -270,9 +270,10 @@ def _planner_config(c: PolicyConfig) -> PlannerConfig:
     )
 
 
-def _edge_state(h: HandlerReport, c: PolicyConfig, above: str) -> EdgeState | None:
+def edge_state(h: HandlerReport, c: PolicyConfig, above: str | None) -> EdgeState | None:
     """``h``'s reading as the planner takes it (``above``: the tier it would move
-    monitors to), or None when it has no headroom or deadline reading."""
+    monitors to; None: none, its latency 0), or None when it has no headroom or deadline
+    reading."""
     d = h.deadline
     if h.headroom is None or d is None or d.budget <= 0:
         return None
@@ -280,7 +281,7 @@ def _edge_state(h: HandlerReport, c: PolicyConfig, above: str) -> EdgeState | No
         headroom=max(0.0, h.headroom),
         deadline=d.budget,
         p95=d.p95 if d.count >= c.deadline_min_count else None,
-        cloud_latency_ms=c.tier_latency_ms.get(above, 0.0),
+        cloud_latency_ms=c.tier_latency_ms.get(above, 0.0) if above else 0.0,
         handler_cpu=h.cpu,
     )
 
@@ -361,7 +362,7 @@ def plan(
     def plan_up(h: HandlerReport, up: str) -> tuple[tuple[str, ...], str] | None:
         """The planner's monitors to move up from ``h`` for its deadline, or None when
         it cannot plan (no headroom or reading, a cost not known yet)."""
-        state = _edge_state(h, c, up)
+        state = edge_state(h, c, up)
         here = _costs_here(h, held, memory)
         if state is None or state.p95 is None or here is None:
             return None
@@ -432,7 +433,7 @@ def plan(
         """The planner's monitors of ``candidates`` (on ``h``) to bring home to the calm
         ``b``, or None when it cannot plan (no headroom or reading there, a cost there not
         known yet)."""
-        state = _edge_state(b, c, h.tier)
+        state = edge_state(b, c, h.tier)
         here = _costs_here(b, held, memory)
         if state is None or state.p95 is None or here is None:
             return None
