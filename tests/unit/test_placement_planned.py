@@ -18,6 +18,7 @@ from edgerv.control.placement import (
     plan,
 )
 from edgerv.control.wire import LoadReport
+from edgerv.core.deadline import DeadlineLoad
 from edgerv.core.documents import Placement
 from edgerv.core.planner import EdgeState, MonitorCost, PlannerConfig, plan_moves
 
@@ -113,14 +114,28 @@ def test_inside_the_band_nothing_moves_either_way() -> None:
     assert plan([band, cloud(a=costed(0.05))], {}, config, memory, now=5) == []
 
 
-def load(t: float, cpu: float, monitors: dict[str, float], busy: float, total: float) -> LoadReport:
+def load(
+    t: float,
+    cpu: float,
+    monitors: dict[str, float],
+    busy: float,
+    total: float,
+    outputs: int | None = None,
+) -> LoadReport:
+    deadline: DeadlineLoad | None = None
+    if outputs is not None:  # the deadline topic's messages so far, and a window's reading
+        deadline = {
+            "topic": "/cmd_vel", "budgetMs": 125.0, "windowSeconds": 2.0, "count": 16,
+            "misses": 0, "p50Ms": 100.0, "p95Ms": 110.0, "maxMs": 112.0, "lastMs": 100.0,
+            "missesTotal": 0, "messagesTotal": outputs,
+        }  # fmt: skip
     return {
         "handler": "edge-1",
         "monotonic": t,
         "cpuSeconds": cpu,
         "host": {"cores": 2, "busySeconds": busy, "totalSeconds": total},
         "ingestLag": 0.0,
-        "deadline": None,
+        "deadline": deadline,
         "monitors": {
             m: {
                 "active": True,
@@ -151,3 +166,18 @@ def test_the_orchestrator_reads_each_monitors_cost_and_the_headroom_from_two_rep
     assert report.monitors["b"].cpu is None
     assert report.headroom is not None and math.isclose(report.headroom, 1.5 + 0.1)
     assert math.isclose(report.cpu, 0.3)
+
+
+def test_the_real_time_tasks_work_per_output_is_what_its_cpus_did_besides_the_handler() -> None:
+    """With --deadline: the CPUs' busy cores less the handler's, per message of the
+    deadline topic (its outputs), over the same two reports."""
+    target, previous = Target("edge", "e:1"), dict[Target, Counters]()
+    build_reports({target: load(10.0, 5.0, {"a": 1.0}, 100, 400, outputs=80)}, previous)
+    # 2 s: busy 3.0 of 4.0 CPU seconds (1.5 cores), the handler 0.3 cores; 16 outputs: 8/s
+    second, _, _ = build_reports(
+        {target: load(12.0, 5.6, {"a": 1.2}, 103, 404, outputs=96)}, previous
+    )
+    assert second[0].task_work is not None
+    assert math.isclose(second[0].task_work, (1.5 - 0.3) / 8)
+    none, _, _ = build_reports({target: load(14.0, 6.0, {"a": 1.4}, 104, 408)}, previous)
+    assert none[0].task_work is None  # no deadline measured

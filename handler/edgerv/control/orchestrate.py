@@ -87,6 +87,7 @@ class Counters:
     events: Mapping[str, int]
     monitor_cpu: Mapping[str, float] = field(default_factory=dict)  # cpuSeconds per monitor
     host: tuple[float, float] | None = None  # its CPUs' busy and total seconds
+    outputs: int | None = None  # the deadline topic's messages so far (--deadline)
 
 
 def build_reports(
@@ -101,7 +102,9 @@ def build_reports(
     A handler's ``deadline`` (``--deadline``) is a reading already: it counts at once.
     A monitor's ``cpu`` (cores) is known from its second poll on where it runs (None
     before, and after its counter restarted: it moved or was redefined); the handler's
-    ``headroom`` (cores its CPUs idle, plus what its monitors take) from its second.
+    ``headroom`` (cores its CPUs idle, plus what its monitors take) from its second, and
+    with ``--deadline`` the real-time task's ``task_work`` (CPU seconds per output: what
+    its CPUs spent besides the handler, per message of the deadline topic).
     """
     reports: list[HandlerReport] = []
     placements: dict[str, Placement] = {}
@@ -126,13 +129,20 @@ def build_reports(
             costs[m] = (seconds - before) / span if ok and before is not None else None
         host = load["host"]
         busy_total = None if host is None else (host["busySeconds"], host["totalSeconds"])
-        headroom = None
+        headroom = work = None
+        reading = load["deadline"]
+        outputs = None if reading is None else reading["messagesTotal"]
         if host is not None and busy_total and last and last.host:
             (busy, total), (busy0, total0) = busy_total, last.host
-            if total > total0:  # its CPUs' idle share since the last poll, in cores
-                idle = host["cores"] * min(1.0, max(0.0, 1.0 - (busy - busy0) / (total - total0)))
-                headroom = idle + sum(v for v in costs.values() if v is not None)
-        previous[target] = Counters(now, cpu_s, events, spent, busy_total)
+            if total > total0:  # its CPUs' busy share since the last poll, in cores
+                used = host["cores"] * min(1.0, max(0.0, (busy - busy0) / (total - total0)))
+                headroom = host["cores"] - used + sum(v for v in costs.values() if v is not None)
+                # the real-time task's CPU per output: what its CPUs did besides the
+                # handler, per message of the deadline topic
+                made = None if outputs is None or last.outputs is None else outputs - last.outputs
+                if made and made > 0 and span > 0:
+                    work = max(0.0, used - max(0.0, cpu)) / (made / span)
+        previous[target] = Counters(now, cpu_s, events, spent, busy_total, outputs)
         reports.append(
             HandlerReport(
                 name=name,
@@ -151,6 +161,7 @@ def build_reports(
                     for m, d in monitors.items()
                 },
                 headroom=headroom,
+                task_work=work,
             )
         )
         where[name] = target

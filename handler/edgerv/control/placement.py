@@ -79,6 +79,8 @@ class HandlerReport:
     # cores its CPUs leave for verification: what they idle, and what its monitors take
     # (None: not known yet, or its machine does not say)
     headroom: float | None = None
+    # the real-time task's CPU seconds per output on its CPUs (None: not known)
+    task_work: float | None = None
 
     def active(self) -> list[str]:
         return [m for m, load in self.monitors.items() if load.active]
@@ -283,6 +285,7 @@ def edge_state(h: HandlerReport, c: PolicyConfig, above: str | None) -> EdgeStat
         p95=d.p95 if d.count >= c.deadline_min_count else None,
         cloud_latency_ms=c.tier_latency_ms.get(above, 0.0) if above else 0.0,
         handler_cpu=h.cpu,
+        task_work=h.task_work,
     )
 
 

@@ -126,10 +126,15 @@ class EdgeState:
     cloud_latency_ms: float  # the cloud tier's latency from the robot (the link's RTT)
     # the handler's whole CPU on the edge, cores (its monitors and the rest); None: unknown
     handler_cpu: float | None = None
+    # the real-time task's CPU per output (seconds of CPU a message of its deadline topic
+    # took): what its CPUs spent besides the handler, per output; None: unknown
+    task_work: float | None = None
 
     def __post_init__(self) -> None:
         if self.handler_cpu is not None and not _finite_at_least(self.handler_cpu, 0.0):
             raise ValueError(f"handler CPU {self.handler_cpu} is not >= 0 cores")
+        if self.task_work is not None and not _finite_at_least(self.task_work, 0.0):
+            raise ValueError(f"the task's work {self.task_work} is not >= 0 seconds")
         if not _finite_at_least(self.headroom, 0.0):
             raise ValueError(f"headroom {self.headroom} is not >= 0 cores")
         if not (math.isfinite(self.deadline) and self.deadline > 0):
@@ -227,21 +232,40 @@ def plan_moves(
     return _home(ordered, c, verification, allowed, deadline, deadline_room(edge, c, ratio))
 
 
-def deadline_shed(edge: EdgeState, c: PlannerConfig, verification: int, ratio: float) -> int:
-    """What the deadline asks to free (microcores), by the module's model."""
-    h = edge.handler_cpu
-    if h is None:
-        return math.ceil(verification * (1 - c.low / ratio))
-    return math.ceil(max(0.0, 1.0 - h) * (ratio / c.low - 1.0) * MICRO)
-
-
-def deadline_room(edge: EdgeState, c: PlannerConfig, ratio: float) -> int | None:
-    """What may come home (microcores) and keep the p95 under the calm mark, by the
-    module's model, less the margin; None without ``handler_cpu``."""
+def calm_cpu(edge: EdgeState, c: PlannerConfig, ratio: float) -> float | None:
+    """The handler's CPU (cores) at which the real-time task's p95 sits at the calm mark
+    ``low``, the two sharing a core (processor sharing: the task's output takes its work
+    ``W`` over the ``1 - h`` of the core the handler leaves it). Given the task's work
+    (``task_work``, measured): ``1 - W / (low * deadline)``. Else from the p95 itself,
+    ``W = p95 * (1 - h)``: ``1 - (1 - h) * ratio / low``, which over-asks when the loop is
+    far past its deadline (its outputs then queue behind late ones: the p95 grows more
+    than sharing alone would make it). None without ``handler_cpu``. May be below 0: no
+    share of the core keeps the deadline."""
     h = edge.handler_cpu
     if h is None:
         return None
-    return math.floor(max(0.0, 1.0 - h) * max(0.0, 1.0 - ratio / c.low) * (1 - c.margin) * MICRO)
+    if edge.task_work is not None:
+        return 1.0 - edge.task_work / (c.low * edge.deadline)
+    return 1.0 - (1.0 - h) * ratio / c.low
+
+
+def deadline_shed(edge: EdgeState, c: PlannerConfig, verification: int, ratio: float) -> int:
+    """What the deadline asks to free (microcores): the handler's CPU above
+    :func:`calm_cpu`; without ``handler_cpu``, the share of verification by which the p95
+    is over the calm mark."""
+    h, calm = edge.handler_cpu, calm_cpu(edge, c, ratio)
+    if h is None or calm is None:
+        return math.ceil(verification * (1 - c.low / ratio))
+    return math.ceil(max(0.0, h - calm) * MICRO)
+
+
+def deadline_room(edge: EdgeState, c: PlannerConfig, ratio: float) -> int | None:
+    """What may come home (microcores) and keep the p95 under the calm mark: the handler's
+    CPU below :func:`calm_cpu`, less the margin; None without ``handler_cpu``."""
+    h, calm = edge.handler_cpu, calm_cpu(edge, c, ratio)
+    if h is None or calm is None:
+        return None
+    return math.floor(max(0.0, calm - h) * (1 - c.margin) * MICRO)
 
 
 def _up(
@@ -286,6 +310,8 @@ def _up(
         f"verification takes {_cores(verification)} on the edge, the headroom less its "
         f"{c.margin:.0%} margin allows {_cores(allowed)}: {_cores(need)} to free"
     )
+    if need <= 0:  # (the task's measured work: the handler's CPU is not what makes it late)
+        return Plan((), (), "none", f"{at_risk}, but by the real-time task's work {sizing}", 0)
     if not items:
         return Plan((), (), "none", f"{at_risk}: {sizing}, but no monitor may move ({holds})", need)
     movable = sum(i.cost for i in items)
@@ -563,7 +589,8 @@ def handler_budget(
             "deadline's window holds makespans measured since",
         )
     if ratio >= c.high:
-        calm_mark = 1.0 - (1.0 - h) * ratio / c.low
+        calm_mark = calm_cpu(edge, c, ratio)
+        assert calm_mark is not None  # (h is known)
         target = min(held, calm_mark)
         why = (
             f"the deadline is at risk ({deadline}, high mark {c.high:.0%}): the handler's "
