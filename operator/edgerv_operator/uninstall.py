@@ -25,6 +25,7 @@ import sys
 import time
 from typing import Any, cast
 
+import urllib3
 from kubernetes import client, config
 from kubernetes.client.exceptions import ApiException
 
@@ -96,21 +97,44 @@ def release_monitors(custom: client.CustomObjectsApi, namespaces: list[str]) -> 
     return released
 
 
+LEFT = "the Monitors keep the operator's finalizer until this runs again (helm uninstall)"
+
+
 def main() -> int:
+    """0 done; 2 no settings or no cluster to reach; 70 the cluster answered otherwise
+    than it must (one line each, never a traceback: a Helm hook's log is all one reads)."""
     try:
         settings = UninstallConfig.from_env()
     except ConfigError as exc:
         print(f"edgerv uninstall: {exc}", file=sys.stderr)
         return 2
-    if os.path.exists(SERVICE_ACCOUNT_TOKEN):
-        config.load_incluster_config()
-    else:
-        config.load_kube_config()
-    if settings.deployment:
-        stop_operator(
-            client.AppsV1Api(), client.CoreV1Api(), settings.namespace, settings.deployment
+    try:
+        if os.path.exists(SERVICE_ACCOUNT_TOKEN):
+            config.load_incluster_config()
+        else:
+            config.load_kube_config()
+    except (config.ConfigException, OSError) as exc:
+        print(
+            f"edgerv uninstall: no cluster to reach ({exc}): in a pod it reads its service "
+            "account, elsewhere a kubeconfig (KUBECONFIG, or ~/.kube/config)",
+            file=sys.stderr,
         )
-    release_monitors(client.CustomObjectsApi(), list(settings.watch_namespaces))
+        return 2
+    try:
+        if settings.deployment:
+            stop_operator(
+                client.AppsV1Api(), client.CoreV1Api(), settings.namespace, settings.deployment
+            )
+        release_monitors(client.CustomObjectsApi(), list(settings.watch_namespaces))
+    except ApiException as exc:
+        print(
+            f"edgerv uninstall: the API server answered {exc.status} {exc.reason}: {LEFT}",
+            file=sys.stderr,
+        )
+        return 70
+    except (TimeoutError, OSError, urllib3.exceptions.HTTPError) as exc:
+        print(f"edgerv uninstall: {exc}: {LEFT}", file=sys.stderr)
+        return 70
     return 0
 
 
