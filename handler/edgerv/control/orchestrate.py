@@ -690,8 +690,6 @@ class Orchestrator:
             started = time.monotonic()
             try:
                 moved = migrate(src, dst, names, self.timeout, self.grace)
-                if reason == "deadline":  # its window refills from the end of the handoff
-                    self.memory.deadline_shed[source] = time.monotonic()
                 record.update(ok=True, bytes=moved.snapshot_bytes, events=moved.letters)
                 record.update({"already": moved.already} if moved.already else {})
                 record.update({"note": moved.note} if moved.note else {})
