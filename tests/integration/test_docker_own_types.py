@@ -148,12 +148,7 @@ def test_the_documented_image_of_ones_own_types_gives_the_verdicts_of_edgerv_che
     work, etc, data = dockerimage.readme_setup(tmp_path, domain, MONITORS)
 
     port, name = free_port(), f"edgerv-test-types-{os.getpid()}"
-    run = dockerimage.with_values(
-        dockerimage.readme_recipe("docker-run"),
-        {"ETC": str(etc), "DATA": str(data), "IMAGE": IMAGE, "NAME": name,
-         "LISTEN": f"127.0.0.1:{port}"},
-    )  # fmt: skip
-    dockerimage.docker("rm", "--force", name, check=False)
+    run = dockerimage.readme_run(etc, data, IMAGE, name, f"127.0.0.1:{port}")
     recorded_at = tmp_path / "recorded.jsonl"
     try:
         done = subprocess.run(["bash", "-euc", run], capture_output=True, text=True, timeout=120)

@@ -90,12 +90,7 @@ def test_the_documented_docker_run_gives_the_verdicts_of_edgerv_check(
     assert oct(os.stat(etc / "tls.key").st_mode & 0o777) == "0o640"
 
     port, name = free_port(), f"edgerv-test-{os.getpid()}"
-    run = dockerimage.with_values(
-        dockerimage.readme_recipe("docker-run"),
-        {"ETC": str(etc), "DATA": str(data), "IMAGE": image, "NAME": name,
-         "LISTEN": f"0.0.0.0:{port}"},
-    )  # fmt: skip
-    dockerimage.docker("rm", "--force", name, check=False)
+    run = dockerimage.readme_run(etc, data, image, name, f"0.0.0.0:{port}")
     container = Container(name)
     started = time.monotonic()
     try:

@@ -140,12 +140,7 @@ def handler_container(
     ``docker-setup`` and ``docker-run`` blocks (no CPU limit), ready; removed at the end."""
     _, etc, data = dockerimage.readme_setup(tmp, domain, monitors)
     port, name = free_port(), f"edgerv-budget-{os.getpid()}"
-    run = dockerimage.with_values(
-        dockerimage.readme_recipe("docker-run"),
-        {"ETC": str(etc), "DATA": str(data), "IMAGE": image, "NAME": name,
-         "LISTEN": f"0.0.0.0:{port}"},
-    )  # fmt: skip
-    dockerimage.docker("rm", "--force", name, check=False)
+    run = dockerimage.readme_run(etc, data, image, name, f"0.0.0.0:{port}")
     container = HandlerContainer(name, port, (etc / "token").read_text().strip(), shared_pki().ca)
     try:
         done = subprocess.run(["bash", "-euc", run], capture_output=True, text=True, timeout=120)

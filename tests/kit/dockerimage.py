@@ -198,6 +198,15 @@ def with_values(recipe: str, values: dict[str, str]) -> str:
     raise AssertionError(f"no line of NAME=value assignments in the recipe:\n{recipe}")
 
 
+def readme_run(etc: Path, data: Path, image: str, name: str, listen: str) -> str:
+    """images/README.md's ``docker-run`` block with these values (ETC and DATA as
+    :func:`readme_setup` gives them, the container's NAME, its API's LISTEN address), after
+    a container of that name left by an earlier run is removed."""
+    docker("rm", "--force", name, check=False)
+    values = {"ETC": str(etc), "DATA": str(data), "IMAGE": image, "NAME": name, "LISTEN": listen}
+    return with_values(readme_recipe("docker-run"), values)
+
+
 def readme_setup(tmp: Path, domain: int, monitors: str) -> tuple[Path, Path, Path]:
     """What a reader of images/README.md has at hand, then its ``docker-setup`` block run:
     a work directory with handler.env (packaging/handler.env, the test's domain set), the
