@@ -137,6 +137,7 @@ def handler_image() -> str:
             "(interfaces/build.sh) leaves the one the handler's image needs there"
         )
     shutil.copy(built[0], wheels)
+    cluster.prune_stale_images()
     build = subprocess.run(
         ["docker", "build", "--quiet", "--network", "host", "--build-arg",
          f"BASE={cluster.BASE_IMAGE}", "-t", HANDLER_IMAGE, "-f",
