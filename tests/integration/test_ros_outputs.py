@@ -203,9 +203,7 @@ def test_a_topic_without_publisher_is_warn_then_the_silent_monitor_goes_stale(
         assert values(warn[1])["events"] == "0"
         stale = wait_for(lambda: heard.first(name, STALE), timeout=15)
         assert stale is not None, heard.statuses(name)
-        assert stale[1].message.startswith("no event for ")
-        assert stale[1].message.endswith(" s; no publisher on /nobody")
-        assert int(stale[1].message.split()[3]) >= 4
+        assert stale[1].message == "no event for over 4 s; no publisher on /nobody"
         # nothing in between: it was WARN, then STALE (never OK: the topic stayed silent)
         levels = [s.level for _, s in heard.statuses(name)]
         assert OK not in levels[levels.index(WARN) :]

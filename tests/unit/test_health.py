@@ -169,11 +169,13 @@ def test_a_violation_is_error_for_the_hold_then_ok_again() -> None:
     assert violation is not None and violation.step == 2
     error = rig.monitor()
     assert error.level == Level.ERROR
-    assert error.message == f"violated at step 2 (stamp {stamp_text(violation.stamp)}), 0 s ago"
+    assert error.message == (
+        f"violated at step 2 (stamp {stamp_text(violation.stamp)}), within the last 10 s"
+    )
     assert values(error)["state"] == "pending"  # one step only: the hold makes it seen
     rig.later(9.9)
     rig.send(1.0)
-    assert rig.monitor().message.endswith("10 s ago")  # (9.9, rounded)
+    assert rig.monitor().message == error.message  # (no age that changes by itself)
     rig.later(0.1)  # 10 s since it was reached
     ok = rig.monitor()
     assert ok.level == Level.OK
@@ -202,8 +204,10 @@ def test_the_hold_counts_from_when_the_handler_reached_it_not_from_the_next_read
     rig.check()
     rig.send(150.0)  # noted by the sink now
     rig.later(3.0)
-    assert rig.monitor().message.endswith(", 3 s ago")
-    rig.later(7.0)
+    rig.check()  # the reading that first sees it: 3 s after it was reached
+    rig.later(6.9)
+    assert rig.monitor().level == Level.ERROR
+    rig.later(0.1)  # 10 s after it was reached, 7 after the reading
     assert rig.monitor().level == Level.OK
 
 
@@ -269,7 +273,7 @@ def test_stale_after_no_event_for_the_stale_seconds() -> None:
     assert rig.monitor().level == Level.OK
     rig.later(0.1)
     stale = rig.monitor()
-    assert stale.level == Level.STALE and stale.message == "no event for 10 s"
+    assert stale.level == Level.STALE and stale.message == "no event for over 10 s"
     rig.send(1.0)  # an event: fresh again
     assert rig.monitor().level == Level.OK
 
@@ -279,7 +283,29 @@ def test_a_monitor_that_never_had_an_event_is_stale_from_when_it_started_here() 
     rig.put()
     rig.check()
     rig.later(12.0)
-    assert rig.monitor().message == "no event for 12 s"
+    assert rig.monitor().message == "no event for over 10 s"
+
+
+def test_a_stale_monitors_age_steps_at_a_minute_ten_an_hour_and_a_day() -> None:
+    """The age a STALE status gives changes at those instants only (next_change names
+    them): between them the status stays as published (Health.due)."""
+    rig = Rig(stale=10.0)
+    rig.put()
+    rig.check()
+    start, seen = rig.clock.monotonic(), []
+    for at in (10.0, 59.9, 60.0, 599.0, 600.0, 3600.0, 86399.0, 86400.0, 10 * 86400.0):
+        rig.later(start + at - rig.clock.monotonic())
+        seen.append(rig.monitor().message.removeprefix("no event for over "))
+    assert seen == ["10 s", "10 s", "1 min", "1 min", "10 min", "1 h", "1 h", "1 d", "1 d"]
+    rig.later(0)
+    assert rig.health.next_change(rig.clock.monotonic()) is None
+    rig = Rig(stale=90.0)  # a stale time between the steps: it, then the next step
+    rig.put()
+    rig.check()
+    start = rig.clock.monotonic()
+    rig.later(90.0)
+    assert rig.monitor().message == "no event for over 90 s"
+    assert rig.health.next_change(rig.clock.monotonic()) == start + 600.0
 
 
 def test_dropped_events_count_as_events_for_staleness() -> None:
@@ -401,11 +427,11 @@ def test_error_outranks_stale_which_outranks_warn_and_every_reason_is_given() ->
     assert status.level == Level.ERROR
     reasons = status.message.split("; ")
     assert reasons[0].startswith("violated at step 1 ")
-    assert reasons[1:] == ["no event for 12 s", "no publisher on /speed"]
+    assert reasons[1:] == ["no event for over 10 s", "no publisher on /speed"]
     rig.later(20.0)  # the hold is over
     status = rig.monitor(publishers={"/speed": 0})
     assert status.level == Level.STALE
-    assert status.message == "no event for 32 s; no publisher on /speed"
+    assert status.message == "no event for over 10 s; no publisher on /speed"
 
 
 # -- the handler's status ------------------------------------------------------------------

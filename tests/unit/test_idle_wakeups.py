@@ -7,6 +7,7 @@ clock whose wall time is fixed."""
 
 from __future__ import annotations
 
+import itertools
 import threading
 
 from edgerv.core.documents import load_monitors_text
@@ -14,6 +15,7 @@ from edgerv.core.monitor import compile_monitor
 from edgerv.handler.clock import SystemClock
 from edgerv.handler.engine import IDLE_TICK_SECONDS, Engine
 from edgerv.handler.health import DiagnosticsConfig, Health, Level, read_engine
+from edgerv.handler.ros.cdr_out import encode_diagnostic_array, restamp_diagnostic_array
 from kit.engines import ManualClock
 
 S = 1_000_000_000
@@ -136,7 +138,7 @@ def _health_rig() -> tuple[Engine, Health]:
 
 
 def _fingerprint(e: Engine) -> object:
-    return (e.router.seq, e.routes_version, e.changes)
+    return e.fingerprint()
 
 
 def _check(e: Engine, h: Health, now: float) -> dict[str, Level]:
@@ -248,7 +250,7 @@ def test_an_idle_monitors_status_values_are_made_once_and_anew_after_a_change() 
     _check(e, h, 12.0)  # stale now: another level and message, the same values
     later = {s.name: s for s in h.statuses()}
     a, b = first["edgerv: a"], later["edgerv: a"]
-    assert b.level == Level.STALE and b.message == "no event for 12 s"
+    assert b.level == Level.STALE and b.message == "no event for over 10 s"
     assert b.values is a.values  # (kept, not made again)
     e.ingest([(WALL, "/x", [0.5])], now=12.5)
     e.evaluate()
@@ -256,3 +258,66 @@ def test_an_idle_monitors_status_values_are_made_once_and_anew_after_a_change() 
     after = {s.name: s for s in h.statuses()}["edgerv: a"]
     assert dict(after.values)["events"] == "1" and dict(after.values)["step"] == "1"
     assert after.level == Level.OK
+
+
+# -- /diagnostics: an idle handler's update is the statuses last published ---------------
+
+
+def test_an_idle_update_sends_the_statuses_last_published_as_a_reading_would_give_them() -> None:
+    """Health.due at each look of the diagnostics thread (every CHECK_SECONDS, an update
+    every period) over two idle minutes, with a violation held, monitors going stale and
+    their age passing a minute: each update equals what a full reading gives at that
+    instant (a second Health that reads every time), and most are the very statuses last
+    published, read from nothing."""
+    e = engine(monitor("a", "always (x < 1)"), monitor("b", "always (x > 0)"))
+    config = DiagnosticsConfig(period=1.0, hold=10.0, stale=10.0)
+    clock = ManualClock()  # (when the sinks note a violation)
+    h, reference = Health("edge", config, clock), Health("edge", config, clock)
+    e.sinks += [h, reference]
+    sent: list[object] = []
+    for quarter in range(4 * 130):
+        now = clock.offset = quarter * 0.25
+        if quarter == 21:  # a is violated at 5.25 s: held for 10 s
+            e.ingest([(WALL, "/x", [2.0])], now=now)
+            e.emit(e.evaluate())
+        update = quarter % 4 == 0
+        statuses = h.due(lambda fp: read_engine(e, fingerprint=fp), e.fingerprint(), now, update)
+        if statuses is None:
+            assert not update
+            continue
+        h.published(statuses)
+        if update:
+            reference.check(read_engine(e), now)
+            expected = reference.statuses()
+            reference.published(expected)
+            assert statuses == expected, now
+            sent.append(statuses)
+    texts = {s.message for statuses in sent for s in statuses}  # type: ignore[attr-defined]
+    assert {"no event for over 10 s", "no event for over 1 min"} <= texts
+    assert any(m.startswith("violated at step 1 ") for m in texts)
+    again = sum(a is b for a, b in itertools.pairwise(sent))
+    assert again >= 100, again  # of 129 updates: only those after a change are made anew
+
+
+def test_a_tier_edit_unsettles_the_checks() -> None:
+    """A definition that differs only in its placement keeps the monitor running, and its
+    status shows the new tier: the fingerprint changes."""
+    e, h = _health_rig()
+    for now in (0.0, 0.5, 1.0):
+        _check(e, h, now)
+    assert h.settled(_fingerprint(e), 1.25)
+    (spec,) = load_monitors_text(
+        "m.yaml", monitor("a", "always (x < 1)", "  placement: {tier: cloud}\n")
+    )
+    assert not e.put(compile_monitor(spec), active=True)  # (the same monitor, running on)
+    assert not h.settled(_fingerprint(e), 1.25)
+
+
+def test_statuses_sent_again_are_the_bytes_sent_before_with_a_new_stamp() -> None:
+    e, h = _health_rig()
+    _check(e, h, 0.0)
+    statuses = h.statuses()
+    first = encode_diagnostic_array(statuses, 1_700_000_000 * S + 5)
+    again = restamp_diagnostic_array(first, 1_700_000_001 * S + 999_999_999)
+    assert again == encode_diagnostic_array(statuses, 1_700_000_001 * S + 999_999_999)
+    assert again != first and len(again) == len(first)

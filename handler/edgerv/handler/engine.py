@@ -233,6 +233,7 @@ class Engine(HandoffSteps):
                 == old.compiled.spec
             ):
                 old.compiled = compiled  # the runtime keeps its own: the same monitor
+                self.changes += 1  # (its status shows the tier)
                 return False
             if old is not None and old.runtime is not None:
                 self.router.remove(old.name)
@@ -298,6 +299,13 @@ class Engine(HandoffSteps):
     def _activate(self, slot: MonitorSlot) -> None:
         slot.runtime = MonitorRuntime(slot.compiled)
         self.router.add(slot.runtime)
+
+    def fingerprint(self) -> tuple[object, ...]:
+        """A few counters that change whenever anything a monitor's reading shows may
+        have (health.read_engine; Health.settled): the messages offered, the routes, the
+        changes (evaluations, clock steps, flushes, pressure, handoffs, reactions, a tier
+        edit) and the messages lost."""
+        return (self.router.seq, self.routes_version, self.changes, tuple(self.lost.items()))
 
     def routes(self) -> dict[str, TopicRoute]:
         """A snapshot of the topics to subscribe to (with their fields and QoS)."""

@@ -16,11 +16,12 @@ status's ``hardware_id``); the handler's own is ``edgerv handler: <name>``.
 
 from __future__ import annotations
 
+import bisect
 import math
 import threading
 import time
 from collections import deque
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import NamedTuple
@@ -39,6 +40,10 @@ CHECK_SECONDS = 0.25
 # publication is made less often than the period asks (Pacer).
 CPU_BUDGET = 0.05
 READ_CHUNK = 256  # monitors read under one hold of the engine's lock
+# A STALE monitor says "no event for over X", X the stale seconds, then each of these
+# (1 min, 10 min, 1 h, 1 d) it passes: an age that changes a status only at these
+# instants, so an idle handler's statuses stay as published between them (Health.due)
+STALE_STEPS = (60.0, 600.0, 3600.0, 86400.0)
 
 
 class Level(IntEnum):
@@ -204,6 +209,14 @@ def read_engine(
     )
 
 
+def _duration(seconds: float) -> str:
+    """``seconds`` as "10 s", "1 min", "1 h", "1 d" (whole units where they are)."""
+    for unit, size in (("d", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if seconds >= size and seconds % size == 0:
+            return f"{seconds / size:g} {unit}"
+    return f"{seconds:g} s"
+
+
 def stamp_text(ns: int) -> str:
     """A stamp as ROS tools print one: seconds.nanoseconds."""
     seconds, nanoseconds = divmod(ns, 1_000_000_000)
@@ -277,6 +290,14 @@ class Health:
         self._fingerprint_since = 0.0
         self._quiet_until: float | None = None
         self._unpublished = False
+        self._sent: list[Status] | None = None  # the statuses last published
+        self._sent_settled = False  # made by a check after which the next were settled
+        # next_change's instants, sorted (None: to be made), from the tracks of the check
+        # at _checked_at; "no event for over X": X one of _stale_edges
+        self._times: list[float] | None = None
+        self._checked_at = 0.0
+        stale = self.config.stale
+        self._stale_edges = [stale, *(s for s in STALE_STEPS if s > stale)] if stale > 0 else []
         # each monitor's last status values and what they were made of: made again only
         # when that changed (statuses(); the diagnostics thread's alone)
         self._kept_statuses: dict[str, tuple[_StatusKey, tuple[tuple[str, str], ...]]] = {}
@@ -323,6 +344,7 @@ class Health:
             t.violations = m.violations
             tracks[m.name] = t
         self._tracks = tracks
+        self._times, self._checked_at = None, now  # (next_change: made anew)
         sample = _Sample(
             now,
             reading.messages,
@@ -331,8 +353,13 @@ class Health:
             {m.name: (m.instance, m.events, m.dropped) for m in reading.monitors},
             reading.coalesced,
         )
+        return self._keep(sample)
+
+    def _keep(self, sample: _Sample) -> _Sample:
+        """Keep ``sample``; return the base of "the last period" at its instant (the
+        newest sample at least a period older, else the oldest kept)."""
         samples, period = self._samples, self.config.period
-        while len(samples) > 1 and samples[1].at <= now - period:
+        while len(samples) > 1 and samples[1].at <= sample.at - period:
             samples.popleft()
         base = samples[0] if samples else sample
         samples.append(sample)
@@ -348,9 +375,10 @@ class Health:
             problems.append((Level.ERROR, f"halted after it was {_verdict_text(last)}"))
         elif t.violated_at is not None and now - t.violated_at < self.config.hold:
             what = "violated" if t.violation is None else _verdict_text(t.violation)
-            problems.append((Level.ERROR, f"{what}, {max(0.0, now - t.violated_at):.0f} s ago"))
+            problems.append((Level.ERROR, f"{what}, within the last {self.config.hold:g} s"))
         if self.config.stale > 0 and now - t.last_event >= self.config.stale:
-            problems.append((Level.STALE, f"no event for {now - t.last_event:.0f} s"))
+            edge = max(e for e in self._stale_edges if e <= now - t.last_event)
+            problems.append((Level.STALE, f"no event for over {_duration(edge)}"))
         fill = m.buffered / m.capacity
         if fill >= HIGH_WATER:
             problems.append((Level.WARN, f"buffer {fill:.0%} full"))
@@ -592,19 +620,64 @@ class Health:
         published = self._published
         return any(published.get(name, level) != level for name, level in levels.items())
 
-    def published(self, statuses: Iterable[Status]) -> None:
+    def published(self, statuses: list[Status]) -> None:
+        if statuses is not self._sent:  # made by the last check: settled when it was
+            self._sent_settled = self._quiet_until is not None
         self._published = {s.name: s.level for s in statuses}
         self._unpublished = False
+        self._sent = statuses
+
+    def due(
+        self,
+        read: Callable[[object], Reading],
+        fingerprint: object,
+        now: float,
+        update: bool,
+    ) -> list[Status] | None:
+        """One look (the diagnostics thread's), at ``now``: the statuses to publish, else
+        None. ``update``: the periodic update is due (every status, as diagnostic_updater
+        publishes them); else they are published only when a level changed.
+
+        Settled (:meth:`settled`: nothing a status shows changed since the last check,
+        given ``fingerprint``), nothing is read: between updates None; at an update, if
+        the statuses last published were made by a check that was itself settled (its
+        "last period" began after the last change), those, the very list (what a reading
+        would give again: tests/unit/test_idle_wakeups.py), which the caller sends again
+        as it sent them, only its stamp new. ``read(fingerprint)``: a reading, when one
+        is needed."""
+        if self.settled(fingerprint, now):
+            if not update:
+                return None
+            if self._sent is not None and self._sent_settled and self._samples:
+                # the counts are those of the last reading: kept as this instant's, as a
+                # reading would have (the base of "the last period" later on)
+                self._keep(self._samples[-1]._replace(at=now))
+                return self._sent
+        levels = self.check(read(fingerprint), now)
+        if not update and not self.level_changed(levels):
+            self._sent_settled = False  # a status may show otherwise (an age's step)
+            return None
+        return self.statuses()
 
     def next_change(self, now: float) -> float | None:
-        """The next instant a level changes by time alone (a hold ends, a monitor goes
-        stale), if any: the check is made then."""
-        hold, stale = self.config.hold, self.config.stale
-        times = [t.violated_at + hold for t in self._tracks.values() if t.violated_at is not None]
-        if stale > 0:
-            times += [t.last_event + stale for t in self._tracks.values()]
-        later = [x for x in times if x > now]
-        return min(later) if later else None
+        """The next instant a status changes by time alone, if any: a hold ends, a monitor
+        goes stale or its "no event for over ..." passes the next of STALE_STEPS; the
+        check is made then. Nothing else a status shows changes with time alone: its
+        texts name no age but those (tests/unit/test_idle_wakeups.py)."""
+        times = self._times
+        if times is None:
+            hold, edges = self.config.hold, self._stale_edges
+            tracks = self._tracks.values()
+            times = [t.violated_at + hold for t in tracks if t.violated_at is not None]
+            if edges:
+                at = self._checked_at
+                for t in self._tracks.values():
+                    later = [t.last_event + e for e in edges if t.last_event + e > at]
+                    if later:
+                        times.append(later[0])
+            self._times = times = sorted(times)
+        i = bisect.bisect_right(times, now)
+        return times[i] if i < len(times) else None
 
 
 class Pacer:

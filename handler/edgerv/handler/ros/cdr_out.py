@@ -61,6 +61,12 @@ def encode_diagnostic_array(statuses: Sequence[Status], stamp_ns: int) -> bytes:
     return b"".join(parts)
 
 
+def restamp_diagnostic_array(data: bytes, stamp_ns: int) -> bytes:
+    """``data`` (:func:`encode_diagnostic_array`'s) with ``stamp_ns`` as its header.stamp."""
+    seconds, nanoseconds = divmod(stamp_ns, 1_000_000_000)
+    return data[:4] + _STAMP(seconds, nanoseconds) + data[12:]
+
+
 # -- edgerv_msgs: Verdict, VerdictArray ----------------------------------------------------
 
 _U64 = struct.Struct("<Q").pack

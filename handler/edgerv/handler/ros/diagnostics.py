@@ -14,7 +14,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from edgerv.handler.engine import Engine
 from edgerv.handler.health import Health, Pacer, Reading, Status, read_engine
 from edgerv.handler.outbox import Outbox
-from edgerv.handler.ros.cdr_out import encode_diagnostic_array
+from edgerv.handler.ros.cdr_out import encode_diagnostic_array, restamp_diagnostic_array
 from edgerv.handler.ros.messages import message_class
 from edgerv.handler.ros.rosout import Rosout
 from edgerv.handler.ros.subscriptions import Subscriptions
@@ -61,21 +61,18 @@ class Diagnostics:
             DIAGNOSTICS_QOS,
         )
         self._failures = 0
+        self._sent: tuple[list[Status], bytes] | None = None  # the statuses last sent, as sent
         self._thread: threading.Thread | None = None
 
     def fingerprint(self) -> object:
-        """A few counters that change whenever anything a diagnostic level reads may have
-        (Health.settled): the engine's messages, routes and changes (evaluations, pressure,
-        handoffs, reactions) and this node's counts; None with --deadline (its window's
-        percentiles change with time alone)."""
+        """A few counters that change whenever anything a status shows may have
+        (Health.settled): the engine's (Engine.fingerprint) and this node's counts; None
+        with --deadline (its window's percentiles change with time alone)."""
         engine, subscriptions = self.engine, self.subscriptions
         if engine.deadline is not None:
             return None
         return (
-            engine.router.seq,
-            engine.routes_version,
-            engine.changes,
-            tuple(engine.lost.items()),
+            engine.fingerprint(),
             tuple((t, s.publishers) for t, s in list(subscriptions.subs.items())),
             tuple(subscriptions.qos_problems.items()),
             tuple(subscriptions.bad_messages.items()),
@@ -102,19 +99,24 @@ class Diagnostics:
         )
 
     def diagnose(self, update: bool) -> list[Status] | None:
-        """One check of the levels: the statuses published (all of them, as
-        diagnostic_updater does) when ``update`` is due or a level changed, else None."""
+        """One look (Health.due): the statuses published (all of them, as
+        diagnostic_updater does) when ``update`` is due or a level changed, else None.
+        Statuses that are those last published (an idle handler's) are sent as the same
+        bytes, with a new stamp: nothing is read, made or encoded again."""
         health = self.health
         now = health.clock.monotonic()
         fingerprint = self.fingerprint()  # (taken before the reading: a change meanwhile
-        if not update and health.settled(fingerprint, now):  # shows at the next look)
-            return None  # nothing changed: the levels are those published
-        levels = health.check(self._reading_now(fingerprint), now)
-        if not update and not health.level_changed(levels):
+        statuses = health.due(self._reading_now, fingerprint, now, update)  # shows next)
+        if statuses is None:
             return None
-        statuses = health.statuses()
         stamp = self.node.get_clock().now().nanoseconds
-        self.publisher.publish(encode_diagnostic_array(statuses, stamp))
+        sent = self._sent
+        if sent is not None and sent[0] is statuses:
+            data = restamp_diagnostic_array(sent[1], stamp)
+        else:
+            data = encode_diagnostic_array(statuses, stamp)
+        self.publisher.publish(data)
+        self._sent = (statuses, data)
         health.published(statuses)
         return statuses
 
