@@ -159,7 +159,10 @@ def test_handoff_between_engines(seed: int, threshold: int, most: int) -> None:
 def test_epochs_fence_stale_and_duplicate_calls() -> None:
     e = Engine("h")
     e.put(monitor(), active=True)
+    wakes: list[int] = []
+    e.wake_ingest = lambda: wakes.append(1)  # (its take loop waits no longer while it holds)
     e.hold("m", 5)
+    assert wakes == [1]
     with pytest.raises(HandoffError, match="not newer"):
         e.hold("m", 5)
     with pytest.raises(HandoffError, match="no sending handoff of 'm' with epoch 4"):

@@ -321,3 +321,48 @@ def test_statuses_sent_again_are_the_bytes_sent_before_with_a_new_stamp() -> Non
     again = restamp_diagnostic_array(first, 1_700_000_001 * S + 999_999_999)
     assert again == encode_diagnostic_array(statuses, 1_700_000_001 * S + 999_999_999)
     assert again != first and len(again) == len(first)
+
+
+def test_a_change_of_level_sends_the_handlers_status_and_the_changed_ones_only() -> None:
+    e = engine(monitor("a", "always (x < 1)"), monitor("b", "always (x > 0)"))
+    clock = ManualClock()
+    h = Health("edge", DiagnosticsConfig(period=1.0, hold=10.0, stale=0), clock)
+    e.sinks.append(h)
+
+    def due(now: float, update: bool) -> list[str] | None:
+        clock.offset = now
+        statuses = h.due(lambda fp: read_engine(e, fingerprint=fp), e.fingerprint(), now, update)
+        if statuses is None:
+            return None
+        h.published(statuses)
+        return [s.name for s in statuses]
+
+    everything = ["edgerv handler: edge", "edgerv: a", "edgerv: b"]
+    assert due(0.0, True) == everything
+    assert due(0.25, False) is None
+    e.ingest([(WALL, "/x", [2.0])], now=0.3)  # a violated: ERROR; b satisfied: still OK
+    e.emit(e.evaluate())
+    assert due(0.5, False) == ["edgerv handler: edge", "edgerv: a"]
+    assert due(0.75, False) is None  # published: no change since
+    assert due(1.0, True) == everything  # the update: all of them, made anew
+    assert due(10.5, False) == ["edgerv handler: edge", "edgerv: a"]  # the hold ended
+
+
+# -- the take loop, idle: woken when the scheduler needs to know how far it took ----------
+
+
+def test_a_tick_that_finds_drained_at_out_of_date_wakes_the_take_loop() -> None:
+    """An idle take loop says how far everything is taken (drained_at) only every
+    IDLE_WAIT_SECONDS; a tick that finds it older than STALE_DRAINED_NS wakes it (a
+    monitor's clock steps only up to drained_at), and one that finds it fresh does not."""
+    from edgerv.handler.engine import STALE_DRAINED_NS
+
+    e = engine(monitor("a", "always (x > 0 -> F[0..1s] x < 0)"))
+    wakes: list[int] = []
+    e.wake_ingest = lambda: wakes.append(1)
+    e.drained_at = WALL - STALE_DRAINED_NS
+    e.tick(100.0)
+    assert wakes == []
+    e.drained_at = WALL - STALE_DRAINED_NS - 1
+    e.tick(100.1)
+    assert wakes == [1]

@@ -72,7 +72,7 @@ class DeadlineReading:
 class HandlerReport:
     name: str
     tier: str
-    cpu: float  # share of the handler's CPU budget in use, 0..1
+    cpu: float  # the handler process's CPU: seconds a second (1.0 = one core busy; may pass 1)
     ingest_lag: float = 0.0  # seconds
     monitors: Mapping[str, MonitorLoad] = field(default_factory=dict)
     deadline: DeadlineReading | None = None  # None: the handler measures no deadline

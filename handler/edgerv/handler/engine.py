@@ -57,6 +57,9 @@ WAKE_LETTERS = 512
 # An idle scheduler (no message since its last tick, nothing buffered) sleeps until the
 # next instant a tick has work, at most this long.
 IDLE_TICK_SECONDS = 5.0
+# A take loop with nothing to take says how far everything is taken (drained_at) every
+# IDLE_WAIT_SECONDS (ros.take); a tick that finds it older than this wakes the loop
+STALE_DRAINED_NS = 50_000_000
 # Batches of at least this many messages are ingested a column at a time (each monitor's
 # messages of the batch at once: in NumPy arrays where it has this many and no past
 # operator, else in lists), shorter ones a message at a time: below it, building the
@@ -135,6 +138,10 @@ class Engine(HandoffSteps):
         # evaluation, a flush or a change of pressure, a handoff's step, a reaction's
         # outcome (the diagnostics skip their check while it and those stay: Health.settled)
         self.changes = 0
+        # wakes the ROS layer's take loop (its wakeup guard condition; a no-op without
+        # one): it then says how far everything is taken (drained_at) at once, which an
+        # idle take loop says only every IDLE_WAIT_SECONDS otherwise
+        self.wake_ingest: Callable[[], None] = lambda: None
         self.reached: list[Verdict] = []  # evaluated by ingest, for the scheduler to emit
         self.slots: dict[str, MonitorSlot] = {}
         self.router = Router()
@@ -592,6 +599,8 @@ class Engine(HandoffSteps):
         until = (wall_ns if drained is None else min(wall_ns, drained)) - int(
             self.flush_after * 1e9
         )
+        if drained is not None and drained < wall_ns - STALE_DRAINED_NS:
+            self.wake_ingest()  # (an idle take loop: its next round says how far, at once)
         with self.lock:
             for slot in self.slots.values():
                 rt = slot.runtime
@@ -728,6 +737,7 @@ class Engine(HandoffSteps):
         plans anew when one ends: a restored monitor may have a clock step due.)"""
         super()._set_handoff(slot, role)
         self.changes += 1
+        self.wake_ingest()  # (it waits IDLE_WAIT_SECONDS no more while one is under way)
         self.replan = True
         if self.dozing:
             self.ready.notify()

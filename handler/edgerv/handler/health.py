@@ -21,7 +21,7 @@ import math
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import NamedTuple
@@ -292,6 +292,7 @@ class Health:
         self._unpublished = False
         self._sent: list[Status] | None = None  # the statuses last published
         self._sent_settled = False  # made by a check after which the next were settled
+        self._some: list[Status] | None = None  # the statuses of a change of level, made last
         # next_change's instants, sorted (None: to be made), from the tracks of the check
         # at _checked_at; "no event for over X": X one of _stale_edges
         self._times: list[float] | None = None
@@ -494,18 +495,24 @@ class Health:
             and not self._unpublished
         )
 
-    def statuses(self) -> list[Status]:
+    def statuses(self, names: Collection[str] | None = None) -> list[Status]:
         """The statuses of the last :meth:`check`: the handler's, then each active
-        monitor's by name."""
+        monitor's by name; given ``names``, only the monitors' statuses of those names
+        (a change of level: :meth:`due`)."""
         if self._last is None:
             return []
         reading, base, now, problems = self._last
         out = [self._handler_status(reading, base, now, problems[HANDLER_PREFIX + self.handler])]
         self._statuses_now = {}
         for m in sorted(reading.monitors, key=lambda m: m.name):
-            p = problems[MONITOR_PREFIX + m.name]
-            out.append(self._monitor_status(m, self._tracks[m.name], base, now, p))
-        self._kept_statuses = self._statuses_now  # (the monitors gone are forgotten)
+            name = MONITOR_PREFIX + m.name
+            if names is None or name in names:
+                out.append(self._monitor_status(m, self._tracks[m.name], base, now, problems[name]))
+        if names is None:
+            self._kept_statuses = self._statuses_now  # (the monitors gone are forgotten)
+        else:
+            self._kept_statuses.update(self._statuses_now)
+        self._some = out if names is not None else None
         return out
 
     def _monitor_status(
@@ -617,14 +624,23 @@ class Health:
     def level_changed(self, levels: Mapping[str, Level]) -> bool:
         """Whether a status's level differs from the one last published (a status that
         comes or goes is published with the next periodic update)."""
+        return bool(self.changed_levels(levels))
+
+    def changed_levels(self, levels: Mapping[str, Level]) -> set[str]:
+        """The statuses whose level differs from the one last published."""
         published = self._published
-        return any(published.get(name, level) != level for name, level in levels.items())
+        return {name for name, level in levels.items() if published.get(name, level) != level}
 
     def published(self, statuses: list[Status]) -> None:
+        """``statuses`` (:meth:`statuses`' or :meth:`due`'s) are published."""
+        self._unpublished = False
+        if statuses is self._some:  # a change of level: those statuses only
+            self._published.update((s.name, s.level) for s in statuses)
+            self._sent_settled = False  # (the next update is made anew)
+            return
         if statuses is not self._sent:  # made by the last check: settled when it was
             self._sent_settled = self._quiet_until is not None
         self._published = {s.name: s.level for s in statuses}
-        self._unpublished = False
         self._sent = statuses
 
     def due(
@@ -636,7 +652,9 @@ class Health:
     ) -> list[Status] | None:
         """One look (the diagnostics thread's), at ``now``: the statuses to publish, else
         None. ``update``: the periodic update is due (every status, as diagnostic_updater
-        publishes them); else they are published only when a level changed.
+        publishes them); else, when a level changed, the handler's status and those whose
+        level changed (a monitor violated does not send the other hundreds again: each
+        status is a whole, and diagnostic_aggregator keeps each by its name).
 
         Settled (:meth:`settled`: nothing a status shows changed since the last check,
         given ``fingerprint``), nothing is read: between updates None; at an update, if
@@ -654,10 +672,13 @@ class Health:
                 self._keep(self._samples[-1]._replace(at=now))
                 return self._sent
         levels = self.check(read(fingerprint), now)
-        if not update and not self.level_changed(levels):
+        if update:
+            return self.statuses()
+        changed = self.changed_levels(levels)
+        if not changed:
             self._sent_settled = False  # a status may show otherwise (an age's step)
             return None
-        return self.statuses()
+        return self.statuses(changed)
 
     def next_change(self, now: float) -> float | None:
         """The next instant a status changes by time alone, if any: a hold ends, a monitor

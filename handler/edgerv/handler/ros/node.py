@@ -89,6 +89,7 @@ class HandlerNode:
         self._time_source = None if self.sim is None else follow_clock(self.node, self.sim)
         self.verdicts = VerdictTopics(self.node, engine, self._stop)
         self.wakeup = self.node.create_guard_condition(lambda: None)  # wakes the take loop
+        engine.wake_ingest = self.wake  # (the scheduler's: how far is everything taken?)
         self.subscriptions = Subscriptions(self.node, engine, self.wake)
         self.deadline = (
             DeadlineTopic(engine.deadline, self.node, self.subscriptions, self.sim, self.wake)
@@ -143,6 +144,7 @@ class HandlerNode:
         self.verdicts.join(JOIN_SECONDS)
 
     def close(self) -> None:
+        self.engine.wake_ingest = lambda: None  # (the guard condition goes with the node)
         self.rosout.close()  # before the node goes
         if self.sim is not None:
             self.sim.detach()

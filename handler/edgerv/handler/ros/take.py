@@ -32,6 +32,14 @@ from edgerv.handler.ros.subscriptions import TAKE_PER_WAKE, Subscription, Subscr
 log = logging.getLogger("edgerv.handler.ros")
 
 COALESCE_SECONDS = 0.0005  # at most this much latency for much less work per message
+# How long the loop waits for a message before it says again how far everything is
+# taken (engine.drained_at), and looks at what changed: IDLE_WAIT_SECONDS when idle (an
+# idle handler's wake-ups cost CPU: issue 35), waking at once when the routes change,
+# a subscription is to be made, the handler stops or the scheduler finds drained_at
+# older than engine.STALE_DRAINED_NS when a monitor's clock is to step (engine.wake_ingest);
+# BUSY_WAIT_SECONDS while a handoff is under way or under --use-sim-time
+IDLE_WAIT_SECONDS = 1.0
+BUSY_WAIT_SECONDS = 0.1
 _FIRST = itemgetter(0)
 LOST_LOG_SECONDS = 10.0  # a topic's lost messages are logged at most this often
 # (stamp ns, topic, field values, the message's bytes, the routes version they were read for)
@@ -232,9 +240,13 @@ class TakeLoop:
                 for h in waited:
                     wait_set.add_subscription(h)
                 wait_set.add_guard_condition(self.wakeup.handle)
-                holding = reorder is not None and reorder.pending
-                timeout = self.reorder_window if holding else 0.1
-                wait_set.wait(int(timeout * 1e9))  # 100 ms at most: reconfiguration goes on
+                if reorder is not None and reorder.pending:
+                    timeout = self.reorder_window
+                elif self.sim is not None or self.engine.in_handoff:
+                    timeout = BUSY_WAIT_SECONDS
+                else:
+                    timeout = IDLE_WAIT_SECONDS
+                wait_set.wait(int(timeout * 1e9))
                 waited_at = time.time_ns()
                 if reorder is not None:
                     ingest(reorder.due(time.monotonic()))
