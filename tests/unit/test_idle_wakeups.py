@@ -366,3 +366,20 @@ def test_a_tick_that_finds_drained_at_out_of_date_wakes_the_take_loop() -> None:
     e.drained_at = WALL - STALE_DRAINED_NS - 1
     e.tick(100.1)
     assert wakes == [1]
+
+
+def test_an_idle_tick_that_would_change_nothing_is_planned_to_be_skipped() -> None:
+    """A plan of the longest doze for monitors without a clock notes the engine's
+    fingerprint: the scheduler skips that tick while it stays (nothing could change);
+    a monitor with a clock is never planned so, nor one after a message."""
+    e = engine(monitor("a", "always (x < 1)"))
+    assert e.next_tick_due(100.0, 0.05) == 100.0 + IDLE_TICK_SECONDS
+    assert e.idle_plan == e.fingerprint()
+    e.ingest([(WALL, "/x", [0.5])], now=100.1)
+    assert e.idle_plan != e.fingerprint()  # (the scheduler ticks then)
+    e.evaluate()
+    e.next_tick_due(100.2, 0.05)
+    assert e.idle_plan is None  # messages came since the last plan: a period away
+    timed = engine(monitor("b", "always (x > 0 -> F[0..1s] x < 0)"))
+    timed.next_tick_due(100.0, 0.05)
+    assert timed.idle_plan is None

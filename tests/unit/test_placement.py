@@ -123,6 +123,31 @@ def test_no_flapping_under_oscillating_load() -> None:
     assert len(downs) <= 3, (ups, downs)  # not one round trip per swing (150 swings here)
 
 
+def test_a_pinned_monitor_started_above_its_home_tier_goes_home_once_it_can() -> None:
+    """Its home tier had no handler when it started: it runs above until a lower tier
+    where it would start now defines it, then moves there in one move (from cloud to
+    edge, past fog, when both are there), and never up; an auto monitor above its home
+    waits for calm instead."""
+    off = MonitorLoad(active=False)
+    pinned = {"a": Placement(tier="edge", migrate="pinned"), "b": Placement(tier="edge")}
+
+    def moved(handlers: list[HandlerReport]) -> list[tuple[str, str, str, str]]:
+        moves = plan(handlers, pinned, CONFIG, PolicyMemory(), now=0)
+        return [(m.monitor, m.source, m.destination, m.reason) for m in moves]
+
+    cloud = idle("cloud", "cloud-1", a=busy(1), b=busy(1))
+    assert moved([cloud]) == []  # nowhere lower
+    fog = idle("fog", "fog-1", a=off)
+    assert moved([cloud, fog]) == [("a", "cloud-1", "fog-1", "pinned home")]
+    # the edge's handler came up, under pressure (b waits for calm): a goes home anyway
+    assert moved([cloud, fog, edge(0.95, a=off, b=off)]) == [
+        ("a", "cloud-1", "edge-1", "pinned home")
+    ]
+    assert moved([edge(0.95, a=busy(1)), idle("cloud", "cloud-1", a=off)]) == []  # never up
+    moving = MonitorLoad(active=True, in_handoff=True)
+    assert moved([idle("cloud", "cloud-1", a=moving), edge(0.3, a=off)]) == []  # (moving)
+
+
 def test_bad_configuration_is_refused() -> None:
     with pytest.raises(ValueError, match="tiers must be distinct"):
         PolicyConfig(tiers=("edge", "edge"))

@@ -416,8 +416,8 @@ def _descents(
         return Idle(
             "pinned",
             f"pinned monitors: {_names(pinned)} {_verb(pinned, 'runs', 'run')} above its "
-            "home tier and may not come down (placement.migrate: pinned, or "
-            "placement.maxLatencyMs)",
+            "home tier and may not come down (placement.migrate: pinned, until a handler "
+            "of a lower tier it may start on defines it; or placement.maxLatencyMs)",
             ("pinned", *pinned),
         )
     return None

@@ -34,8 +34,10 @@ migration protocol moves.
   (``placement.tier``, default the lowest), or of the nearest tier above that has one
   and that ``placement.maxLatencyMs`` allows; never below its home tier. Least loaded:
   not under pressure first, then the lowest CPU, then the name.
-* ``placement.migrate: pinned`` never moves; ``placement.maxLatencyMs`` forbids
-  tiers whose latency from the robot is larger.
+* ``placement.migrate: pinned`` never moves, but home: one that started above its home
+  tier (none of its handlers there then) moves where it would start now once that is
+  lower, in one move; ``placement.maxLatencyMs`` forbids tiers whose latency from the
+  robot is larger.
 """
 
 from __future__ import annotations
@@ -350,6 +352,20 @@ def plan(
             moves.append(Move(m, "", start.name, "start"))
             moved.add(m)
             memory.last_move[m] = now
+
+    # Home: a pinned monitor that runs above its home tier (it started there: its home
+    # tier had no handler then) goes where it would start now, once that is lower, in
+    # one move; pinned, it is never moved otherwise.
+    for h in sorted(handlers, key=lambda h: h.name):
+        for m in sorted(h.active()):
+            p = placements.get(m, Placement())
+            if p.migrate != "pinned" or m in moved or h.monitors[m].in_handoff:
+                continue
+            home = start_on(p, [b for b in handlers if b is not h and m in b.monitors], c)
+            if home is not None and rank[home.tier] < rank[h.tier]:
+                moves.append(Move(m, h.name, home.name, "pinned home"))
+                moved.add(m)
+                memory.last_move[m] = now
 
     def movable(name: str, tier: str) -> bool:
         p = placements.get(name, Placement())

@@ -134,6 +134,10 @@ class Engine(HandoffSteps):
         self.ingested = False  # messages came since the scheduler planned its next tick
         self.replan = False  # the scheduler plans its next tick anew when it wakes
         self.tick_period = 0.05  # the scheduler's (run_scheduler)
+        # the fingerprint when the scheduler last planned an idle handler's tick, one that
+        # would change nothing while it stays (no monitor buffers anything, none has a
+        # clock: next_tick_due); None: the plan was not one
+        self.idle_plan: tuple[object, ...] | None = None
         # bumped by whatever changes a monitor's state but a message or a route: an
         # evaluation, a flush or a change of pressure, a handoff's step, a reaction's
         # outcome (the diagnostics skip their check while it and those stay: Health.settled)
@@ -695,8 +699,13 @@ class Engine(HandoffSteps):
                 replan, self.replan = self.replan, False
             now = time.monotonic()
             if now >= next_tick:
-                verdicts += self.tick()
-                replan = True
+                with self.lock:  # idle since an idle plan: that tick would change nothing
+                    idle = self.idle_plan is not None and self.idle_plan == self.fingerprint()
+                if idle:
+                    next_tick = now + IDLE_TICK_SECONDS
+                else:
+                    verdicts += self.tick()
+                    replan = True
             if replan:
                 now = time.monotonic()
                 with self.lock:
@@ -710,14 +719,18 @@ class Engine(HandoffSteps):
         clock other than the system's); else the earliest sort-buffer flush
         (``flush_after`` after its first event) and clock step (a monitor's clock
         deadline, ``flush_after`` late as :meth:`advance_clocks` takes it), at most
-        IDLE_TICK_SECONDS away. Reset: :attr:`ingested`."""
+        IDLE_TICK_SECONDS away. Reset: :attr:`ingested`. A plan of IDLE_TICK_SECONDS for
+        monitors without a clock notes :attr:`idle_plan`: the scheduler skips that tick if
+        nothing changed meanwhile (it would change nothing)."""
         soon = now + period
+        self.idle_plan = None
         if self.ingested or self.in_handoff or not isinstance(self.clock, SystemClock):
             self.ingested = False
             return soon
         due = now + IDLE_TICK_SECONDS
         flush_ns = int(self.flush_after * 1e9)
         wall = self.clock.wall_ns()
+        timed = False
         for slot in self.slots.values():
             rt = slot.runtime
             if rt is None:
@@ -727,8 +740,12 @@ class Engine(HandoffSteps):
             if slot.pending_since is not None:
                 due = min(due, slot.pending_since + self.flush_after)
             clock = rt.clock
-            if clock is not None and clock.deadline is not None and slot.active:
-                due = min(due, now + (clock.deadline + flush_ns - wall) / 1e9)
+            if clock is not None:
+                timed = True
+                if clock.deadline is not None and slot.active:
+                    due = min(due, now + (clock.deadline + flush_ns - wall) / 1e9)
+        if not timed and due == now + IDLE_TICK_SECONDS:
+            self.idle_plan = self.fingerprint()  # (a tick then changes nothing: skipped)
         # a step not taken when due (everything was not drained up to it yet): once a period
         return max(due, soon) if due <= now else due
 

@@ -634,6 +634,8 @@ class Health:
     def published(self, statuses: list[Status]) -> None:
         """``statuses`` (:meth:`statuses`' or :meth:`due`'s) are published."""
         self._unpublished = False
+        if statuses is self._sent:  # (sent again: nothing to note)
+            return
         if statuses is self._some:  # a change of level: those statuses only
             self._published.update((s.name, s.level) for s in statuses)
             self._sent_settled = False  # (the next update is made anew)
