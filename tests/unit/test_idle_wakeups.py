@@ -353,17 +353,20 @@ def test_a_change_of_level_sends_the_handlers_status_and_the_changed_ones_only()
 
 def test_a_tick_that_finds_drained_at_out_of_date_wakes_the_take_loop() -> None:
     """An idle take loop says how far everything is taken (drained_at) only every
-    IDLE_WAIT_SECONDS; a tick that finds it older than STALE_DRAINED_NS wakes it (a
-    monitor's clock steps only up to drained_at), and one that finds it fresh does not."""
-    from edgerv.handler.engine import STALE_DRAINED_NS
+    IDLE_WAIT_SECONDS; a tick that finds it said so longer than STALE_DRAINED_SECONDS
+    ago wakes it (a monitor's clock steps only up to drained_at), one that finds it said
+    so since does not (a busy loop: waking it would tell nothing new)."""
+    import time
+
+    from edgerv.handler.engine import STALE_DRAINED_SECONDS
 
     e = engine(monitor("a", "always (x > 0 -> F[0..1s] x < 0)"))
     wakes: list[int] = []
     e.wake_ingest = lambda: wakes.append(1)
-    e.drained_at = WALL - STALE_DRAINED_NS
+    e.drained_at, e.drained_said = WALL, time.monotonic()
     e.tick(100.0)
     assert wakes == []
-    e.drained_at = WALL - STALE_DRAINED_NS - 1
+    e.drained_said = time.monotonic() - STALE_DRAINED_SECONDS - 0.01
     e.tick(100.1)
     assert wakes == [1]
 

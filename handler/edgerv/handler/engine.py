@@ -58,8 +58,8 @@ WAKE_LETTERS = 512
 # next instant a tick has work, at most this long.
 IDLE_TICK_SECONDS = 5.0
 # A take loop with nothing to take says how far everything is taken (drained_at) every
-# IDLE_WAIT_SECONDS (ros.take); a tick that finds it older than this wakes the loop
-STALE_DRAINED_NS = 50_000_000
+# IDLE_WAIT_SECONDS (ros.take); a tick that finds it said so longer ago than this wakes it
+STALE_DRAINED_SECONDS = 0.05
 # Batches of at least this many messages are ingested a column at a time (each monitor's
 # messages of the batch at once: in NumPy arrays where it has this many and no past
 # operator, else in lists), shorter ones a message at a time: below it, building the
@@ -146,6 +146,7 @@ class Engine(HandoffSteps):
         # one): it then says how far everything is taken (drained_at) at once, which an
         # idle take loop says only every IDLE_WAIT_SECONDS otherwise
         self.wake_ingest: Callable[[], None] = lambda: None
+        self.drained_said = 0.0  # (time.monotonic) when the take loop last said how far
         self.reached: list[Verdict] = []  # evaluated by ingest, for the scheduler to emit
         self.slots: dict[str, MonitorSlot] = {}
         self.router = Router()
@@ -603,7 +604,7 @@ class Engine(HandoffSteps):
         until = (wall_ns if drained is None else min(wall_ns, drained)) - int(
             self.flush_after * 1e9
         )
-        if drained is not None and drained < wall_ns - STALE_DRAINED_NS:
+        if time.monotonic() - self.drained_said > STALE_DRAINED_SECONDS:
             self.wake_ingest()  # (an idle take loop: its next round says how far, at once)
         with self.lock:
             for slot in self.slots.values():

@@ -640,8 +640,7 @@ class Health:
             self._published.update((s.name, s.level) for s in statuses)
             self._sent_settled = False  # (the next update is made anew)
             return
-        if statuses is not self._sent:  # made by the last check: settled when it was
-            self._sent_settled = self._quiet_until is not None
+        self._sent_settled = self._quiet_until is not None  # (was the check that made them?)
         self._published = {s.name: s.level for s in statuses}
         self._sent = statuses
 
@@ -694,7 +693,7 @@ class Health:
             times = [t.violated_at + hold for t in tracks if t.violated_at is not None]
             if edges:
                 at = self._checked_at
-                for t in self._tracks.values():
+                for t in tracks:
                     later = [t.last_event + e for e in edges if t.last_event + e > at]
                     if later:
                         times.append(later[0])

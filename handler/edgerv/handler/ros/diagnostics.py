@@ -99,8 +99,8 @@ class Diagnostics:
         )
 
     def diagnose(self, update: bool) -> list[Status] | None:
-        """One look (Health.due): the statuses published (all of them, as
-        diagnostic_updater does) when ``update`` is due or a level changed, else None.
+        """One look (Health.due): the statuses published, all of them when ``update``
+        is due, the handler's and those whose level changed when one did; else None.
         Statuses that are those last published (an idle handler's) are sent as the same
         bytes, with a new stamp: nothing is read, made or encoded again."""
         health = self.health

@@ -35,8 +35,8 @@ COALESCE_SECONDS = 0.0005  # at most this much latency for much less work per me
 # How long the loop waits for a message before it says again how far everything is
 # taken (engine.drained_at), and looks at what changed: IDLE_WAIT_SECONDS when idle (an
 # idle handler's wake-ups cost CPU: issue 35), waking at once when the routes change,
-# a subscription is to be made, the handler stops or the scheduler finds drained_at
-# older than engine.STALE_DRAINED_NS when a monitor's clock is to step (engine.wake_ingest);
+# a subscription is to be made, the handler stops or the scheduler finds it said so
+# longer than engine.STALE_DRAINED_SECONDS ago when a clock is to step (engine.wake_ingest);
 # BUSY_WAIT_SECONDS while a handoff is under way or under --use-sim-time
 IDLE_WAIT_SECONDS = 1.0
 BUSY_WAIT_SECONDS = 0.1
@@ -192,6 +192,7 @@ class TakeLoop:
         """Everything that reached this handler before ``through`` (wall ns) is taken:
         it is in the engine once no older stamp waits in the reorder window. The
         monitors' clocks and a handoff's cut wait for this instant (engine.drained_at)."""
+        self.engine.drained_said = time.monotonic()
         if self.sim is not None:  # in ROS time, as the stamps
             through = self.sim.ros_ns(through)
         if reorder is not None and reorder.pending:
