@@ -557,67 +557,55 @@ def rows(res: dict[str, Any], seconds: float) -> list[dict[str, str]]:
             "ratio": ratio,
         }
     ]
-    idle = res["handler_idle"]["pct"]
-    measured = f"edgerv handler idle {idle:.2f}% of a core"
-    if has_before:
-        measured = f"before: {res['before_idle']['pct']:.2f}%; after: {idle:.2f}% of a core"
-    out.append(
-        {
-            "name": "the edge's cost, idle: 200 monitors, no traffic (target <= 0.3% of a core)",
-            "detail": f"{seconds:g} s, pinned to core {RX_CORE}; the same bare receiver idle "
-            "in turn with it",
-            "baseline": f"bare rclpy receiver idle {res['bare_idle']['pct']:.2f}% of a core",
-            "measured": measured,
-            "ratio": f"after: {idle / 0.3:.2f}x the target",
-        }
-    )
-    idle = res["handler_idle_later"]["pct"]
-    measured = f"edgerv handler idle {idle:.2f}% of a core"
-    if has_before:
-        before = res["before_idle_later"]["pct"]
-        measured = f"before: {before:.2f}%; after: {idle:.2f}% of a core"
-    out.append(
-        {
-            "name": "the edge's cost, idle: the same 200 monitors later (target <= 0.3% of a core)",
-            "detail": f"{seconds:g} s from {LATER:g} s after the handler was ready, past its "
-            "statuses' steps at 10 s (stale) and 1 min (the next at 10 min); pinned to core "
-            f"{RX_CORE}",
-            "baseline": "target 0.3% of a core",
-            "measured": measured,
-            "ratio": f"after: {idle / 0.3:.2f}x the target",
-        }
-    )
-    if "handler_idle_10k" in res:
-        idle = res["handler_idle_10k"]["pct"]
+
+    def idle_row(key: str, name: str, detail: str, baseline: str, target: float) -> None:
+        """The row of the idle window ``key`` (handler_KEY, and before_KEY if measured)."""
+        idle = res[f"handler_{key}"]["pct"]
         measured = f"edgerv handler idle {idle:.2f}% of a core"
         if has_before:
-            measured = f"before: {res['before_idle_10k']['pct']:.2f}%; after: {idle:.2f}% of a core"
-        out.append(
-            {
-                "name": "the edge's cost, idle: 10,000 monitors on 100 topics, no traffic "
-                "(target <= 1% of a core)",
-                "detail": f"{seconds:g} s, pinned to core {RX_CORE}, bench/scale.py's monitors",
-                "baseline": "target 1% of a core",
-                "measured": measured,
-                "ratio": f"after: {idle:.2f}x the target",
-            }
-        )
-        idle = res["handler_idle_10k_later"]["pct"]
-        measured = f"edgerv handler idle {idle:.2f}% of a core"
-        if has_before:
-            before = res["before_idle_10k_later"]["pct"]
+            before = res[f"before_{key}"]["pct"]
             measured = f"before: {before:.2f}%; after: {idle:.2f}% of a core"
         out.append(
             {
-                "name": "the edge's cost, idle: the same 10,000 monitors later (target <= 1% "
-                "of a core)",
-                "detail": f"{seconds:g} s from {LATER:g} s after the handler was ready, past "
-                "its statuses' steps at 10 s (stale) and 1 min, when the diagnostics read "
-                f"every monitor anew (the next at 10 min); pinned to core {RX_CORE}",
-                "baseline": "target 1% of a core",
+                "name": name,
+                "detail": detail,
+                "baseline": baseline,
                 "measured": measured,
-                "ratio": f"after: {idle:.2f}x the target",
+                "ratio": f"after: {idle / target:.2f}x the target",
             }
+        )
+
+    later = f"{seconds:g} s from {LATER:g} s after the handler was ready, past its statuses' "
+    idle_row(
+        "idle",
+        "the edge's cost, idle: 200 monitors, no traffic (target <= 0.3% of a core)",
+        f"{seconds:g} s, pinned to core {RX_CORE}; the same bare receiver idle in turn with it",
+        f"bare rclpy receiver idle {res['bare_idle']['pct']:.2f}% of a core",
+        0.3,
+    )
+    idle_row(
+        "idle_later",
+        "the edge's cost, idle: the same 200 monitors later (target <= 0.3% of a core)",
+        later + f"steps at 10 s (stale) and 1 min (the next at 10 min); pinned to core {RX_CORE}",
+        "target 0.3% of a core",
+        0.3,
+    )
+    if "handler_idle_10k" in res:
+        idle_row(
+            "idle_10k",
+            "the edge's cost, idle: 10,000 monitors on 100 topics, no traffic "
+            "(target <= 1% of a core)",
+            f"{seconds:g} s, pinned to core {RX_CORE}, bench/scale.py's monitors",
+            "target 1% of a core",
+            1.0,
+        )
+        idle_row(
+            "idle_10k_later",
+            "the edge's cost, idle: the same 10,000 monitors later (target <= 1% of a core)",
+            later + "steps at 10 s (stale) and 1 min, when the diagnostics read every monitor "
+            f"anew (the next at 10 min); pinned to core {RX_CORE}",
+            "target 1% of a core",
+            1.0,
         )
     return out
 
