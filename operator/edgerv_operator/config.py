@@ -9,7 +9,6 @@ starts and hands it to the handlers in Kopf's ``memo``) and the self-test's;
 from __future__ import annotations
 
 import os
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -17,11 +16,13 @@ from edgerv.control.placement import PolicyConfig, tier_latencies
 from edgerv.control.tls import ClientTls
 from edgerv.control.token import Token, TokenFile
 from edgerv.core.diagnostics import InputError
+from edgerv.core.robots import LABEL_KEY
 from edgerv_operator.constants import (
     HANDLER_PORT,
     HANDLER_SELECTOR,
     LIVENESS,
     PLACEMENT_SECONDS,
+    ROBOT_LABEL,
     TIER_LABEL,
     TIERS,
 )
@@ -39,6 +40,7 @@ VARIABLES = (  # every variable the operator, its self-test and its uninstall ho
     "EDGERV_TIERS",
     "EDGERV_TIER_LATENCY",
     "EDGERV_TIER_LABEL",
+    "EDGERV_ROBOT_LABEL",
     "EDGERV_PLACEMENT_SECONDS",
     "EDGERV_WATCH_NAMESPACES",
     "EDGERV_PEERING",
@@ -51,13 +53,6 @@ class ConfigError(Exception):
     """A setting that cannot be used: which variable, and why."""
 
 
-# a Kubernetes label key: an optional DNS-subdomain prefix and a name of up to 63 characters
-_LABEL_KEY = re.compile(
-    r"([a-z0-9]([-a-z0-9]*[a-z0-9])?(\.[a-z0-9]([-a-z0-9]*[a-z0-9])?)*/)?"
-    r"[A-Za-z0-9]([-A-Za-z0-9_.]{0,61}[A-Za-z0-9])?"
-)
-
-
 def parse_selector(text: str) -> dict[str, str] | None:
     """``key=value,key=value`` as a dict; None when it is not of that form."""
     labels = {}
@@ -67,6 +62,14 @@ def parse_selector(text: str) -> dict[str, str] | None:
             return None
         labels[key.strip()] = value.strip()
     return labels or None
+
+
+def _label(env: Mapping[str, str], variable: str, default: str) -> str:
+    """A node label key the operator reads (EDGERV_TIER_LABEL, EDGERV_ROBOT_LABEL)."""
+    key = env.get(variable, default)
+    if not LABEL_KEY.match(key):
+        raise ConfigError(f"{variable}: '{key}' is not a label key (e.g. {default})")
+    return key
 
 
 def _environment(env: Mapping[str, str] | None) -> Mapping[str, str]:
@@ -161,6 +164,7 @@ class OperatorConfig:
     tiers: tuple[str, ...]  # lowest first: a monitor without placement.tier starts on the first
     placement_seconds: float = PLACEMENT_SECONDS  # between rounds of the placement policy; 0: none
     tier_label: str = TIER_LABEL  # the node label whose value is the node's tier
+    robot_label: str = ROBOT_LABEL  # the node label whose value names the node's robot
     tls: ClientTls | None = None  # how the handlers' certificates are verified (None: HTTP)
     tier_latency_ms: Mapping[str, float] = field(default_factory=dict)  # from the robot
     watch_namespaces: tuple[str, ...] = ()  # the Monitors' namespaces (empty: every one)
@@ -207,10 +211,14 @@ class OperatorConfig:
                 f"EDGERV_HANDLER_SELECTOR: '{selector}' is not a list of key=value labels "
                 "(e.g. app.kubernetes.io/component=handler)"
             )
-        tier_label = env.get("EDGERV_TIER_LABEL", TIER_LABEL)
-        if not _LABEL_KEY.fullmatch(tier_label):
+        tier_label, robot_label = (
+            _label(env, "EDGERV_TIER_LABEL", TIER_LABEL),
+            _label(env, "EDGERV_ROBOT_LABEL", ROBOT_LABEL),
+        )
+        if tier_label == robot_label:
             raise ConfigError(
-                f"EDGERV_TIER_LABEL: '{tier_label}' is not a label key (e.g. {TIER_LABEL})"
+                f"EDGERV_ROBOT_LABEL: '{robot_label}' is the tier label too: a node's robot "
+                "and its tier are two labels"
             )
         return cls(
             namespace=namespace,
@@ -220,6 +228,7 @@ class OperatorConfig:
             tiers=tiers,
             placement_seconds=placement_seconds,
             tier_label=tier_label,
+            robot_label=robot_label,
             tls=tls,
             tier_latency_ms=latency,
             watch_namespaces=_watched(env),

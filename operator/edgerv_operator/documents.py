@@ -9,20 +9,23 @@ told back by the field it sits in (:func:`describe`), whatever the field.
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, TypedDict
+from typing import Any, NotRequired, TypedDict
 
 import yaml
 
 from edgerv.core.diagnostics import Diagnostic, InputError
-from edgerv.core.documents import API_VERSION, KIND, parse_monitors_text
+from edgerv.core.documents import API_VERSION, KIND, MonitorSpec, parse_monitors_text
 from edgerv.core.monitor import compile_monitor
+from edgerv.core.robots import INSTANCE_LABEL, instance_name, instance_spec
 
 
 class Metadata(TypedDict):
     name: str
+    labels: NotRequired[dict[str, str]]
 
 
 class MonitorDocument(TypedDict):
@@ -46,6 +49,25 @@ def monitor_document(namespace: str, name: str, spec: Mapping[str, Any]) -> Moni
         "kind": KIND,
         "metadata": {"name": handler_name(namespace, name)},
         "spec": dict(spec),
+    }
+
+
+def instance_document(
+    namespace: str, name: str, spec: Mapping[str, Any], robot: str | None
+) -> MonitorDocument:
+    """The document of a Monitor's instance for ``robot`` (edgerv.core.robots): named
+    ``<namespace>.<name>.<robot>``, labelled with its robot, reading the robot's graph;
+    for no robot (a cluster without robots), the Monitor's own document."""
+    if robot is None:
+        return monitor_document(namespace, name, spec)
+    return {
+        "apiVersion": API_VERSION,
+        "kind": KIND,
+        "metadata": {
+            "name": instance_name(handler_name(namespace, name), robot),
+            "labels": {INSTANCE_LABEL: robot},
+        },
+        "spec": instance_spec(spec, robot),
     }
 
 
@@ -109,14 +131,28 @@ def describe(d: Diagnostic, text: str) -> str:
 
 def problems(document: MonitorDocument) -> list[str]:
     """What is wrong with a Monitor document (its shape, its assertion), or nothing."""
-    text = document_text(document)
+    return read(document)[1]
+
+
+def read(document: MonitorDocument) -> tuple[MonitorSpec | None, list[str]]:
+    """A Monitor document as the handlers read it, and what is wrong with it (its shape,
+    its assertion): the spec when nothing is. Kept for the last documents read (each
+    Monitor's status refresh asks again every few seconds: its assertion is compiled
+    once)."""
+    spec, errors = _read_text(document_text(document))
+    return spec, list(errors)
+
+
+@functools.lru_cache(maxsize=1024)
+def _read_text(text: str) -> tuple[MonitorSpec | None, tuple[str, ...]]:
     specs, diagnostics = parse_monitors_text("Monitor", text)
     if specs and not diagnostics:
         try:
             compile_monitor(specs[0])
         except InputError as exc:
             diagnostics = exc.diagnostics
-    return [describe(d, text) for d in diagnostics if d.severity == "error"]
+    errors = tuple(describe(d, text) for d in diagnostics if d.severity == "error")
+    return (specs[0] if specs and not errors else None), errors
 
 
 @dataclass(frozen=True)
@@ -131,6 +167,7 @@ class HandlerPod:
     address: str  # HOST:PORT
     pod: str = ""
     incarnation: str = ""
+    robot: str | None = None  # the robot whose node it is (None: a shared node)
 
     def __post_init__(self) -> None:
         if not self.incarnation:

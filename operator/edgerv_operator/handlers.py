@@ -44,19 +44,30 @@ from edgerv.control.migrate import migrate, settle
 from edgerv.control.orchestrate import Orchestrator, Target
 from edgerv.control.placement import HandlerReport
 from edgerv.control.wire import MonitorReport
+from edgerv.core.robots import Fleet, fleet_of, may_host
 from edgerv_operator.config import ConfigError, OperatorConfig
 from edgerv_operator.constants import FINALIZER, MONITORS
 from edgerv_operator.documents import (
     HandlerPod,
     document_text,
     handler_name,
+    instance_document,
     monitor_document,
-    problems,
+    read,
 )
 from edgerv_operator.placement import change, choose, destination, placement_of, tier_of
 from edgerv_operator.pods import PodFacts, PodWatch
 from edgerv_operator.pods import login as pods_login
-from edgerv_operator.status import Event, Survey, invalid, moved, refreshed
+from edgerv_operator.status import (
+    FLEET_FIELDS,
+    Event,
+    Survey,
+    fleet_refreshed,
+    invalid,
+    moved,
+    refreshed,
+    robot_refreshed,
+)
 
 log = logging.getLogger("edgerv.operator")
 STATUS_SECONDS = 5.0
@@ -92,13 +103,16 @@ class Operator:
     reports: dict[HandlerPod, dict[str, MonitorReport]] = field(default_factory=dict)
     silent: set[HandlerPod] = field(default_factory=set)
     notes: dict[str, MoveNote] = field(default_factory=dict)  # monitor -> its last move
+    # instance -> the document last given to its handlers (a retry, or a spec edit that
+    # leaves an instance's document as it was, does not restart it)
+    defined: dict[str, str] = field(default_factory=dict)
 
     def client(self, pod: HandlerPod) -> HandlerClient:
         return HandlerClient(self.config.url(pod.address), self.config.token, self.config.tls)
 
     def target(self, pod: HandlerPod) -> Target:
         """The pod as the placement rounds poll it."""
-        return Target(pod.tier or "", self.config.url(pod.address))
+        return Target(pod.tier or "", self.config.url(pod.address), pod.robot)
 
     def seen(self, pods: Sequence[HandlerPod]) -> dict[HandlerPod, HandlerReport]:
         """The pods' loads as the placement rounds last read them (a pod not read yet: none)."""
@@ -207,6 +221,40 @@ class Handlers:
     def every(self) -> list[HandlerPod]:
         return self.ready + self.leaving + self.unready
 
+    def hosting(self, robot: str | None) -> Handlers:
+        """Those that may run an instance of ``robot``: its robot's and the shared ones."""
+
+        def mine(pods: list[HandlerPod]) -> list[HandlerPod]:
+            return [p for p in pods if may_host(robot, p.robot)]
+
+        return Handlers(mine(self.ready), mine(self.leaving), mine(self.unready))
+
+
+_REFUSED_SAID: set[tuple[str, str]] = set()  # (node, label value) warned about once
+
+
+def cluster_fleet(cfg: OperatorConfig, nodes: kopf.Index[str, dict[str, str]]) -> Fleet:
+    """The cluster's robots, from its nodes' labels (the chart's ``fleet.robotLabel``);
+    a node labelled with no valid robot name is said once in the log."""
+    labels = {}
+    for node in list(nodes):
+        try:
+            labels[node] = next(iter(nodes[node]), {})
+        except KeyError:  # gone meanwhile
+            continue
+    fleet = fleet_of(labels, cfg.robot_label)
+    for node, value in fleet.refused.items():
+        if (node, value) not in _REFUSED_SAID:
+            _REFUSED_SAID.add((node, value))
+            log.warning(
+                "node %s: %s=%r names no robot (a lower-case letter, then letters, digits "
+                "and '-', at most 63): its handler runs nothing",
+                node,
+                cfg.robot_label,
+                value,
+            )
+    return fleet
+
 
 def pod_facts(pods: Mapping[str, Any]) -> list[PodFacts]:
     """What the pods index holds now. Its operator's thread updates it meanwhile: the keys
@@ -224,13 +272,18 @@ def cluster_handlers(
     cfg: OperatorConfig, pods: Mapping[str, Any], nodes: kopf.Index[str, dict[str, str]]
 ) -> Handlers:
     found = Handlers([], [], [])
+    fleet = cluster_fleet(cfg, nodes)
     for p in pod_facts(pods):
         if p.namespace != cfg.namespace:
             continue
         labels = next(iter(nodes.get(p.node, [])), {})
         tier = labels.get(cfg.tier_label)
-        h = HandlerPod(p.node, tier, f"{p.host_ip}:{cfg.port}", p.name, p.incarnation)
-        (found.leaving if p.leaving else found.ready if p.ready else found.unready).append(h)
+        h = HandlerPod(
+            p.node, tier, f"{p.host_ip}:{cfg.port}", p.name, p.incarnation, fleet.robot_of(p.node)
+        )
+        # a node whose robot label names no robot serves no one: asked, given nothing
+        ready = p.ready and p.node not in fleet.refused
+        (found.leaving if p.leaving else found.ready if ready else found.unready).append(h)
     return found
 
 
@@ -270,10 +323,15 @@ def tend(op: Operator, handlers: Handlers) -> None:
         settle_orphans(op, handlers.every)
         ready = handlers.ready
         for pod in handlers.leaving:
-            names = [n for n, r in op.reports.get(pod, {}).items() if r.get("active")]
-            target = destination(ready, None, op.config.tiers, leaving=pod)
-            if names and target is not None:
-                _move(op, pod, target, names, f"pod {pod.pod} is going away")
+            by_robot: dict[str | None, list[str]] = {}
+            for n, r in op.reports.get(pod, {}).items():
+                if r.get("active"):
+                    by_robot.setdefault(r["placement"].get("robot"), []).append(n)
+            for robot, names in by_robot.items():
+                mine = [h for h in ready if may_host(robot, h.robot)]
+                target = destination(mine, None, op.config.tiers, leaving=pod)
+                if target is not None:
+                    _move(op, pod, target, names, f"pod {pod.pod} is going away")
         every = op.config.placement_seconds
         if every > 0 and time.monotonic() - op.placed_at >= every:
             op.placed_at = time.monotonic()
@@ -388,19 +446,22 @@ def _transient(exc: ApiError) -> kopf.TemporaryError:
 def place(
     op: Operator,
     handlers: Handlers,
-    hname: str,
-    document: str,
+    instance: Instance,
     spec: Mapping[str, Any],
     redefine: bool,
 ) -> None:
-    """Define the monitor on every ready handler, running on one.
+    """Define the instance on every ready handler of ``handlers`` (those that may run it),
+    running on one.
 
     ``redefine``: give the definition to every handler (a new or changed spec: that
     restarts it, unless only its placement changed). Otherwise (the operator or a
     handler restarted) only handlers lacking it get it; what runs keeps its state."""
-    ready = handlers.ready
+    hname, document, ready = instance.hname, instance.document, handlers.ready
     if not ready:
-        raise kopf.TemporaryError(f"no edgerv handler is ready in {op.config.namespace}", delay=10)
+        whose = f" on robot {instance.robot}'s nodes or a shared one" if instance.robot else ""
+        raise kopf.TemporaryError(
+            f"no edgerv handler is ready in {op.config.namespace}{whose}", delay=10
+        )
     elsewhere = [
         p for p in handlers.leaving + handlers.unready if _runs(op.reports.get(p, {}).get(hname))
     ]
@@ -432,15 +493,50 @@ def place(
         raise kopf.PermanentError(str(exc)) from None
     except ApiError as exc:
         raise _transient(exc) from None
+    if redefine:
+        op.defined[hname] = document
     op.surveyed_at = float("-inf")  # the next status refresh surveys afresh
 
 
-def _checked(name: str, namespace: str, spec: Mapping[str, Any]) -> str:
-    document = monitor_document(namespace, name, spec)
-    errors = problems(document)
-    if errors:
-        raise kopf.PermanentError("; ".join(errors))
-    return document_text(document)
+MAX_NAME = 253  # a monitor's name on the handlers: a Kubernetes object name
+
+
+@dataclass(frozen=True)
+class Instance:
+    """One of a Monitor's instances: its name on the handlers, its robot (None: the
+    Monitor of a cluster without robots, run once as written) and its document."""
+
+    hname: str
+    robot: str | None
+    document: str
+
+
+def instances(name: str, namespace: str, spec: Mapping[str, Any], fleet: Fleet) -> list[Instance]:
+    """A Monitor's instances: one per robot its ``spec.robots`` selects when the cluster
+    has robots (none when it selects none), else one. A spec that cannot run: a
+    PermanentError saying why, by field path."""
+    parsed, errors = read(monitor_document(namespace, name, spec))
+    if errors or parsed is None:
+        raise kopf.PermanentError("; ".join(errors) or "the spec cannot be read")
+    if not fleet.robots:
+        return [Instance(handler_name(namespace, name), None, _text(namespace, name, spec, None))]
+    found = [
+        Instance(str(doc["metadata"]["name"]), robot, document_text(doc))
+        for robot in fleet.selected(parsed.robots)
+        for doc in [instance_document(namespace, name, spec, robot)]
+    ]
+    for inst in found:
+        if len(inst.hname) > MAX_NAME:
+            raise kopf.PermanentError(
+                f"metadata.name: the instance for robot {inst.robot} would be named "
+                f"{inst.hname[:40]}... ({len(inst.hname)} characters, at most {MAX_NAME}): "
+                "shorten the Monitor's name"
+            )
+    return found
+
+
+def _text(namespace: str, name: str, spec: Mapping[str, Any], robot: str | None) -> str:
+    return document_text(instance_document(namespace, name, spec, robot))
 
 
 def _apply(
@@ -459,18 +555,25 @@ def _apply(
     op = _operator(memo)
     generation = int(meta.get("generation") or 0)
     handlers = cluster_handlers(op.config, op.pods.index, node_labels)
-    hname = handler_name(namespace, name)
     what = change(old, spec) if old is not None else ("redefine" if redefine else "none")
+    waiting: list[str] = []  # instances that wait for a handler (the others are placed)
     try:  # refused here or by the handlers: the spec is wrong, until it changes
-        document = _checked(name, namespace, spec)
+        found = instances(name, namespace, spec, cluster_fleet(op.config, node_labels))
         with op.moving:  # no move runs meanwhile: none is undone by a definition
-            settle_held(op, handlers.ready, hname)
-            if what == "move":
-                place(op, handlers, hname, document, spec, redefine=True)  # placement in place
-                _move_to_tier(op, handlers.ready, hname, spec)
-            else:
-                redefine = what in ("redefine", "placement")
-                place(op, handlers, hname, document, spec, redefine=redefine)
+            for inst in found:
+                mine = handlers.hosting(inst.robot)
+                settle_held(op, mine.ready, inst.hname)
+                anew = what in ("redefine", "placement", "move") and (
+                    op.defined.get(inst.hname) != inst.document
+                )
+                try:
+                    place(op, mine, inst, spec, redefine=anew)
+                    if what == "move":  # placement in place (above), then the handoff
+                        _move_to_tier(op, mine.ready, inst.hname, spec)
+                except kopf.TemporaryError as exc:
+                    if len(found) == 1:
+                        raise
+                    waiting.append(f"robot {inst.robot}: {exc}")
     except ApiError as exc:  # settling: the handler did not answer
         raise _transient(exc) from None
     except kopf.PermanentError as exc:
@@ -487,12 +590,15 @@ def _apply(
             reason="Redefined",
             message="the spec changed: the monitor restarted with it (its state afresh)",
         )
+    if waiting:  # the placed ones are not given their definition again: no restart
+        raise kopf.TemporaryError("; ".join(waiting), delay=10)
 
 
 def _move_to_tier(
     op: Operator, ready: list[HandlerPod], hname: str, spec: Mapping[str, Any]
 ) -> None:
-    """A tier edit: move the running monitor to a handler of its new tier by the handoff."""
+    """A tier edit: move the running monitor to a handler of its new tier by the handoff
+    (``ready``: the handlers that may run it)."""
     tier = tier_of(spec)
     runner = None
     for p in ready:
@@ -543,27 +649,56 @@ def _kopf(kw: Mapping[str, Any]) -> dict[str, Any]:
     return {k: kw[k] for k in keys}
 
 
+def ours(op: Operator, base: str) -> dict[str, str | None]:
+    """The instances of the Monitor named ``base`` on the handlers that the last survey
+    found (name -> robot): ``base`` itself (no robot), and ``base.ROBOT`` labelled ROBOT."""
+    found: dict[str, str | None] = {}
+    for reports in op.reports.values():
+        for n, r in reports.items():
+            robot = r["placement"].get("robot")
+            if (n == base and robot is None) or (robot is not None and n == f"{base}.{robot}"):
+                found[n] = robot
+    return found
+
+
+def _remove(op: Operator, pods: Sequence[HandlerPod], names: Sequence[str]) -> list[str]:
+    """Remove ``names`` from every pod; what did not answer, said."""
+    unanswered = []
+    for pod in pods:
+        for hname in names:
+            try:
+                op.client(pod).delete(hname, timeout=10.0)
+            except NotFound:
+                pass
+            except ApiError as exc:
+                unanswered.append(f"{hname} on {pod.pod} ({pod.node}): {exc}")
+        for hname in names:
+            op.notes.pop(hname, None)
+            op.defined.pop(hname, None)
+    return unanswered
+
+
 @kopf.on.delete(*MONITORS)
 def deleted(
     name: str,
     namespace: str | None,
+    spec: kopf.Spec,
     memo: kopf.Memo,
     **kw: Any,
 ) -> None:
-    """Remove it from every handler pod there is; one that does not answer is asked
-    again until it does or its pod is gone (the finalizer holds the Monitor meanwhile)."""
+    """Remove each instance from every handler pod there is; one that does not answer is
+    asked again until it does or its pod is gone (the finalizer holds the Monitor
+    meanwhile)."""
     op = _operator(memo)
     handlers = cluster_handlers(op.config, op.pods.index, kw["node_labels"])
-    hname = handler_name(namespace or "", name)
-    unanswered = []
-    for pod in handlers.every:
-        try:
-            op.client(pod).delete(hname, timeout=10.0)
-        except NotFound:
-            pass
-        except ApiError as exc:
-            unanswered.append(f"{pod.pod} on {pod.node}: {exc}")
-    op.notes.pop(hname, None)
+    base = handler_name(namespace or "", name)
+    names = set(ours(op, base)) | {base}
+    try:
+        fleet = cluster_fleet(op.config, kw["node_labels"])
+        names |= {i.hname for i in instances(name, namespace or "", dict(spec), fleet)}
+    except kopf.PermanentError:
+        pass  # a spec that never ran: its name alone
+    unanswered = _remove(op, handlers.every, sorted(names))
     if unanswered:
         raise kopf.TemporaryError(
             "not yet removed from " + "; ".join(unanswered) + " (retrying until it answers "
@@ -584,9 +719,10 @@ def refresh(
     memo: kopf.Memo,
     **kw: Any,
 ) -> None:
-    """Refresh the status from the survey; post the Events it calls for; give the
-    definition again to handlers that lost it (never during a handoff: a new definition
-    would restart the monitor and undo it)."""
+    """Refresh the status from the survey; post the Events it calls for; remove the
+    instances of robots no longer selected (or gone); give the definition again to
+    handlers that lost it (never during a handoff: a new definition would restart the
+    monitor and undo it)."""
     generation = int(meta.get("generation") or 0)
     if status.get("phase") == "Error" and status.get("observedGeneration") == generation:
         return  # until the spec changes
@@ -594,14 +730,55 @@ def refresh(
     handlers = cluster_handlers(op.config, op.pods.index, kw["node_labels"])
     survey_and_tend(op, handlers)
     namespace = namespace or ""
-    hname = handler_name(namespace, name)
-    previous: dict[str, Any] = dict(status)
-    events: list[Event] = []
-    note = op.notes.get(hname)
-    if note is not None and note.at >= op.surveyed_at:
-        op.surveyed_at = float("-inf")  # its reports predate the move: next time, afresh
+    fleet = cluster_fleet(op.config, kw["node_labels"])
+    found = instances(name, namespace, dict(spec), fleet)
+    if any(
+        n is not None and n.at >= op.surveyed_at for n in (op.notes.get(i.hname) for i in found)
+    ):
+        op.surveyed_at = float("-inf")  # its reports predate a move: next time, afresh
         return
-    op.notes.pop(hname, None)
+    base = handler_name(namespace, name)
+    wanted = {i.hname for i in found}
+    stale = [n for n in ours(op, base) if n not in wanted and not _in_handoff(op, n)]
+    if stale and op.moving.acquire(blocking=False):  # (a move runs: next time)
+        try:  # a robot gone, or no longer selected: its instance goes
+            _remove(op, handlers.every, stale)
+            log.info("removed %s: no robot of %s/%s runs it now", ", ".join(stale), namespace, name)
+        finally:
+            op.moving.release()
+    if fleet.robots:
+        new, events = _fleet_status(op, dict(status), found, generation, fleet)
+    else:
+        new, events = _instance_status(op, dict(status), found[0].hname, generation)
+        for key in FLEET_FIELDS:  # from when the cluster had robots
+            if key in status:
+                new[key] = None
+    new.pop("kopf", None)  # Kopf's own field: its progress is not ours to write
+    patch.status.update(new)
+    _post(body, events)
+    waiting = []
+    for inst in found:
+        try:
+            _replace_lost(op, handlers.hosting(inst.robot), inst, dict(spec))
+        except kopf.TemporaryError as exc:
+            if len(found) == 1:
+                raise
+            waiting.append(f"robot {inst.robot}: {exc}")
+    if waiting:
+        raise kopf.TemporaryError("; ".join(waiting), delay=10)
+
+
+def _in_handoff(op: Operator, hname: str) -> bool:
+    return any((r := reports.get(hname)) and r["handoff"] for reports in op.reports.values())
+
+
+def _instance_status(
+    op: Operator, previous: dict[str, Any], hname: str, generation: int
+) -> tuple[dict[str, Any], list[Event]]:
+    """The status of one instance (a Monitor's in a cluster without robots: its whole
+    status; a robot's: its entry in ``status.robots``), its move noted, from the survey."""
+    events: list[Event] = []
+    note = op.notes.pop(hname, None)
     if note is not None:
         previous, events = moved(
             previous, note.source, note.destination, note.reason, _now(), note.ms
@@ -613,16 +790,33 @@ def refresh(
             [p for p in survey.silent if p != note.source],
         )
     new, more = refreshed(previous, survey, generation, _now(), time.time())
-    events += more
-    seen_before = ((status.get("tally") or {}).get("seen") or {}).keys()
+    seen_before = ((previous.get("tally") or {}).get("seen") or {}).keys()
     for key in seen_before - new["tally"]["seen"].keys():
         new["tally"]["seen"][key] = None  # a merge patch removes it
-    new.pop("kopf", None)  # Kopf's own field: its progress is not ours to write
-    patch.status.update(new)
-    _post(body, events)
-    reports = survey.reports
+    return new, events + more
+
+
+def _fleet_status(
+    op: Operator, previous: dict[str, Any], found: list[Instance], generation: int, fleet: Fleet
+) -> tuple[dict[str, Any], list[Event]]:
+    """A fleet's Monitor: each selected robot's entry, then the totals."""
+    before = previous.get("robots") or {}
+    robots: dict[str, dict[str, Any]] = {}
+    events: list[Event] = []
+    for inst in found:
+        assert inst.robot is not None
+        was = dict(before.get(inst.robot) or {})
+        entry, more = _instance_status(op, was, inst.hname, generation)
+        robots[inst.robot] = robot_refreshed(entry)
+        events += [Event(e.type, e.reason, f"robot {inst.robot}: {e.message}") for e in more]
+    return fleet_refreshed(previous, robots, sorted(fleet.robots), generation, _now(), events)
+
+
+def _replace_lost(op: Operator, handlers: Handlers, inst: Instance, spec: dict[str, Any]) -> None:
+    """Give the definition again to the handlers that lost it, and start it where it
+    runs nowhere (never during a handoff)."""
+    reports = survey_of(op, inst.hname).reports
     moving = any(r and r.get("handoff") for r in reports.values())
     lacking = any(reports.get(p) is None for p in handlers.ready if p in reports)
     if not moving and (lacking or not any(r and r.get("active") for r in reports.values())):
-        document = _checked(name, namespace, dict(spec))
-        place(op, handlers, hname, document, dict(spec), redefine=False)
+        place(op, handlers, inst, spec, redefine=False)

@@ -160,6 +160,19 @@ def condition(
     return conditions  # type: ignore[return-value]
 
 
+def valid_and(
+    previous: list[Condition] | None,
+    ready: str,
+    reason: str,
+    message: str,
+    generation: int,
+    now: str,
+) -> list[Condition]:
+    """The conditions of a spec that compiles: Valid true, and Ready as said."""
+    valid = condition(previous, "Valid", "True", "Compiled", "", generation, now)
+    return condition(valid, "Ready", ready, reason, message, generation, now)  # type: ignore[arg-type]
+
+
 def invalid(
     previous: Mapping[str, Any], message: str, generation: int, now: str
 ) -> tuple[dict[str, Any], list[Event]]:
@@ -247,14 +260,8 @@ def refreshed(
 
     status["phase"] = phase
     status["message"] = message
-    status["conditions"] = condition(
-        condition(status.get("conditions"), "Valid", "True", "Compiled", "", generation, now),
-        "Ready",
-        ready,  # type: ignore[arg-type]
-        reason,
-        message,
-        generation,
-        now,
+    status["conditions"] = valid_and(
+        status.get("conditions"), ready, reason, message, generation, now
     )
     events += _violations(previous, status, totals, now, now_seconds)
     return status, events
@@ -335,3 +342,94 @@ def moved(
         f"({destination.tier}) in {ms:.0f} ms: {reason}"
     )
     return status, [Event("Normal", "Moved", message)]
+
+
+# -- a fleet: a Monitor with an instance per robot (edgerv.core.robots) ------------------
+
+# what a robot's entry in status.robots keeps of its instance's status (the rest, such as
+# conditions, is the Monitor's)
+ROBOT_FIELDS = (
+    "phase",
+    "message",
+    "tier",
+    "handler",
+    "lastVerdict",
+    "verdicts",
+    "events",
+    "migrations",
+    "stateLost",
+    "tally",
+    "violationEvents",
+)
+# what only a Monitor of a cluster without robots has at the top of its status
+SINGLE_FIELDS = ("tier", "handler", "migrations", "stateLost", "tally", "violationEvents")
+# and what only a fleet's has
+FLEET_FIELDS = ("robots", "desired", "running", "violated")
+
+
+def robot_refreshed(instance: Mapping[str, Any]) -> dict[str, Any]:
+    """A robot's entry in ``status.robots``, from its instance's refreshed status."""
+    return {k: copy.deepcopy(instance[k]) for k in ROBOT_FIELDS if k in instance}
+
+
+def fleet_refreshed(
+    previous: Mapping[str, Any],
+    robots: Mapping[str, Mapping[str, Any]],
+    fleet: list[str],
+    generation: int,
+    now: str,
+    events: list[Event],
+) -> tuple[dict[str, Any], list[Event]]:
+    """The status of a Monitor with an instance per robot: ``robots`` (robot -> its
+    entry), the totals as a DaemonSet's (``desired``, ``running``, ``violated``: robots
+    whose instance runs, and that have violated it), the verdicts and events over all of
+    them, the newest verdict, phase and conditions. ``fleet``: the cluster's robots (said
+    when the Monitor selects none). A merge patch: robots no longer selected are None.
+    The totals are over the robots selected now: a robot that leaves takes its counts."""
+    status: dict[str, Any] = {}
+    entries: dict[str, Any] = {r: dict(e) for r, e in robots.items()}
+    for gone in (previous.get("robots") or {}).keys() - robots.keys():
+        entries[gone] = None
+    for single in SINGLE_FIELDS:  # from before the cluster had robots
+        if single in previous:
+            status[single] = None
+    desired = len(robots)
+    running = sum(1 for e in robots.values() if e.get("phase") == "Running")
+    violated = sum(1 for e in robots.values() if (e.get("verdicts") or {}).get("violated"))
+    totals = {"violated": 0, "satisfied": 0}
+    for e in robots.values():
+        for k in totals:
+            totals[k] += int((e.get("verdicts") or {}).get(k, 0))
+    last = None
+    for e in robots.values():
+        v = e.get("lastVerdict")
+        if v is not None and (last is None or v["stamp"] > last["stamp"]):
+            last = v
+    status.update(
+        robots=entries,
+        desired=desired,
+        running=running,
+        violated=violated,
+        verdicts=totals,
+        events=sum(int(e.get("events") or 0) for e in robots.values()),
+    )
+    status["lastVerdict"] = dict(last) if last is not None else None  # (None: a merge removes it)
+    phases = {e.get("phase") for e in robots.values()}
+    if not robots:
+        phase, ready, reason = "Pending", "False", "NoRobot"
+        message = "spec.robots selects none of the robots: " + (", ".join(fleet) or "none")
+    elif running == desired:
+        phase, ready, reason = "Running", "True", "Running"
+        message = f"runs on {desired} robot{'s' if desired != 1 else ''}"
+    else:
+        phase = "Migrating" if "Migrating" in phases else "Pending"
+        ready, reason = "False", "NotAllRunning"
+        others = sorted(r for r, e in robots.items() if e.get("phase") != "Running")
+        message = f"runs on {running} of {desired} robots; not on {', '.join(others)}"
+    status["phase"] = phase
+    status["message"] = message
+    status["conditions"] = valid_and(
+        previous.get("conditions"), ready, reason, message, generation, now
+    )
+    status["observedGeneration"] = generation
+    return status, events

@@ -10,11 +10,13 @@ What ``up`` does, in order (each step is skipped when already done):
    (``openssl``), kubeconfigs; the admin one is ``.cluster/kubeconfig``;
 3. the control plane, on this host: etcd, kube-apiserver (RBAC and Node
    authorization, NodeRestriction), kube-controller-manager, kube-scheduler;
-4. two nodes, ``edge`` and ``cloud``, each a network namespace with its own
-   containerd (Debian's, runc, cgroupfs) and kubelet (its own root dir and
-   cgroup root). Each node reaches the API server over a veth pair; the nodes
-   reach each other over ``tests/netlab/linkdelay.py``, a user-space link that
-   holds each packet ``EDGERV_LINK_DELAY_MS`` (20 ms) each way (no netem here).
+4. three nodes, ``edge``, ``cloud`` and ``edge-b`` (a second robot's edge node, for
+   the fleet tests), each a network namespace with its own containerd (Debian's,
+   runc, cgroupfs) and kubelet (its own root dir and cgroup root). Each node
+   reaches the API server over a veth pair; each edge node reaches the cloud over
+   ``tests/netlab/linkdelay.py``, a user-space link that holds each packet
+   ``EDGERV_LINK_DELAY_MS`` (20 ms) each way (no netem here); the two edges do not
+   reach each other (two robots).
    Pod networking is the CNI bridge plugin (a subnet per node, no routes
    between the pod subnets; pods reach other nodes' addresses masqueraded as
    their node's): edgerv's handlers use the host network of their node. There is
@@ -24,7 +26,8 @@ What ``up`` does, in order (each step is skipped when already done):
    project's images built FROM it by Docker (``images/``) and imported into
    each node's containerd: ``edgerv/handler:dev``, ``edgerv/operator:dev``, and
    the pause image;
-6. labels ``edgerv.io/tier=edge`` / ``cloud``; waits until both nodes are Ready.
+6. labels ``edgerv.io/tier=edge`` / ``cloud`` (``edge-b`` none: no handler runs there
+   until a fleet test labels it); waits until every node is Ready.
 
 ``down`` stops everything ``up`` started (recorded in ``.cluster/pids``),
 unmounts what the kubelets and containerds mounted, removes the namespaces and
@@ -61,11 +64,22 @@ SERVICE_CIDR = "10.96.0.0/16"
 API_PORT = 6443
 READY = "jsonpath={.status.conditions[?(@.type=='Ready')].status}"
 
-# name -> (veth subnet index, link address, pod CIDR)
-NODES = {
-    "edge": {"index": 1, "link": "10.77.250.1", "pods": "10.244.1.0/24"},
-    "cloud": {"index": 2, "link": "10.77.250.2", "pods": "10.244.2.0/24"},
+# name -> veth subnet index, address on its link (the robot's traffic), pod CIDR, the tier
+# label its kubelet registers it with. edge-b is a second robot's edge node, with a link of
+# its own to the cloud; it starts with no tier label, so no handler runs there and the tests
+# of one robot see one edge; the fleet tests (tests/e2e/test_fleet.py) label it.
+NODES: dict[str, dict[str, str | int | None]] = {
+    "edge": {"index": 1, "link": "10.77.250.1", "pods": "10.244.1.0/24", "tier": "edge"},
+    "cloud": {"index": 2, "link": "10.77.250.2", "pods": "10.244.2.0/24", "tier": "cloud"},
+    "edge-b": {"index": 3, "link": "10.77.251.1", "pods": "10.244.3.0/24", "tier": None},
 }
+# the delayed links: (process, node A, its device, node B, its device, B's address there).
+# The cloud is 10.77.250.2 from either edge: edge-b routes that address over its own link
+# (a host accepts a packet for any of its addresses on any of its devices).
+LINKS = [
+    ("linkdelay", "edge", "ervkle", "cloud", "ervklc", "10.77.250.2"),
+    ("linkdelay-b", "edge-b", "ervklb", "cloud", "ervklcb", "10.77.251.2"),
+]
 
 
 def log(msg: str) -> None:
@@ -148,11 +162,7 @@ def wait(what: str, check: object, timeout: float = 120.0, logname: str | None =
 def _cert(
     pki: Path, name: str, subject: str, sans: list[str] | None = None, server: bool = False
 ) -> None:
-    key, crt = pki / f"{name}.key", pki / f"{name}.crt"
-    if crt.exists():
-        return
-    sh("openssl", "genrsa", "-out", str(key), "2048")
-    ext = pki / f"{name}.ext"
+    key, crt, ext = pki / f"{name}.key", pki / f"{name}.crt", pki / f"{name}.ext"
     usage = "serverAuth" if server else "clientAuth"
     lines = [
         "basicConstraints=CA:FALSE",
@@ -161,7 +171,11 @@ def _cert(
     ]
     if sans:
         lines.append("subjectAltName=" + ",".join(sans))
-    ext.write_text("\n".join(lines) + "\n")
+    wanted = "\n".join(lines) + "\n"
+    if crt.exists() and ext.exists() and ext.read_text() == wanted:
+        return  # made before with these names (a node added since: made again)
+    sh("openssl", "genrsa", "-out", str(key), "2048")
+    ext.write_text(wanted)
     csr = pki / f"{name}.csr"
     sh("openssl", "req", "-new", "-key", str(key), "-subj", subject, "-out", str(csr))
     sh(
@@ -351,19 +365,24 @@ def node_network() -> None:
             sh("ip", "-n", ns, "addr", "add", f"10.79.{i}.2/30", "dev", node_if)
             sh("ip", "-n", ns, "link", "set", node_if, "up")
             api_service(ns, f"10.79.{i}.1")
-    if not alive("linkdelay"):
-        start("linkdelay", [sys.executable, str(LINKDELAY), "ervkle", "ervklc", str(DELAY_MS)])
+    for name, a, a_dev, b, b_dev, b_address in LINKS:
+        if alive(name):
+            continue
+        start(name, [sys.executable, str(LINKDELAY), a_dev, b_dev, str(DELAY_MS)])
         wait(
-            "the link",
-            lambda: "ready" in (STATE / "logs" / "linkdelay.log").read_text(),
+            f"the link {a}-{b}",
+            lambda name=name: "ready" in (STATE / "logs" / f"{name}.log").read_text(),
             20,
-            "linkdelay",
-        )
-        for node, dev in (("edge", "ervkle"), ("cloud", "ervklc")):
+            name,
+        )  # fmt: skip
+        for node, dev, address in ((a, a_dev, NODES[a]["link"]), (b, b_dev, b_address)):
             ns = netns(node)
             sh("ip", "link", "set", dev, "netns", ns)
-            sh("ip", "-n", ns, "addr", "add", f"{NODES[node]['link']}/24", "dev", dev)
+            sh("ip", "-n", ns, "addr", "add", f"{address}/24", "dev", dev)
             sh("ip", "-n", ns, "link", "set", dev, "up", "multicast", "on")
+        cloud = str(NODES[b]["link"])
+        if cloud != b_address:  # the cloud's address on the first link, over this one
+            sh("ip", "-n", netns(a), "route", "add", f"{cloud}/32", "dev", a_dev)
 
 
 def api_service(ns: str, host: str) -> None:
@@ -527,7 +546,7 @@ def kubelet(node: str, bins: Path) -> None:
     for sub in Path("/sys/fs/cgroup").iterdir():  # the kubelet wants its cgroup root made
         if sub.name != "unified" and (sub / "cgroup.procs").exists():
             (sub / f"edgerv-{node}").mkdir(exist_ok=True)
-    name = f"kubelet-{node}"
+    name, tier = f"kubelet-{node}", NODES[node]["tier"]
     if not alive(name):
         start(
             name,
@@ -535,7 +554,7 @@ def kubelet(node: str, bins: Path) -> None:
                 str(bins / "kubelet"), "--config", str(config), "--kubeconfig", str(kc),
                 "--root-dir", str(d / "kubelet"), "--hostname-override", node,
                 "--node-ip", f"10.79.{NODES[node]['index']}.2",
-                "--node-labels", f"edgerv.io/tier={node}",
+                *(["--node-labels", f"edgerv.io/tier={tier}"] if tier else []),
                 "--cert-dir", str(d / "kubelet-pki"),
             ],
             node=node,
@@ -731,7 +750,10 @@ def up() -> None:
     make_pki()
     log("control plane: etcd, kube-apiserver, kube-controller-manager, kube-scheduler")
     control_plane(bins)
-    log(f"nodes: edge and cloud (network namespaces, a {DELAY_MS:g} ms link between them)")
+    log(
+        f"nodes: {', '.join(NODES)} (network namespaces; a {DELAY_MS:g} ms link from each "
+        "edge node to the cloud)"
+    )
     node_network()
     for node in NODES:
         containerd(node)
@@ -765,8 +787,9 @@ def _unmount_under(path: Path) -> None:
 
 def down(quiet: bool = False) -> None:
     pids = STATE / "pids"
-    order = ["kubelet-edge", "kubelet-cloud", "kube-scheduler", "kube-controller-manager",
-             "kube-apiserver", "etcd", "containerd-edge", "containerd-cloud", "linkdelay",
+    order = ["kubelet-edge", "kubelet-edge-b", "kubelet-cloud", "kube-scheduler",
+             "kube-controller-manager", "kube-apiserver", "etcd", "containerd-edge",
+             "containerd-edge-b", "containerd-cloud", "linkdelay", "linkdelay-b",
              "dockerd"]  # fmt: skip
     names = (
         order + sorted(p.name for p in pids.glob("*") if p.name not in order)

@@ -7,11 +7,9 @@ from __future__ import annotations
 
 import base64
 import json
-import os
 import shutil
 import subprocess
 import sys
-import tempfile
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -30,11 +28,15 @@ from kit.chart import (
     ROOT,
     TOKEN,
     apply,
+    handler_tls,
     helm,
     install,
+    installed,
     monitor,
     never_refused,
+    release_ca,
     rights,
+    running_operator,
     status,
     talker_pod,
     unfinalize,
@@ -48,60 +50,14 @@ CRD = ROOT / "crds" / "monitors.edgerv.io.yaml"  # the chart's Monitor CRD (file
 @pytest.fixture(scope="module")
 def namespace(cluster: Cluster) -> Iterator[str]:
     """A namespace with the chart installed (handlers only: the test runs the operator)."""
-    ns = f"edgerv-e2e-{uuid.uuid4().hex[:6]}"
-    try:
-        install(
-            cluster,
-            RELEASE,
-            ns,
-            "operator.enabled=false",
-            f"token.value={TOKEN}",
-            "handler.extraArgs={--flush-after,3600}",  # a long sort window stays full
-        )
+    with installed(cluster) as ns:
         yield ns
-    finally:
-        unfinalize(cluster)
-        subprocess.run(  # its cluster-wide objects too (roles), also after a failed test
-            [helm(), "uninstall", RELEASE, "--namespace", ns, "--kubeconfig", cluster.kubeconfig],
-            capture_output=True,
-            timeout=300,
-        )
-        cluster.run("delete", "namespace", ns, "--wait=false", check=False)
-        # the CRDs the release made and kept (crds.keep): the next run installs them anew
-        for crd in ("monitors.edgerv.io", "kopfpeerings.kopf.dev", "clusterkopfpeerings.kopf.dev"):
-            cluster.run("delete", "crd", crd, "--wait=false", check=False)
-
-
-def release_ca(cluster: Cluster, ns: str, release: str = RELEASE) -> Path:
-    """The CA the chart made for a release (its Secret's ca.crt), in a file."""
-    secret = json.loads(cluster.run("get", "secret", f"{release}-tls", "-n", ns, "-o", "json"))
-    path = Path(tempfile.mkdtemp(prefix="edgerv-e2e-")) / "ca.crt"
-    path.write_bytes(base64.b64decode(secret["data"]["ca.crt"]))
-    return path
-
-
-def handler_tls(cluster: Cluster, ns: str, release: str = RELEASE) -> ClientTls:
-    """How a caller verifies a release's handlers: its CA, the name the chart gave them."""
-    return ClientTls(str(release_ca(cluster, ns, release)), f"{release}-handler.{ns}.svc")
 
 
 @pytest.fixture(scope="module")
 def operator(cluster: Cluster, namespace: str) -> Iterator[KopfRunner]:
-    os.environ.update(
-        KUBECONFIG=cluster.kubeconfig,
-        EDGERV_TOKEN=TOKEN,
-        EDGERV_TLS_CA_FILE=str(release_ca(cluster, namespace)),  # HTTPS, as the chart's
-        EDGERV_TLS_SERVER_NAME=f"{RELEASE}-handler.{namespace}.svc",
-        EDGERV_NAMESPACE=namespace,
-        EDGERV_HANDLER_SELECTOR=f"app.kubernetes.io/instance={RELEASE},"
-        "app.kubernetes.io/component=handler",
-    )
-    argv = ["run", "--standalone", "--namespace", namespace, "-m", "edgerv_operator.handlers"]
-    with KopfRunner(argv) as runner:
+    with running_operator(cluster, namespace) as runner:
         yield runner
-        # while the operator runs: it takes its finalizers off as it deletes them
-        cluster.run("delete", "monitors", "--all", "-n", namespace, "--timeout=60s", check=False)
-    assert runner.exception is None, runner.output
 
 
 def set_tier(cluster: Cluster, namespace: str, name: str, tier: str) -> None:

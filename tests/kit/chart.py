@@ -1,22 +1,28 @@
 """The chart on a real cluster, for the e2e tier: ``helm`` itself, the chart installed into
-a namespace of its own (:func:`install`), Monitor resources applied and read back
-(:func:`monitor`, :func:`apply`, :func:`status`), a talker pod, and what a ServiceAccount
-may do (:func:`rights`)."""
+a namespace of its own (:func:`install`, :func:`installed`), the operator run beside it
+(:func:`running_operator`), Monitor resources applied and read back (:func:`monitor`,
+:func:`apply`, :func:`status`), a talker pod, the release's TLS, and what a
+ServiceAccount may do (:func:`rights`)."""
 
 from __future__ import annotations
 
+import base64
+import contextlib
 import json
 import os
 import shutil
 import subprocess
+import tempfile
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from kopf.testing import KopfRunner
 
+from edgerv.control.tls import ClientTls
 from kit.kube import Cluster
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -28,13 +34,14 @@ TOKEN = f"e2e-{uuid.uuid4().hex}"
 RELEASE = "erv"
 
 TALKER = """
-import time, rclpy
+import sys, time, rclpy
 from std_msgs.msg import Float64
+topic, period, top = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
 rclpy.init(); node = rclpy.create_node("e2e_speed")
-pub = node.create_publisher(Float64, "/e2e/speed", 10)
+pub = node.create_publisher(Float64, topic, 10)
 i = 0
 while True:
-    m = Float64(); m.data = float(i % 100); pub.publish(m); i += 1; time.sleep(0.02)
+    m = Float64(); m.data = float(i % top); pub.publish(m); i += 1; time.sleep(period)
 """
 
 
@@ -105,22 +112,30 @@ def unfinalize(cluster: Cluster) -> None:
         )  # fmt: skip
 
 
-def talker_pod(cluster: Cluster) -> dict[str, Any]:
-    """A pod on the edge publishing /e2e/speed: 0, 1, ... 99, 0, ... every 20 ms."""
+def talker_pod(
+    cluster: Cluster,
+    name: str = "speed-talker",
+    topic: str = "/e2e/speed",
+    node: dict[str, str] | None = None,
+    period: float = 0.02,
+    top: int = 100,
+) -> dict[str, Any]:
+    """A pod publishing ``topic`` (std_msgs/Float64): 0, 1, ... top-1, 0, ... every
+    ``period`` seconds, on the node ``node`` selects (default: the edge tier's)."""
     return {
         "apiVersion": "v1",
         "kind": "Pod",
-        "metadata": {"name": "speed-talker"},
+        "metadata": {"name": name},
         "spec": {
             "hostNetwork": True,
             "restartPolicy": "Never",
-            "nodeSelector": {"edgerv.io/tier": "edge"},
+            "nodeSelector": node or {"edgerv.io/tier": "edge"},
             "containers": [
                 {
                     "name": "talker",
                     "image": "edgerv/handler:dev",
                     "imagePullPolicy": "IfNotPresent",
-                    "command": ["python3", "-c", TALKER],
+                    "command": ["python3", "-c", TALKER, topic, str(period), str(top)],
                     "env": [{"name": k, "value": v} for k, v in cluster_ros_env(cluster).items()],
                 }
             ],
@@ -173,3 +188,67 @@ def never_refused(cluster: Cluster, ns: str) -> None:
     logs = cluster.run("logs", "-n", ns, "-l", "app.kubernetes.io/component=operator", "--tail=-1")
     for refusal in ("Forbidden", "forbidden", "Not enough permissions"):
         assert refusal not in logs, logs
+
+
+@contextlib.contextmanager
+def installed(cluster: Cluster, *values: str) -> Iterator[str]:
+    """A namespace with the chart installed (handlers only: the test runs the operator,
+    :func:`running_operator`), and ``values`` set; everything the release made goes after."""
+    ns = f"edgerv-e2e-{uuid.uuid4().hex[:6]}"
+    try:
+        install(
+            cluster,
+            RELEASE,
+            ns,
+            "operator.enabled=false",
+            f"token.value={TOKEN}",
+            "handler.extraArgs={--flush-after,3600}",  # a long sort window stays full
+            *values,
+        )
+        yield ns
+    finally:
+        unfinalize(cluster)
+        subprocess.run(  # its cluster-wide objects too (roles), also after a failed test
+            [helm(), "uninstall", RELEASE, "--namespace", ns, "--kubeconfig", cluster.kubeconfig],
+            capture_output=True,
+            timeout=300,
+        )
+        cluster.run("delete", "namespace", ns, "--wait=false", check=False)
+        # the CRDs the release made and kept (crds.keep): the next run installs them anew
+        for crd in ("monitors.edgerv.io", "kopfpeerings.kopf.dev", "clusterkopfpeerings.kopf.dev"):
+            cluster.run("delete", "crd", crd, "--wait=false", check=False)
+
+
+def release_ca(cluster: Cluster, ns: str, release: str = RELEASE) -> Path:
+    """The CA the chart made for a release (its Secret's ca.crt), in a file."""
+    secret = json.loads(cluster.run("get", "secret", f"{release}-tls", "-n", ns, "-o", "json"))
+    path = Path(tempfile.mkdtemp(prefix="edgerv-e2e-")) / "ca.crt"
+    path.write_bytes(base64.b64decode(secret["data"]["ca.crt"]))
+    return path
+
+
+def handler_tls(cluster: Cluster, ns: str, release: str = RELEASE) -> ClientTls:
+    """How a caller verifies a release's handlers: its CA, the name the chart gave them."""
+    return ClientTls(str(release_ca(cluster, ns, release)), f"{release}-handler.{ns}.svc")
+
+
+@contextlib.contextmanager
+def running_operator(cluster: Cluster, namespace: str) -> Iterator[KopfRunner]:
+    """The operator (kopf.testing.KopfRunner, in this process) for the release installed
+    in ``namespace``; at the end the Monitors there are deleted while it still runs (it
+    takes its finalizers off)."""
+    os.environ.update(
+        KUBECONFIG=cluster.kubeconfig,
+        EDGERV_TOKEN=TOKEN,
+        EDGERV_TLS_CA_FILE=str(release_ca(cluster, namespace)),  # HTTPS, as the chart's
+        EDGERV_TLS_SERVER_NAME=f"{RELEASE}-handler.{namespace}.svc",
+        EDGERV_NAMESPACE=namespace,
+        EDGERV_HANDLER_SELECTOR=f"app.kubernetes.io/instance={RELEASE},"
+        "app.kubernetes.io/component=handler",
+    )
+    argv = ["run", "--standalone", "--namespace", namespace, "-m", "edgerv_operator.handlers"]
+    with KopfRunner(argv) as runner:
+        yield runner
+        # while the operator runs: it takes its finalizers off as it deletes them
+        cluster.run("delete", "monitors", "--all", "-n", namespace, "--timeout=60s", check=False)
+    assert runner.exception is None, runner.output

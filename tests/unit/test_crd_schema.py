@@ -56,6 +56,10 @@ BASE: dict[str, Any] = {
             },
         },
         "placement": {"tier": "edge", "migrate": "auto", "maxLatencyMs": 20},
+        "robots": {
+            "matchLabels": {"site": "hall-a"},
+            "matchExpressions": [{"key": "model", "operator": "In", "values": ["mir250"]}],
+        },
     },
 }
 SIGNAL = "x"  # the key standing for any of spec.signals' (additionalProperties)

@@ -61,6 +61,7 @@ log = logging.getLogger("edgerv.orchestrate")
 class Target:
     tier: str
     address: str
+    robot: str | None = None  # the robot whose node the handler runs on (None: shared)
 
 
 def _number(value: object) -> float | None:
@@ -162,6 +163,7 @@ def build_reports(
                 },
                 headroom=headroom,
                 task_work=work,
+                robot=target.robot,
             )
         )
         where[name] = target

@@ -30,16 +30,25 @@ from edgerv.control.orchestrate import BudgetLever, Idle, Orchestrator, Target, 
 from edgerv.control.placement import PolicyConfig, PolicyConfigError, tier_latencies
 from edgerv.core.diagnostics import Diagnostic, InputError, Location
 from edgerv.core.planner import BudgetConfig
+from edgerv.core.robots import ROBOT_NAME
 
 
 def parse_handlers(text: str) -> list[Target]:
-    """``edge=HOST:PORT,cloud=HOST:PORT`` (a tier may have several handlers)."""
+    """``edge=HOST:PORT,cloud=HOST:PORT`` (a tier may have several handlers); a fleet's
+    robot handlers as ``edge@amr-7=HOST:PORT`` (it runs that robot's instances only; a
+    handler named without a robot is shared: docs/protocol.md, "Fleet")."""
     targets: list[Target] = []
     for i, item in enumerate(p.strip() for p in text.split(",")):
-        tier, eq, address = (part.strip() for part in item.partition("="))
+        where, eq, address = (part.strip() for part in item.partition("="))
+        tier, at, robot = (part.strip() for part in where.partition("@"))
         problem = ""
         if not eq or not tier or not address:
-            problem = f"item {i + 1} '{item}' is not TIER=HOST:PORT"
+            problem = f"item {i + 1} '{item}' is not TIER=HOST:PORT or TIER@ROBOT=HOST:PORT"
+        elif at and not ROBOT_NAME.match(robot):
+            problem = (
+                f"item {i + 1} '{item}': '{robot}' is not a robot's name (a lower-case "
+                "letter, then letters, digits and '-')"
+            )
         elif bad := address_problem(address):
             problem = f"item {i + 1} '{item}': {bad}"
         elif any(t.address == address for t in targets):
@@ -54,7 +63,7 @@ def parse_handlers(text: str) -> list[Target]:
                     )
                 ]
             )
-        targets.append(Target(tier, address))
+        targets.append(Target(tier, address, robot or None))
     return targets
 
 
@@ -97,7 +106,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         required=True,
         metavar="TIER=HOST:PORT,...",
         help="the handlers and their tiers, e.g. edge=10.0.0.2:8080,cloud=10.0.0.9:8080 "
-        "(HTTPS unless loopback: --ca-file; TIER=http://HOST:PORT asks for plain HTTP)",
+        "(HTTPS unless loopback: --ca-file; TIER=http://HOST:PORT asks for plain HTTP); "
+        "a fleet's robot's handler: TIER@ROBOT=HOST:PORT, e.g. edge@amr-7=10.0.0.2:8080 (it "
+        "runs that robot's instances only; one without @ROBOT is shared)",
     )
     p.add_argument(
         "--tiers",

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 
 from edgerv.core.documents import Placement
 from edgerv.core.planner import EdgeState, MonitorCost, PlannerConfig, plan_moves
+from edgerv.core.robots import may_host
 
 
 @dataclass(frozen=True)
@@ -83,6 +84,7 @@ class HandlerReport:
     headroom: float | None = None
     # the real-time task's CPU seconds per output on its CPUs (None: not known)
     task_work: float | None = None
+    robot: str | None = None  # the robot whose node it runs on (None: a shared node)
 
     def active(self) -> list[str]:
         return [m for m, load in self.monitors.items() if load.active]
@@ -251,7 +253,8 @@ def start_on(
     placement: Placement, handlers: Sequence[HandlerReport], config: PolicyConfig
 ) -> HandlerReport | None:
     """Where a monitor that runs nowhere starts, among ``handlers`` (those that may run
-    it): the least loaded handler of its home tier (``placement.tier``; the lowest tier
+    it; of a robot's instance, that robot's own and the shared ones): the least loaded
+    handler of its home tier (``placement.tier``; the lowest tier
     when it names none, or one not in the tiers), else of the nearest tier above that
     has one and that ``placement.maxLatencyMs`` allows. None: no such handler (never
     below its home tier). ``placement.migrate: pinned`` forbids moves once it runs, not
@@ -259,7 +262,7 @@ def start_on(
     c = config
     home = c.tiers.index(placement.tier) if placement.tier in c.tiers else 0
     for tier in c.tiers[home:]:
-        fit = [h for h in handlers if h.tier == tier]
+        fit = [h for h in handlers if h.tier == tier and may_host(placement.robot, h.robot)]
         if fit and tier_allowed(tier, placement, c):
             return min(fit, key=_by_load(c))
     return None
@@ -367,9 +370,14 @@ def plan(
                 moved.add(m)
                 memory.last_move[m] = now
 
-    def movable(name: str, tier: str) -> bool:
+    def movable(name: str, tier: str, to: HandlerReport) -> bool:
         p = placements.get(name, Placement())
-        return p.migrate == "auto" and tier_allowed(tier, p, c) and name not in moved
+        return (
+            p.migrate == "auto"
+            and tier_allowed(tier, p, c)
+            and may_host(p.robot, to.robot)
+            and name not in moved
+        )
 
     def held(name: str) -> bool:
         """Never moved by a plan: pinned, or moved (started) already this round."""
@@ -399,7 +407,9 @@ def plan(
         if not (loaded or deadline) or rank[h.tier] + 1 >= len(c.tiers):
             continue
         up = c.tiers[rank[h.tier] + 1]
-        destination = _least_loaded(handlers, up, c)
+        # up to a shared handler, or one of the same robot's: it may run all of h's
+        above = [b for b in handlers if b.robot is None or b.robot == h.robot]
+        destination = _least_loaded(above, up, c)
         if destination is None:
             continue
         planned = plan_up(h, up) if deadline and not loaded and c.planner else None
@@ -414,7 +424,7 @@ def plan(
             if names:
                 memory.deadline_shed[h.name] = now  # its window must refill first
             continue
-        candidates = [m for m in h.active() if movable(m, up)]
+        candidates = [m for m in h.active() if movable(m, up, destination)]
         # those that want to migrate first; then what frees most per millisecond added
         added = c.tier_latency_ms.get(up, 0.0) - c.tier_latency_ms.get(h.tier, 0.0)
         candidates.sort(
@@ -483,29 +493,35 @@ def plan(
         ]
         if not below:
             continue
-        destination = min(below, key=_by_load(c))  # calm: none under pressure
-        candidates = []
+        # each monitor home to the least loaded calm handler below that may run it (a
+        # robot's instance: its robot's own, or a shared one): one batch per destination
+        homes: dict[str, tuple[HandlerReport, list[str]]] = {}
         for m in sorted(h.active()):
             p = placements.get(m, Placement())
-            if rank[h.tier] <= rank.get(p.tier or "", 0) or not movable(m, down):
+            fit = [b for b in below if may_host(p.robot, b.robot)]
+            if rank[h.tier] <= rank.get(p.tier or "", 0) or not fit:
+                continue
+            destination = min(fit, key=_by_load(c))  # calm: none under pressure
+            if not movable(m, down, destination):
                 continue
             wait = c.cooldown_seconds * 2 ** memory.bounces.get(m, 0)
             if now - memory.last_move.get(m, float("-inf")) < wait:
                 continue
-            candidates.append(m)
-        planned = plan_home(destination, h, candidates) if c.planner and candidates else None
-        if planned is not None:  # what fits the headroom and the deadline: one batch
-            names, why = planned
-            for m in names:
-                moves.append(Move(m, h.name, destination.name, "calm below", why))
+            homes.setdefault(destination.name, (destination, []))[1].append(m)
+        for destination, candidates in homes.values():
+            planned = plan_home(destination, h, candidates) if c.planner else None
+            if planned is not None:  # what fits the headroom and the deadline: one batch
+                names, why = planned
+                for m in names:
+                    moves.append(Move(m, h.name, destination.name, "calm below", why))
+                    moved.add(m)
+                    memory.last_move[m] = memory.last_down[m] = now
+                continue
+            for m in candidates:
+                if budget <= 0:
+                    break
+                moves.append(Move(m, h.name, destination.name, "calm below"))
                 moved.add(m)
                 memory.last_move[m] = memory.last_down[m] = now
-            continue
-        for m in candidates:
-            if budget <= 0:
-                break
-            moves.append(Move(m, h.name, destination.name, "calm below"))
-            moved.add(m)
-            memory.last_move[m] = memory.last_down[m] = now
-            budget -= 1
+                budget -= 1
     return moves

@@ -25,21 +25,27 @@ class PlacementJson(TypedDict):
     tier: str | None
     migrate: Literal["auto", "pinned"]
     maxLatencyMs: float | None
+    robot: NotRequired[str | None]  # an instance's robot (its document's label; reported)
 
 
 def placement_json(p: Placement) -> PlacementJson:
     """The placement as the API and the Monitor resource spell it."""
-    return {"tier": p.tier, "migrate": p.migrate, "maxLatencyMs": p.max_latency_ms}
+    out: PlacementJson = {"tier": p.tier, "migrate": p.migrate, "maxLatencyMs": p.max_latency_ms}
+    if p.robot is not None:
+        out["robot"] = p.robot
+    return out
 
 
 def placement_from_json(d: Mapping[str, object]) -> Placement:
     """A placement as the API (or a Monitor resource's ``spec.placement``) spells it;
     what is missing or of another type reads as the default."""
     tier, migrate, budget = d.get("tier"), d.get("migrate", "auto"), d.get("maxLatencyMs")
+    robot = d.get("robot")
     return Placement(
         tier if isinstance(tier, str) else None,
         "pinned" if migrate == "pinned" else "auto",
         float(budget) if isinstance(budget, int | float) else None,
+        robot if isinstance(robot, str) else None,
     )
 
 

@@ -30,6 +30,16 @@ from edgerv.core.reactions import (
     request_type,
     value_fits,
 )
+from edgerv.core.robots import (
+    INSTANCE_LABEL,
+    LABEL_KEY,
+    LABEL_VALUE,
+    OPERATORS,
+    ROBOT_NAME,
+    Operator,
+    Requirement,
+    Selector,
+)
 
 API_VERSION = "edgerv.io/v1alpha1"
 KIND = "Monitor"
@@ -105,6 +115,9 @@ class Placement:
     tier: str | None = None  # home tier: where it starts and comes back to (default: lowest)
     migrate: Literal["auto", "pinned"] = "auto"
     max_latency_ms: float | None = None
+    # the robot whose instance it is (its document's label INSTANCE_LABEL): it runs on that
+    # robot's handlers and the shared ones only (edgerv.core.robots.may_host); None: any
+    robot: str | None = None
 
 
 @dataclass(frozen=True)
@@ -121,6 +134,8 @@ class MonitorSpec:
     locate_assertion: Callable[[int, int], Location] = field(repr=False, compare=False)
     placement: Placement = field(default_factory=Placement)
     on_violation: Reaction | None = None  # off unless written
+    # ``spec.robots``: the robots the operator runs an instance for (None: every robot)
+    robots: Selector | None = None
 
     @functools.cached_property  # read per message during a handoff: computed once
     def topics(self) -> list[str]:
@@ -361,6 +376,121 @@ def _parse_placement(doc: _Doc, node: yaml.Node) -> Placement:
                     items["maxLatencyMs"][1], f"{where}.maxLatencyMs", "must be a number above 0"
                 )
     return Placement(tier, cast(Literal["auto", "pinned"], migrate), budget)
+
+
+def _parse_label(
+    doc: _Doc, knode: yaml.Node, vnode: yaml.Node, where: str
+) -> tuple[str, str] | None:
+    """A label's key and value (each checked as Kubernetes checks them)."""
+    key = _parse_value(doc, knode, where, (str,))
+    value = _parse_value(doc, vnode, f"{where}", (str,))
+    if isinstance(key, str) and not LABEL_KEY.match(key):
+        doc.error(knode, where, f"'{key}' is not a label key", "e.g. edgerv.io/robot or site")
+        return None
+    if isinstance(value, str) and not LABEL_VALUE.match(value):
+        doc.error(
+            vnode,
+            where,
+            f"'{value}' is not a label value",
+            "up to 63 letters, digits, '-', '_' and '.', starting and ending alphanumeric",
+        )
+        return None
+    return (key, value) if isinstance(key, str) and isinstance(value, str) else None
+
+
+def _sequence(doc: _Doc, node: yaml.Node, where: str, what: str) -> list[yaml.Node]:
+    """The items of a YAML list; none (and an error) when ``node`` is not one."""
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    doc.error(node, where, f"must be a list of {what}")
+    return []
+
+
+def _empty_list(node: yaml.Node) -> bool:
+    return isinstance(node, yaml.SequenceNode) and not node.value
+
+
+def _parse_requirement(doc: _Doc, node: yaml.Node, where: str) -> Requirement | None:
+    items = _check_keys(doc, node, where, {"key", "operator", "values"}, {"key", "operator"})
+    if "key" not in items or "operator" not in items:
+        return None
+    key = _parse_value(doc, items["key"][1], f"{where}.key", (str,))
+    if isinstance(key, str) and not LABEL_KEY.match(key):
+        doc.error(items["key"][1], f"{where}.key", f"'{key}' is not a label key")
+        key = None
+    op = _parse_choice(doc, items, "operator", where, OPERATORS)
+    values: list[str] = []
+    if "values" in items:
+        for i, v in enumerate(
+            _sequence(doc, items["values"][1], f"{where}.values", "label values")
+        ):
+            value = _parse_value(doc, v, f"{where}.values[{i}]", (str,))
+            if isinstance(value, str) and not LABEL_VALUE.match(value):
+                doc.error(v, f"{where}.values[{i}]", f"'{value}' is not a label value")
+            elif isinstance(value, str):
+                values.append(value)
+    if op in ("In", "NotIn") and "values" not in items:
+        doc.error(node, f"{where}.values", f"{op} needs a non-empty list of values")
+    elif op in ("In", "NotIn") and _empty_list(items["values"][1]):
+        doc.error(items["values"][1], f"{where}.values", f"{op} needs a non-empty list of values")
+    elif op in ("Exists", "DoesNotExist") and "values" in items:
+        vnode = items["values"][1]
+        if not _empty_list(vnode):
+            doc.error(vnode, f"{where}.values", f"{op} takes no values", "remove values:")
+    if not isinstance(key, str) or op is None:
+        return None
+    return Requirement(key, cast(Operator, op), tuple(values))
+
+
+def _parse_robots(doc: _Doc, node: yaml.Node) -> Selector:
+    """``spec.robots``: a label selector over the robots' nodes."""
+    where = "spec.robots"
+    items = _check_keys(doc, node, where, {"matchLabels", "matchExpressions"}, set())
+    labels: dict[str, str] = {}
+    if "matchLabels" in items:
+        lnode = items["matchLabels"][1]
+        if not isinstance(lnode, yaml.MappingNode):
+            doc.error(lnode, f"{where}.matchLabels", "must map label keys to values")
+        else:
+            for kn, vn in lnode.value:
+                key = kn.value if isinstance(kn, yaml.ScalarNode) else "?"
+                label = _parse_label(doc, kn, vn, f"{where}.matchLabels.{key}")
+                if label is not None:
+                    labels[label[0]] = label[1]
+    expressions: list[Requirement] = []
+    if "matchExpressions" in items:
+        enode, at = items["matchExpressions"][1], f"{where}.matchExpressions"
+        for i, e in enumerate(_sequence(doc, enode, at, "requirements")):
+            r = _parse_requirement(doc, e, f"{at}[{i}]")
+            if r is not None:
+                expressions.append(r)
+    return Selector(labels, tuple(expressions))
+
+
+def _parse_instance_robot(doc: _Doc, meta: dict[str, tuple[yaml.Node, yaml.Node]]) -> str | None:
+    """The robot an instance document watches: its label INSTANCE_LABEL (None: none)."""
+    if "labels" not in meta:
+        return None
+    lnode = meta["labels"][1]
+    if isinstance(lnode, yaml.ScalarNode) and lnode.tag == "tag:yaml.org,2002:null":
+        return None  # labels: null (as a resource may say)
+    if not isinstance(lnode, yaml.MappingNode):
+        doc.error(lnode, "metadata.labels", "must map label keys to values")
+        return None
+    for kn, vn in lnode.value:
+        if kn.value != INSTANCE_LABEL:
+            continue
+        robot = _parse_value(doc, vn, f"metadata.labels.{INSTANCE_LABEL}", (str,))
+        if isinstance(robot, str) and ROBOT_NAME.match(robot):
+            return robot
+        if robot is not None:
+            doc.error(
+                vn,
+                f"metadata.labels.{INSTANCE_LABEL}",
+                f"'{robot}' is not a robot's name",
+                "a lower-case letter, then letters, digits and '-' (at most 63)",
+            )
+    return None
 
 
 def _parse_fields(doc: _Doc, node: yaml.Node, where: str, msg_type: str | None) -> Fields:
@@ -627,6 +757,7 @@ def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
             "bufferCapacity",
             "placement",
             "onViolation",
+            "robots",
         },
         {"assertion", "signals"},
     )
@@ -683,6 +814,8 @@ def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
         if "onViolation" in spec
         else None
     )
+    robots = _parse_robots(doc, spec["robots"][1]) if "robots" in spec else None
+    placement = dataclasses.replace(placement, robot=_parse_instance_robot(doc, meta))
     if doc.diagnostics or not isinstance(name, str) or not isinstance(assertion, str):
         return None
     assert isinstance(assertion_node, yaml.ScalarNode)
@@ -698,6 +831,7 @@ def _parse_monitor(doc: _Doc) -> MonitorSpec | None:
         placement=placement,
         locate_assertion=doc.scalar_locator(assertion_node),
         on_violation=on_violation,
+        robots=robots,
     )
 
 

@@ -1,0 +1,197 @@
+"""A fleet on the real cluster: two robots, each an edge node labelled with its name
+(``edgerv.io/robot``: ``amr-a`` on ``edge``, ``amr-b`` on ``edge-b``), and a shared cloud
+node. Each robot's publisher runs on its own node, in its own ROS namespace (``/amr_a``,
+``/amr_b``), and the two edges do not reach each other; the cloud reaches both.
+
+One Monitor gives an instance per robot, each on its robot's edge handler; a violation
+published on robot B is B's (its status entry, an Event naming it), A stays clean; the
+placement policy moves B's instance (under pressure) to the cloud while A's stays; a tier
+edit moves both up and each back to its own robot's edge, never the other's; robot B
+leaving (its node's labels removed) removes B's instance and leaves A's as it was.
+(The project's cluster only: it has the node edge-b.)
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+from kit.chart import apply, installed, monitor, running_operator, status, talker_pod, until
+from kit.kube import Cluster
+
+ROBOTS = {"amr-a": "edge", "amr-b": "edge-b"}  # robot -> its node
+ROBOT = "edgerv.io/robot"
+TIER = "edgerv.io/tier"
+
+
+def _label(cluster: Cluster, node: str, *labels: str) -> None:
+    cluster.run("label", "node", node, "--overwrite", *labels)
+
+
+@pytest.fixture(scope="module")
+def fleet(cluster: Cluster) -> Iterator[str]:
+    """The two robots labelled, the chart installed (a handler on each edge and on the
+    cloud), each robot's talker: A's always under the limit and slow (2 a second), B's
+    0..99 every 20 ms (over the limit half the time); the operator running."""
+    nodes = json.loads(cluster.run("get", "nodes", "-o", "json"))["items"]
+    if "edge-b" not in {n["metadata"]["name"] for n in nodes}:
+        pytest.skip("a cluster of yours: the fleet tests need the project's node edge-b")
+    _label(cluster, "edge", f"{ROBOT}=amr-a")
+    _label(cluster, "edge-b", f"{ROBOT}=amr-b", f"{TIER}=edge")
+    try:
+        with installed(cluster) as ns:
+            for robot, node in ROBOTS.items():
+                fast = robot == "amr-b"
+                apply(
+                    cluster,
+                    ns,
+                    talker_pod(
+                        cluster,
+                        name=f"talker-{robot}",
+                        topic=f"/{robot.replace('-', '_')}/e2e/speed",
+                        node={"kubernetes.io/hostname": node},
+                        period=0.02 if fast else 0.5,
+                        top=100 if fast else 10,
+                    ),
+                )
+            with running_operator(cluster, ns) as runner:
+                yield ns
+            assert runner.exception is None, runner.output
+    finally:
+        _label(cluster, "edge", f"{ROBOT}-")
+        _label(cluster, "edge-b", f"{ROBOT}-", f"{TIER}-")
+
+
+@pytest.fixture(scope="module")
+def operator_events(cluster: Cluster) -> Any:
+    def events(ns: str, name: str) -> list[tuple[str, str]]:
+        out = cluster.run(
+            "get", "events", "-n", ns, "--field-selector", f"involvedObject.name={name}",
+            "-o", "json",
+        )  # fmt: skip
+        return [(e["reason"], e["message"]) for e in json.loads(out)["items"]]
+
+    return events
+
+
+def robots_of(cluster: Cluster, ns: str, name: str) -> dict[str, Any]:
+    return dict(status(cluster, ns, name).get("robots") or {})
+
+
+def on(cluster: Cluster, ns: str, name: str, placement: dict[str, str]) -> dict[str, Any]:
+    """The status once each robot's instance runs on the node given (robot -> node)."""
+
+    def there() -> dict[str, Any] | None:
+        s = status(cluster, ns, name)
+        robots = s.get("robots") or {}
+        ok = all(
+            (robots.get(r) or {}).get("phase") == "Running"
+            and ((robots.get(r) or {}).get("handler") or {}).get("node") == node
+            for r, node in placement.items()
+        )
+        return s if ok and s.get("running") == len(placement) else None
+
+    return dict(until(f"{name} on {placement}", there, timeout=180))
+
+
+def test_one_monitor_runs_an_instance_per_robot_and_a_violation_is_its_robots(
+    cluster: Cluster, fleet: str, operator_events: Any
+) -> None:
+    ns = fleet
+    apply(cluster, ns, monitor("limits", "always (speed < limit)"))
+    got = until(
+        "B's violations",
+        lambda: (
+            (s := status(cluster, ns, "limits")).get("desired") == 2
+            and ((s.get("robots") or {}).get("amr-b") or {}).get("verdicts", {}).get("violated")
+            and s
+        ),
+        timeout=180,
+    )
+    robots = got["robots"]
+    assert set(robots) == {"amr-a", "amr-b"}, got
+    assert robots["amr-a"]["handler"]["node"] == "edge", got
+    assert robots["amr-b"]["handler"]["node"] == "edge-b", got
+    assert got["running"] == 2 and got["violated"] == 1, got
+    a = until(
+        "A's events",
+        lambda: (e := robots_of(cluster, ns, "limits")["amr-a"]).get("events", 0) >= 5 and e,
+    )
+    assert a["verdicts"]["violated"] == 0, a  # A published under the limit, and was checked
+    events = operator_events(ns, "limits")
+    violated = [m for r, m in events if r == "Violated"]
+    assert violated and all(m.startswith("robot amr-b: violated") for m in violated), events
+    header, row = cluster.run("get", "monitors", "-n", ns).splitlines()[:2]
+
+    def cell(column: str) -> str:  # columns are left-aligned; empty cells are blank
+        at = header.index(column)
+        return row[at:].split()[0]
+
+    assert (cell("ROBOTS"), cell("VIOLATED")) == ("2", "1"), (header, row)
+
+
+def test_the_policy_moves_the_pressured_robots_instance_up_and_leaves_the_other(
+    cluster: Cluster, fleet: str
+) -> None:
+    """A 1,000-event sort window fills at B's 50 messages a second (the handlers release
+    partial windows after an hour only): B's edge handler wants it moved, and the
+    placement rounds hand B's instance to the cloud; A's, at 2 a second, stays."""
+    ns = fleet
+    pressured = monitor("pressured", "always (speed < limit)", sortThreshold=1000)
+    pressured["spec"]["bufferCapacity"] = 1000
+    apply(cluster, ns, pressured)
+    got = on(cluster, ns, "pressured", {"amr-a": "edge", "amr-b": "cloud"})
+    assert got["robots"]["amr-b"]["migrations"]["count"] >= 1, got
+    assert "migrations" not in got["robots"]["amr-a"], got
+    cluster.run("delete", "monitor", "pressured", "-n", ns, "--timeout=60s")
+
+
+def test_a_tier_edit_moves_every_instance_up_and_each_back_to_its_own_robot(
+    cluster: Cluster, fleet: str
+) -> None:
+    ns = fleet
+    on(cluster, ns, "limits", {"amr-a": "edge", "amr-b": "edge-b"})
+    for tier, placement in (
+        ("cloud", {"amr-a": "cloud", "amr-b": "cloud"}),
+        ("edge", {"amr-a": "edge", "amr-b": "edge-b"}),
+    ):
+        before = robots_of(cluster, ns, "limits")
+        cluster.run(
+            "patch", "monitor", "limits", "-n", ns, "--type=merge",
+            "-p", json.dumps({"spec": {"placement": {"tier": tier}}}),
+        )  # fmt: skip
+        got = on(cluster, ns, "limits", placement)
+        for robot, entry in got["robots"].items():
+            was = before[robot]
+            moves = (was.get("migrations") or {}).get("count", 0)
+            assert entry["migrations"]["count"] == moves + 1, (robot, was, entry)
+            assert entry["migrations"]["last"]["reason"] == f"spec.placement.tier is {tier}"
+            # the handoff kept its counts: they never go down
+            assert entry["events"] >= was["events"], (robot, was, entry)
+            assert entry["verdicts"]["violated"] >= was["verdicts"]["violated"]
+        assert got["robots"]["amr-a"]["verdicts"]["violated"] == 0, got
+
+
+def test_a_robot_that_leaves_takes_its_instance_and_leaves_the_others_alone(
+    cluster: Cluster, fleet: str
+) -> None:
+    ns = fleet
+    before = on(cluster, ns, "limits", {"amr-a": "edge", "amr-b": "edge-b"})["robots"]["amr-a"]
+    _label(cluster, "edge-b", f"{ROBOT}-", f"{TIER}-")  # robot B leaves the cluster
+    got = until(
+        "B's instance gone",
+        lambda: (s := status(cluster, ns, "limits")).get("desired") == 1 and s,
+        timeout=120,
+    )
+    assert set(got["robots"]) == {"amr-a"}, got
+    a = until(
+        "A going on",
+        lambda: (e := robots_of(cluster, ns, "limits")["amr-a"])["events"] > before["events"] and e,
+    )
+    assert a["handler"] == before["handler"], (before, a)  # not moved, not restarted
+    assert (a.get("migrations") or {}).get("count") == (before.get("migrations") or {}).get("count")
+    assert a["verdicts"]["violated"] == 0, a
+    assert got["phase"] == "Running" and got["running"] == 1, got
