@@ -24,6 +24,8 @@ edit, a drain and a placement round never act on a monitor at once
 from __future__ import annotations
 
 import datetime
+import functools
+import json
 import logging
 import threading
 import time
@@ -520,11 +522,8 @@ def instances(name: str, namespace: str, spec: Mapping[str, Any], fleet: Fleet) 
         raise kopf.PermanentError("; ".join(errors) or "the spec cannot be read")
     if not fleet.robots:
         return [Instance(handler_name(namespace, name), None, _text(namespace, name, spec, None))]
-    found = [
-        Instance(str(doc["metadata"]["name"]), robot, document_text(doc))
-        for robot in fleet.selected(parsed.robots)
-        for doc in [instance_document(namespace, name, spec, robot)]
-    ]
+    key = json.dumps(spec, sort_keys=True)  # (each refresh asks again: made once a spec)
+    found = [_instance(namespace, name, key, robot) for robot in fleet.selected(parsed.robots)]
     for inst in found:
         if len(inst.hname) > MAX_NAME:
             raise kopf.PermanentError(
@@ -537,6 +536,13 @@ def instances(name: str, namespace: str, spec: Mapping[str, Any], fleet: Fleet) 
 
 def _text(namespace: str, name: str, spec: Mapping[str, Any], robot: str | None) -> str:
     return document_text(instance_document(namespace, name, spec, robot))
+
+
+@functools.lru_cache(maxsize=65536)
+def _instance(namespace: str, name: str, spec: str, robot: str) -> Instance:
+    """A robot's instance of the Monitor whose spec is ``spec`` (JSON, keys sorted)."""
+    doc = instance_document(namespace, name, json.loads(spec), robot)
+    return Instance(str(doc["metadata"]["name"]), robot, document_text(doc))
 
 
 def _apply(
@@ -754,7 +760,7 @@ def refresh(
             if key in status:
                 new[key] = None
     new.pop("kopf", None)  # Kopf's own field: its progress is not ours to write
-    patch.status.update(new)
+    patch.status.update(changed(status, new))
     _post(body, events)
     waiting = []
     for inst in found:
@@ -766,6 +772,22 @@ def refresh(
             waiting.append(f"robot {inst.robot}: {exc}")
     if waiting:
         raise kopf.TemporaryError("; ".join(waiting), delay=10)
+
+
+def changed(status: Mapping[str, Any], new: Mapping[str, Any]) -> dict[str, Any]:
+    """The merge patch from ``status`` to ``new``: the fields whose value differs, and of
+    ``robots`` the robots whose entry does (a fleet's status is large: most refreshes of
+    an idle fleet patch nothing)."""
+    out: dict[str, Any] = {}
+    for key, value in new.items():
+        was = status.get(key)
+        if key == "robots" and isinstance(value, Mapping) and isinstance(was, Mapping):
+            robots = {r: e for r, e in value.items() if was.get(r) != e}
+            if robots:
+                out[key] = robots
+        elif was != value or key not in status:
+            out[key] = value
+    return out
 
 
 def _in_handoff(op: Operator, hname: str) -> bool:

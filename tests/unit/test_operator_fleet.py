@@ -18,7 +18,14 @@ from edgerv.core.documents import parse_monitors_text
 from edgerv.core.robots import fleet_of
 from edgerv_operator.config import OperatorConfig
 from edgerv_operator.documents import HandlerPod
-from edgerv_operator.handlers import Handlers, Operator, cluster_handlers, instances, ours
+from edgerv_operator.handlers import (
+    Handlers,
+    Operator,
+    changed,
+    cluster_handlers,
+    instances,
+    ours,
+)
 from edgerv_operator.placement import choose, placement_of
 from edgerv_operator.pods import PodFacts
 
@@ -151,3 +158,23 @@ def test_the_cluster_handlers_know_their_robot_and_a_refused_nodes_runs_nothing(
     # "odd" names no robot: it is neither a robot's nor shared; asked, given nothing
     assert [h.node for h in found.unready] == ["odd"]
     assert "odd" not in {h.node for h in found.hosting("amr-7").ready}
+
+
+def test_a_refresh_patches_only_what_changed() -> None:
+    entry = {"phase": "Running", "events": 10, "verdicts": {"violated": 0, "satisfied": 0}}
+    robots = {"amr-6": entry, "amr-7": entry, "amr-8": entry}
+    status = {"phase": "Running", "desired": 3, "robots": robots}
+    new = {
+        "phase": "Running",
+        "desired": 2,
+        # amr-6 gone (a merge patch removes it), amr-9 never there: nothing to remove
+        "robots": {"amr-6": None, "amr-7": entry, "amr-8": {**entry, "events": 11}, "amr-9": None},
+        "lastVerdict": None,
+    }
+    assert changed(status, new) == {
+        "desired": 2,
+        "robots": {"amr-6": None, "amr-8": {**entry, "events": 11}},
+        "lastVerdict": None,
+    }
+    assert changed(status, {k: v for k, v in status.items()}) == {}  # an idle fleet: nothing
+    assert changed({}, status) == status
