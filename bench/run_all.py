@@ -23,6 +23,7 @@ MODULES = [
     "migrate",
     "reactions",
     "planner",
+    "fleet_round",
 ]
 
 

@@ -108,6 +108,12 @@ class Operator:
     # instance -> the document last given to its handlers (a retry, or a spec edit that
     # leaves an instance's document as it was, does not restart it)
     defined: dict[str, str] = field(default_factory=dict)
+    # the last survey by monitor (name -> pod -> report), and which pods it asked
+    index: dict[str, dict[HandlerPod, MonitorReport]] = field(default_factory=dict)
+    pods_seen: tuple[frozenset[HandlerPod], frozenset[HandlerPod]] = (frozenset(), frozenset())
+    # a fleet's instance -> what its robot's entry was made from, and the entry: an
+    # instance whose reports did not change keeps its entry (no work per idle instance)
+    entries: dict[str, tuple[Any, dict[str, Any]]] = field(default_factory=dict)
 
     def client(self, pod: HandlerPod) -> HandlerClient:
         return HandlerClient(self.config.url(pod.address), self.config.token, self.config.tls)
@@ -311,6 +317,11 @@ def survey_and_tend(op: Operator, handlers: Handlers) -> None:
                 silent.add(pod)
                 log.warning("handler %s on %s: no survey: %s", pod.pod, pod.node, exc)
         op.reports, op.silent, op.surveyed_at = reports, silent, started
+        op.index = {}  # each monitor's reports, by pod: a fleet's refresh reads them so
+        for pod, found in reports.items():
+            for n, r in found.items():
+                op.index.setdefault(n, {})[pod] = r
+        op.pods_seen = (frozenset(reports), frozenset(silent))
         tend(op, handlers)
     finally:
         op.surveying.release()
@@ -681,6 +692,7 @@ def _remove(op: Operator, pods: Sequence[HandlerPod], names: Sequence[str]) -> l
         for hname in names:
             op.notes.pop(hname, None)
             op.defined.pop(hname, None)
+            op.entries.pop(hname, None)
     return unanswered
 
 
@@ -828,8 +840,14 @@ def _fleet_status(
     for inst in found:
         assert inst.robot is not None
         was = dict(before.get(inst.robot) or {})
+        made_of = (generation, op.pods_seen, op.index.get(inst.hname))
+        kept = op.entries.get(inst.hname)
+        if inst.hname not in op.notes and kept and kept[0] == made_of and kept[1] == was:
+            robots[inst.robot] = was  # its reports as before: its entry as before
+            continue
         entry, more = _instance_status(op, was, inst.hname, generation)
         robots[inst.robot] = robot_refreshed(entry)
+        op.entries[inst.hname] = (made_of, robots[inst.robot])
         events += [Event(e.type, e.reason, f"robot {inst.robot}: {e.message}") for e in more]
     return fleet_refreshed(previous, robots, sorted(fleet.robots), generation, _now(), events)
 
