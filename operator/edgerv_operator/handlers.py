@@ -57,7 +57,14 @@ from edgerv_operator.documents import (
     monitor_document,
     read,
 )
-from edgerv_operator.placement import change, choose, destination, placement_of, tier_of
+from edgerv_operator.placement import (
+    change,
+    choose,
+    destination,
+    drained,
+    placement_of,
+    tier_of,
+)
 from edgerv_operator.pods import PodFacts, PodWatch
 from edgerv_operator.pods import login as pods_login
 from edgerv_operator.status import (
@@ -336,15 +343,13 @@ def tend(op: Operator, handlers: Handlers) -> None:
         settle_orphans(op, handlers.every)
         ready = handlers.ready
         for pod in handlers.leaving:
-            by_robot: dict[str | None, list[str]] = {}
-            for n, r in op.reports.get(pod, {}).items():
-                if r.get("active"):
-                    by_robot.setdefault(r["placement"].get("robot"), []).append(n)
-            for robot, names in by_robot.items():
-                mine = [h for h in ready if may_host(robot, h.robot)]
-                target = destination(mine, None, op.config.tiers, leaving=pod)
-                if target is not None:
-                    _move(op, pod, target, names, f"pod {pod.pod} is going away")
+            active = {
+                n: r["placement"].get("robot")
+                for n, r in op.reports.get(pod, {}).items()
+                if r.get("active")
+            }
+            for target, names in drained(pod, active, ready, op.config.tiers):
+                _move(op, pod, target, names, f"pod {pod.pod} is going away")
         every = op.config.placement_seconds
         if every > 0 and time.monotonic() - op.placed_at >= every:
             op.placed_at = time.monotonic()

@@ -14,6 +14,7 @@ from typing import Any, Literal
 from edgerv.control.placement import HandlerReport, PolicyConfig, start_on
 from edgerv.control.wire import placement_from_json
 from edgerv.core.documents import Placement
+from edgerv.core.robots import may_host
 from edgerv_operator.documents import HandlerPod
 
 Change = Literal["none", "placement", "move", "redefine"]
@@ -97,3 +98,22 @@ def destination(
             if h.tier == tiers[r]:
                 return h
     return None
+
+
+def drained(
+    leaving: HandlerPod,
+    active: Mapping[str, str | None],
+    ready: Sequence[HandlerPod],
+    tiers: Sequence[str],
+) -> list[tuple[HandlerPod, list[str]]]:
+    """Where the monitors active on a handler that is going away go (``active``: each
+    one's robot, None for none): each robot's to a handler that may run its instances
+    (its robot's or a shared one: :func:`edgerv.core.robots.may_host`) by
+    :func:`destination`, one move per destination; those with nowhere to go stay."""
+    moves: dict[HandlerPod, list[str]] = {}
+    for name in sorted(active):
+        mine = [h for h in ready if may_host(active[name], h.robot)]
+        target = destination(mine, None, tiers, leaving=leaving)
+        if target is not None:
+            moves.setdefault(target, []).append(name)
+    return list(moves.items())

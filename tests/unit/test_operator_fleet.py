@@ -26,7 +26,7 @@ from edgerv_operator.handlers import (
     instances,
     ours,
 )
-from edgerv_operator.placement import choose, placement_of
+from edgerv_operator.placement import choose, drained, placement_of
 from edgerv_operator.pods import PodFacts
 
 SPEC: dict[str, Any] = {
@@ -178,3 +178,22 @@ def test_a_refresh_patches_only_what_changed() -> None:
     }
     assert changed(status, {k: v for k, v in status.items()}) == {}  # an idle fleet: nothing
     assert changed({}, status) == status
+
+
+def test_a_drained_handler_hands_each_robots_instances_to_a_handler_that_may_run_them() -> None:
+    tiers = ("edge", "cloud")
+    cloud, jetson7, jetson8, pc7 = pod("cloud-1"), pod("jetson-7"), pod("jetson-8"), pod("pc-7")
+    # the cloud going away: amr-7's instances to amr-7's edge, amr-8's to amr-8's (below it,
+    # nothing else of its tier), a robotless monitor to the first edge
+    active = {"m.amr-7": "amr-7", "m.amr-8": "amr-8", "n.amr-8": "amr-8", "plain": None}
+    assert drained(cloud, active, [jetson7, jetson8], tiers) == [
+        (jetson7, ["m.amr-7", "plain"]),
+        (jetson8, ["m.amr-8", "n.amr-8"]),
+    ]
+    # amr-7's jetson going away: to amr-7's other node of its tier, never amr-8's
+    assert drained(jetson7, {"m.amr-7": "amr-7"}, [jetson8, pc7, cloud], tiers) == [
+        (pc7, ["m.amr-7"])
+    ]
+    # amr-8's only edge going away: up to the shared cloud; nowhere to go: it stays
+    assert drained(jetson8, {"m.amr-8": "amr-8"}, [jetson7, cloud], tiers) == [(cloud, ["m.amr-8"])]
+    assert drained(jetson8, {"m.amr-8": "amr-8"}, [jetson7], tiers) == []
