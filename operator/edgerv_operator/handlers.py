@@ -847,7 +847,13 @@ def _fleet_status(
         was = dict(before.get(inst.robot) or {})
         made_of = (generation, op.pods_seen, op.index.get(inst.hname))
         kept = op.entries.get(inst.hname)
-        if inst.hname not in op.notes and kept and kept[0] == made_of and kept[1] == was:
+        if (
+            inst.hname not in op.notes
+            and kept
+            and kept[0] == made_of
+            and kept[1] == was
+            and not _event_owed(was)
+        ):
             robots[inst.robot] = was  # its reports as before: its entry as before
             continue
         entry, more = _instance_status(op, was, inst.hname, generation)
@@ -855,6 +861,13 @@ def _fleet_status(
         op.entries[inst.hname] = (made_of, robots[inst.robot])
         events += [Event(e.type, e.reason, f"robot {inst.robot}: {e.message}") for e in more]
     return fleet_refreshed(previous, robots, sorted(fleet.robots), generation, _now(), events)
+
+
+def _event_owed(entry: Mapping[str, Any]) -> bool:
+    """Violations counted that no Violated Event has told yet (it waits out the minute
+    between two: status.VIOLATION_EVENT_SECONDS), to be told by a refresh to come."""
+    told = (entry.get("violationEvents") or {}).get("reported", 0)
+    return int((entry.get("verdicts") or {}).get("violated", 0)) > int(told)
 
 
 def _replace_lost(op: Operator, handlers: Handlers, inst: Instance, spec: dict[str, Any]) -> None:

@@ -21,6 +21,7 @@ from edgerv_operator.documents import HandlerPod
 from edgerv_operator.handlers import (
     Handlers,
     Operator,
+    _fleet_status,
     changed,
     cluster_handlers,
     instances,
@@ -197,3 +198,41 @@ def test_a_drained_handler_hands_each_robots_instances_to_a_handler_that_may_run
     # amr-8's only edge going away: up to the shared cloud; nowhere to go: it stays
     assert drained(jetson8, {"m.amr-8": "amr-8"}, [jetson7, cloud], tiers) == [(cloud, ["m.amr-8"])]
     assert drained(jetson8, {"m.amr-8": "amr-8"}, [jetson7], tiers) == []
+
+
+def test_an_idle_instance_keeps_its_entry_but_a_violated_event_owed_is_still_told(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A fleet's refresh skips the instances whose reports did not change, but not one
+    whose Violated Event waits out its minute: it is told once the minute has passed."""
+    clock = [1000.0]
+    monkeypatch.setattr("edgerv_operator.handlers.time.time", lambda: clock[0])
+    op = Operator(OperatorConfig.from_env(ENV), orchestrator=None)  # type: ignore[arg-type]
+    fleet = fleet_of({"jetson-7": NODES["jetson-7"]})
+    (inst,) = instances("speed", "lab", SPEC, fleet)
+    edge = pod("jetson-7")
+
+    def survey(violated: int) -> None:
+        r = {**report(inst.hname, "amr-7"), "active": True, "events": 100 + violated,
+             "verdicts": {"violated": violated, "satisfied": 0}, "lastVerdict": None}  # fmt: skip
+        op.reports, op.index = {edge: {inst.hname: r}}, {inst.hname: {edge: r}}  # type: ignore[dict-item]
+        op.pods_seen = (frozenset([edge]), frozenset())
+
+    def refresh(status: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
+        new, events = _fleet_status(op, status, [inst], 1, fleet)
+        return {**status, **new}, [e.message for e in events if e.reason == "Violated"]
+
+    survey(3)
+    status, told = refresh({})
+    assert told == ["robot amr-7: violated 3 more times (3 in all)"]
+    survey(5)  # two more within the minute: owed
+    clock[0] += 10
+    status, told = refresh(status)
+    assert told == [] and status["robots"]["amr-7"]["verdicts"]["violated"] == 5
+    clock[0] += 60  # the robot went quiet: the same reports, the minute over
+    status, told = refresh(status)
+    assert told == ["robot amr-7: violated 2 more times (5 in all)"]
+    entry, kept = status["robots"]["amr-7"], op.entries[inst.hname]
+    status, told = refresh(status)  # nothing owed, nothing changed: the entry as it was
+    assert told == [] and status["robots"]["amr-7"] == entry
+    assert op.entries[inst.hname] is kept  # (not made again)
