@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from edgerv.core.documents import API_VERSION
 from edgerv.core.documents import KIND as KIND  # "Monitor"
+from edgerv.core.robots import ROBOT_LABEL as ROBOT_LABEL  # the nodes' label naming their robot
 
 GROUP, _, VERSION = API_VERSION.partition("/")  # edgerv.io, v1alpha1
 PLURAL = "monitors"
@@ -19,7 +20,6 @@ MONITORS = (GROUP, VERSION, PLURAL)  # the resource, as Kopf's decorators and th
 
 FINALIZER = f"{GROUP}/monitor"  # on every Monitor the operator places, until it removed it
 TIER_LABEL = f"{GROUP}/tier"  # the node label whose value is the node's tier (the default)
-ROBOT_LABEL = f"{GROUP}/robot"  # the node label whose value names the node's robot (the default)
 HANDLER_SELECTOR = "app.kubernetes.io/name=edgerv,app.kubernetes.io/component=handler"
 HANDLER_PORT = 8470  # the handlers' control API port (host networking: each node's address)
 TIERS = ("edge", "cloud")  # lowest first

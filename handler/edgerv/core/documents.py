@@ -383,7 +383,7 @@ def _parse_label(
 ) -> tuple[str, str] | None:
     """A label's key and value (each checked as Kubernetes checks them)."""
     key = _parse_value(doc, knode, where, (str,))
-    value = _parse_value(doc, vnode, f"{where}", (str,))
+    value = _parse_value(doc, vnode, where, (str,))
     if isinstance(key, str) and not LABEL_KEY.match(key):
         doc.error(knode, where, f"'{key}' is not a label key", "e.g. edgerv.io/robot or site")
         return None
