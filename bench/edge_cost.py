@@ -15,6 +15,9 @@ of publishing:
 * a bare rclpy node that subscribes to the same topics (the same types and QoS) with
   the stock executor and callbacks that do nothing: what any Python monitor node pays
   before it checks anything;
+* the floor (``TAKE_ONLY``): a node that takes the same subscriptions' messages as
+  bytes with a wait set, as the handler's take loop does, and reads nothing: what
+  receiving alone costs in rclpy, below which no Python monitor node can go;
 * the same handler with no traffic (idle), and the bare node idle;
 * 10,000 idle monitors (bench/scale.py's: 100 topics, no publisher), unless --no-10k;
 * each idle handler twice: SETTLE seconds after it is ready, and again LATER seconds
@@ -190,6 +193,44 @@ try:
     rclpy.spin(node)
 except KeyboardInterrupt:
     pass
+"""
+
+# The floor: what the handler's take loop pays before it reads anything. The same
+# subscriptions, waited on with a wait set and taken as the bytes the publisher sent
+# (take_message(..., raw=True)), each message then let go: no field read, no monitor.
+TAKE_ONLY = r"""
+import contextlib
+import rclpy
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from geometry_msgs.msg import PoseStamped, TwistStamped
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import BatteryState, Image, Imu, LaserScan
+from std_msgs.msg import Bool
+rclpy.init(); node = rclpy.create_node("edge_cost_take_only")
+qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)  # the handler's default
+subs = [(node.create_subscription(cls, topic, lambda msg: None, qos), cls)
+        for topic, cls in (("/imu", Imu), ("/odom", Odometry), ("/scan", LaserScan),
+                           ("/camera/image", Image), ("/cmd_vel", TwistStamped),
+                           ("/battery", BatteryState), ("/bumper", Bool), ("/goal", PoseStamped))]
+with contextlib.ExitStack() as stack:
+    for sub, _ in subs:
+        stack.enter_context(sub.handle)
+    stack.enter_context(node.context.handle)
+    wait_set = _rclpy.WaitSet(len(subs), 0, 0, 0, 0, 0, node.context.handle)
+    print("ready", flush=True)
+    try:
+        while True:
+            wait_set.clear_entities()
+            for sub, _ in subs:
+                wait_set.add_subscription(sub.handle)
+            wait_set.wait(1_000_000_000)
+            for sub, cls in subs:
+                take = sub.handle.take_message
+                while take(cls, True) is not None:
+                    pass
+    except KeyboardInterrupt:
+        pass
 """
 
 
@@ -467,6 +508,12 @@ def run(
                 results["bare"].append(traffic_window(rx, seconds, tmp / "bare.jsonl", None))
             finally:
                 rx.stop()
+            rx = Receiver([sys.executable, "-c", TAKE_ONLY], "ready", tmp / "take-only.out")
+            try:
+                window = traffic_window(rx, seconds, tmp / "take-only.jsonl", None)
+                results.setdefault("take_only", []).append(window)
+            finally:
+                rx.stop()
         for side, source in sides:
             rx = Receiver(handler_argv(CASE_STUDY, None), " ready: ", tmp / "idle.out", source)
             try:
@@ -546,6 +593,8 @@ def rows(res: dict[str, Any], seconds: float) -> list[dict[str, str]]:
         pm, ps = mean("before")
         measured = f"before: {pm:.2f}% ({ps}); after: {hm:.2f}% of a core ({hs})"
         ratio = f"before {pm / bm:.3f}x, after {hm / bm:.3f}x the bare receiver's CPU"
+    fm, fs = mean("take_only")
+    ratio += f"; {hm / fm:.2f}x the take-only floor's"
     out = [
         {
             "name": "the edge's cost: the case study's 200 monitors at a robot's rates "
@@ -555,7 +604,20 @@ def rows(res: dict[str, Any], seconds: float) -> list[dict[str, str]]:
             f"{bm:.2f}% of a core ({bs})",
             "measured": measured,
             "ratio": ratio,
-        }
+        },
+        {
+            "name": "the edge's cost: the floor of a receiver in rclpy (what the target "
+            "0.1x the bare receiver is measured against)",
+            "detail": "the same traffic, in turn with the two above, pinned alike: a node "
+            "that only takes each message's bytes from the same subscriptions with a wait "
+            "set (the handler's take loop: take_message raw), and reads nothing; its "
+            "middleware's own receive thread included, as in every side's CPU",
+            "baseline": f"bare rclpy receiver {bm:.2f}% of a core ({bs}); the target, 0.1x "
+            f"of it: {bm / 10:.2f}%",
+            "measured": f"take-only receiver {fm:.2f}% of a core ({fs})",
+            "ratio": f"{fm / bm:.3f}x the bare receiver's CPU: the floor is "
+            f"{fm / (bm / 10):.1f}x the target",
+        },
     ]
 
     def idle_row(key: str, name: str, detail: str, baseline: str, target: float) -> None:

@@ -16,8 +16,13 @@ from edgerv.control.placement import PolicyConfig, tier_latencies
 from edgerv.control.tls import ClientTls
 from edgerv.control.token import Token, TokenFile
 from edgerv.core.diagnostics import InputError
+from edgerv.core.planner import BudgetConfig
 from edgerv.core.robots import LABEL_KEY
 from edgerv_operator.constants import (
+    BUDGET_CEILING,
+    BUDGET_FLOOR,
+    BUDGET_HYSTERESIS,
+    BUDGET_WAIT,
     HANDLER_PORT,
     HANDLER_SELECTOR,
     LIVENESS,
@@ -46,6 +51,11 @@ VARIABLES = (  # every variable the operator, its self-test and its uninstall ho
     "EDGERV_PEERING",
     "EDGERV_LIVENESS",
     "EDGERV_OPERATOR_DEPLOYMENT",
+    "EDGERV_BUDGET_TIER",
+    "EDGERV_BUDGET_FLOOR",
+    "EDGERV_BUDGET_CEILING",
+    "EDGERV_BUDGET_HYSTERESIS",
+    "EDGERV_BUDGET_WAIT",
 )
 
 
@@ -155,6 +165,40 @@ def _tiers(env: Mapping[str, str]) -> tuple[tuple[str, ...], dict[str, float]]:
     return tiers, latency
 
 
+def _budget(env: Mapping[str, str], tiers: tuple[str, ...]) -> tuple[str, BudgetConfig | None]:
+    """EDGERV_BUDGET_TIER (the tier whose handlers' CPU budget the planner sets; empty:
+    none) and its bounds: EDGERV_BUDGET_FLOOR and _CEILING (cores), _HYSTERESIS (a share
+    of the budget), _WAIT (seconds)."""
+    tier = env.get("EDGERV_BUDGET_TIER", "").strip()
+    if not tier:
+        return "", None
+    if tier not in tiers:
+        raise ConfigError(
+            f"EDGERV_BUDGET_TIER: '{tier}' is not one of EDGERV_TIERS {','.join(tiers)}"
+        )
+    numbers = {}
+    for name, default in (
+        ("FLOOR", BUDGET_FLOOR),
+        ("CEILING", BUDGET_CEILING),
+        ("HYSTERESIS", BUDGET_HYSTERESIS),
+        ("WAIT", BUDGET_WAIT),
+    ):
+        text = env.get(f"EDGERV_BUDGET_{name}", f"{default:g}")
+        try:
+            numbers[name] = float(text)
+        except ValueError:
+            raise ConfigError(f"EDGERV_BUDGET_{name}: '{text}' is not a number") from None
+    try:
+        bounds = BudgetConfig(
+            numbers["FLOOR"], numbers["CEILING"], numbers["HYSTERESIS"], numbers["WAIT"]
+        )
+    except ValueError as exc:
+        raise ConfigError(
+            f"EDGERV_BUDGET_FLOOR, _CEILING, _HYSTERESIS, _WAIT: {exc} (cores; a share; seconds)"
+        ) from None
+    return tier, bounds
+
+
 @dataclass(frozen=True)
 class OperatorConfig:
     namespace: str  # where the handler pods run
@@ -170,6 +214,10 @@ class OperatorConfig:
     watch_namespaces: tuple[str, ...] = ()  # the Monitors' namespaces (empty: every one)
     peering: str = ""  # the Kopf peering object replicas meet in ("": it runs alone)
     liveness: str = LIVENESS  # where it answers its liveness probe ("": nowhere)
+    # the tier whose handlers' CPU budget the planner sets, by resizing their pods in
+    # place ("": none), and the budget's bounds
+    budget_tier: str = ""
+    budget: BudgetConfig | None = None
 
     def url(self, address: str) -> str:
         """A handler's API at ``HOST:PORT``, over HTTPS unless plain HTTP was asked for."""
@@ -211,6 +259,7 @@ class OperatorConfig:
                 f"EDGERV_HANDLER_SELECTOR: '{selector}' is not a list of key=value labels "
                 "(e.g. app.kubernetes.io/component=handler)"
             )
+        budget_tier, budget = _budget(env, tiers)
         tier_label, robot_label = (
             _label(env, "EDGERV_TIER_LABEL", TIER_LABEL),
             _label(env, "EDGERV_ROBOT_LABEL", ROBOT_LABEL),
@@ -234,6 +283,8 @@ class OperatorConfig:
             watch_namespaces=_watched(env),
             peering=env.get("EDGERV_PEERING", ""),
             liveness=env.get("EDGERV_LIVENESS", LIVENESS),
+            budget_tier=budget_tier,
+            budget=budget,
         )
 
 

@@ -25,6 +25,11 @@ HANDLER_PORT = 8470  # the handlers' control API port (host networking: each nod
 TIERS = ("edge", "cloud")  # lowest first
 PLACEMENT_SECONDS = 5.0  # between two rounds of the placement policy
 LIVENESS = "http://0.0.0.0:8080/healthz"  # where Kopf answers the liveness probe
+HANDLER_CONTAINER = "handler"  # the handler pods' container: its CPU limit is the budget
+# The budget of the handlers of one tier (EDGERV_BUDGET_TIER; none by default), in cores:
+# the least and the most the planner sets, the share of a budget a change must pass,
+# and the seconds a changed budget stays (edgerv.core.planner.BudgetConfig)
+BUDGET_FLOOR, BUDGET_CEILING, BUDGET_HYSTERESIS, BUDGET_WAIT = 0.1, 1.0, 0.1, 2.0
 
 # in a pod: its service account's token (the operator, the self-test and the uninstall
 # hook then log in with it, else with $KUBECONFIG)

@@ -47,6 +47,7 @@ from edgerv.control.orchestrate import Orchestrator, Target
 from edgerv.control.placement import HandlerReport
 from edgerv.control.wire import MonitorReport
 from edgerv.core.robots import Fleet, fleet_of, may_host
+from edgerv_operator.budget import Levers, core_api
 from edgerv_operator.config import ConfigError, OperatorConfig
 from edgerv_operator.constants import FINALIZER, MONITORS
 from edgerv_operator.documents import (
@@ -121,6 +122,8 @@ class Operator:
     # a fleet's instance -> what its robot's entry was made from, and the entry: an
     # instance whose reports did not change keeps its entry (no work per idle instance)
     entries: dict[str, tuple[Any, dict[str, Any]]] = field(default_factory=dict)
+    # the budgeted tier's handler pods' CPU budgets (None: no tier's is set)
+    levers: Levers | None = None
 
     def client(self, pod: HandlerPod) -> HandlerClient:
         return HandlerClient(self.config.url(pod.address), self.config.token, self.config.tls)
@@ -168,7 +171,9 @@ def startup(settings: kopf.OperatorSettings, memo: kopf.Memo, **_: Any) -> None:
     pods.start()
     if not pods.wait_listed():
         log.warning("no pod listed in %s yet: going on with no handler pod known", config.namespace)
-    memo["edgerv"] = Operator(config, policy, pods)
+    op = memo["edgerv"] = Operator(config, policy, pods)
+    if config.budget is not None:
+        op.levers = Levers(config.budget_tier, config.budget, config.namespace, core_api, op.target)
 
 
 STOP_SECONDS = 60.0  # how long a stopping operator waits for its move in progress
@@ -357,6 +362,8 @@ def tend(op: Operator, handlers: Handlers) -> None:
             op.orchestrator.set_targets(
                 [op.target(h) for h in by_url.values() if h.tier in op.config.tiers]
             )
+            if op.levers is not None:
+                op.orchestrator.set_levers(op.levers.of(list(by_url.values())))
             for record in op.orchestrator.round():
                 log.info("placement: %s", record)
                 src = by_url.get(str(record.get("from") or ""))

@@ -28,6 +28,7 @@ from kit.chart import (
     ROOT,
     TOKEN,
     apply,
+    handler_pod,
     handler_tls,
     helm,
     install,
@@ -66,30 +67,6 @@ def set_tier(cluster: Cluster, namespace: str, name: str, tier: str) -> None:
         "patch", "monitor", name, "-n", namespace, "--type=merge",
         "-p", json.dumps({"spec": {"placement": {"tier": tier}}}),
     )  # fmt: skip
-
-
-def handler_pod(cluster: Cluster, namespace: str, tier: str) -> dict[str, Any]:
-    """The one live handler pod on the node of a tier (not one being deleted)."""
-    pods = json.loads(
-        cluster.run(
-            "get",
-            "pods",
-            "-n",
-            namespace,
-            "-l",
-            "app.kubernetes.io/component=handler",
-            "-o",
-            "json",
-        )
-    )["items"]
-    nodes = json.loads(cluster.run("get", "nodes", "-o", "json"))["items"]
-    tiers = {n["metadata"]["name"]: n["metadata"]["labels"].get("edgerv.io/tier") for n in nodes}
-    (pod,) = [
-        p
-        for p in pods
-        if tiers.get(p["spec"]["nodeName"]) == tier and not p["metadata"].get("deletionTimestamp")
-    ]
-    return dict(pod)
 
 
 def handler_get(cluster: Cluster, namespace: str, tier: str, path: str) -> int:

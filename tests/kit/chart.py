@@ -143,6 +143,30 @@ def talker_pod(
     }
 
 
+def handler_pod(cluster: Cluster, namespace: str, tier: str) -> dict[str, Any]:
+    """The one live handler pod on the node of a tier (not one being deleted)."""
+    pods = json.loads(
+        cluster.run(
+            "get",
+            "pods",
+            "-n",
+            namespace,
+            "-l",
+            "app.kubernetes.io/component=handler",
+            "-o",
+            "json",
+        )
+    )["items"]
+    nodes = json.loads(cluster.run("get", "nodes", "-o", "json"))["items"]
+    tiers = {n["metadata"]["name"]: n["metadata"]["labels"].get("edgerv.io/tier") for n in nodes}
+    (pod,) = [
+        p
+        for p in pods
+        if tiers.get(p["spec"]["nodeName"]) == tier and not p["metadata"].get("deletionTimestamp")
+    ]
+    return dict(pod)
+
+
 def apply(cluster: Cluster, namespace: str, doc: dict[str, Any]) -> None:
     cluster.run("apply", "-n", namespace, "-f", "-", input=json.dumps(doc))
 

@@ -236,7 +236,7 @@ def lever_round(wait: float, quota: Quota, loads: list[LoadReport]) -> tuple[Orc
     edge = Target("edge", "e:1")
     config = PolicyConfig(tiers=("edge", "cloud"), deadline_wait=wait)
     lever = BudgetLever(quota, edge, BudgetConfig(0.05, 2.0, wait=wait), "edgerv-edge")
-    o = Orchestrator([edge], config, token=None, lever=lever, on_idle=lambda idle: None)
+    o = Orchestrator([edge], config, token=None, levers=[lever], on_idle=lambda idle: None)
     o.clients = {edge: LoadReports(loads)}
     return o, edge
 

@@ -572,10 +572,11 @@ class Orchestrator:
         starts: bool = True,
         tls: ClientTls | None = None,
         on_idle: Callable[[Idle], None] | None = None,
-        lever: BudgetLever | None = None,
+        levers: Sequence[BudgetLever] = (),
     ) -> None:
         self.config = config
-        self.lever = lever  # a handler's CPU budget, set each round (None: not ours)
+        # handlers' CPU budgets, each set each round (none: the budget is not ours)
+        self.levers: list[BudgetLever] = list(levers)
         self.token = token
         self.tls = tls
         self.targets: list[Target] = []
@@ -600,6 +601,11 @@ class Orchestrator:
         self.clients = {t: self.clients.get(t) or self._new_client(t) for t in targets}
         self.previous = {t: c for t, c in self.previous.items() if t in targets}
         self.seen = {t: r for t, r in self.seen.items() if t in targets}
+
+    def set_levers(self, levers: Sequence[BudgetLever]) -> None:
+        """The budgets to set from now on (the operator's, one a budgeted handler pod, as
+        pods come and go); a lever kept from the last call keeps its history."""
+        self.levers = list(levers)
 
     def poll(self) -> dict[Target, LoadReport]:
         loads = {}
@@ -707,17 +713,19 @@ class Orchestrator:
                 self.unsettled.update(dict.fromkeys(names, (where[source], where[destination])))
             record["ms"] = round((time.monotonic() - started) * 1000, 1)
             done.append(record)
-        done.extend(self._budget(reports, where, now))
+        for lever in self.levers:
+            done.extend(self._budget(lever, reports, where, now))
         return done
 
     def _budget(
-        self, reports: Sequence[HandlerReport], where: Mapping[str, Target], now: float
+        self,
+        lever: BudgetLever,
+        reports: Sequence[HandlerReport],
+        where: Mapping[str, Target],
+        now: float,
     ) -> list[dict[str, Any]]:
         """Set the lever's handler's CPU budget for this round's reading, if it changes:
         its record (none when it stays, or when an error was reported already)."""
-        lever = self.lever
-        if lever is None:
-            return []
         found = [r for r in reports if where.get(r.name) == lever.handler]
         name = found[0].name if found else lever.handler.address
         c = self.config

@@ -386,7 +386,7 @@ def run(args: argparse.Namespace) -> int:
         args.timeout,
         tls=tls,
         on_idle=say,
-        lever=lever,
+        levers=[] if lever is None else [lever],
     )
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
