@@ -30,6 +30,7 @@ from edgerv_operator.constants import HANDLER_CONTAINER, SERVICE_ACCOUNT_TOKEN
 from edgerv_operator.documents import HandlerPod
 
 MILLI = 1000  # a CPU quantity's unit here: the millicore, the least Kubernetes keeps
+API_TIMEOUT = (5.0, 10.0)  # seconds to connect to the API server, and for its answer
 _CPU = re.compile(r"\A(?:(\d+(?:\.\d*)?|\.\d+)(m?))\Z")
 
 
@@ -85,11 +86,13 @@ class PodCpuBudget:
         return self._limit(self._call("resize", self.api.patch_namespaced_pod_resize, body))
 
     def _call(self, verb: str, method: Callable[..., Any], *body: Any) -> Any:
-        """``method`` on this pod; the API's refusal as a CpuBudgetError saying what to do."""
+        """``method`` on this pod, within API_TIMEOUT (a placement round waits for it);
+        the API's refusal, or no answer, as a CpuBudgetError saying what to do."""
         from kubernetes.client.exceptions import ApiException  # (the operator's extra)
+        from urllib3.exceptions import HTTPError
 
         try:
-            return method(self.pod, self.namespace, *body)
+            return method(self.pod, self.namespace, *body, _request_timeout=API_TIMEOUT)
         except ApiException as exc:
             where = f"pod {self.namespace}/{self.pod}"
             if exc.status == 403:
@@ -108,7 +111,7 @@ class PodCpuBudget:
                     "in-place resize needs Kubernetes 1.33 or later"
                 )
             raise CpuBudgetError(why) from None
-        except OSError as exc:
+        except (OSError, HTTPError) as exc:
             raise CpuBudgetError(f"the API server did not answer ({exc})") from None
 
     def _limit(self, pod: Any) -> float:

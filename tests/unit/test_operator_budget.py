@@ -6,6 +6,7 @@ tests/e2e/test_budget_resize.py."""
 from __future__ import annotations
 
 import re
+import socket
 from typing import Any
 
 import pytest
@@ -143,3 +144,21 @@ def test_the_budget_read_is_the_handler_containers_cpu_limit_as_it_is() -> None:
         budget._limit(handler_pod_with({"cpu": "1"}, name="sidecar"))
     with pytest.raises(CpuBudgetError, match="'lots' is not a CPU quantity"):
         budget._limit(handler_pod_with({"cpu": "lots"}))
+
+
+def test_an_api_server_that_does_not_answer_is_a_budget_error_not_a_crash() -> None:
+    """The kubernetes client's own errors (a refused connection) become the CpuBudgetError
+    the orchestrator reports as a record, and its rounds go on."""
+    from kubernetes import client
+
+    with socket.socket() as s:  # a port nothing listens on, on loopback
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    config = client.Configuration()
+    config.host = f"http://127.0.0.1:{port}"
+    config.retries = 0
+    budget = PodCpuBudget(client.CoreV1Api(client.ApiClient(config)), "ns", "h-a", 0.1, 0.5)
+    with pytest.raises(CpuBudgetError, match="the API server did not answer"):
+        budget.cores()
+    with pytest.raises(CpuBudgetError, match="the API server did not answer"):
+        budget.set_cores(0.3)
