@@ -24,6 +24,7 @@ MODULES = [
     "reactions",
     "planner",
     "fleet_round",
+    "fleet_cloud",
 ]
 
 
