@@ -29,7 +29,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 import urllib.request
 from pathlib import Path
@@ -40,7 +39,7 @@ import yaml
 from edgerv.core.documents import API_VERSION, KIND
 from edgerv.core.robots import ROBOT_LABEL, in_namespace, instance_name, instance_spec
 from ros_env import ros_env
-from scale import resident_bytes
+from scale import VerdictListener, resident_bytes
 
 ROBOTS = 100
 MONITORS = 200  # a robot's, the paper's count
@@ -126,48 +125,6 @@ def running(port: int) -> int:
     return sum(1 for x in lines if x.startswith("edgerv_monitor_active{") and x.endswith(" 1.0"))
 
 
-class VerdictListener:
-    """The probe instances' verdicts on /edgerv/verdicts: publish-to-arrival, in ms."""
-
-    def __init__(self) -> None:
-        import rclpy
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
-        from std_msgs.msg import String
-
-        os.environ.update(ros_env(DOMAIN))
-        rclpy.init()
-        self.rclpy = rclpy
-        self.node = rclpy.create_node("fleet_listener")
-        self.latencies: list[float] = []
-        self.robots: set[str] = set()
-        self.node.create_subscription(
-            String,
-            "/edgerv/verdicts",
-            self._on,
-            QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE),
-        )
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _on(self, msg: Any) -> None:
-        now = time.time_ns()
-        verdict = json.loads(msg.data)
-        if verdict["monitor"].startswith(f"{NAMESPACE}.probe."):
-            self.latencies.append((now - verdict["stamp"]) / 1e6)
-            self.robots.add(verdict["monitor"].rsplit(".", 1)[1])
-
-    def _spin(self) -> None:
-        while not self.stop.is_set():
-            self.rclpy.spin_once(self.node, timeout_sec=0.1)
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join()
-        self.node.destroy_node()
-        self.rclpy.try_shutdown()
-
-
 def run(robots: int, monitors: int, listener: VerdictListener) -> dict[str, Any]:
     """The handler holding ``monitors`` instances of each of ``robots`` robots."""
     port = 19400 + os.getpid() % 500
@@ -199,7 +156,7 @@ def run(robots: int, monitors: int, listener: VerdictListener) -> dict[str, Any]
             time.sleep(2)
             rss = resident_bytes(port)
             listener.latencies.clear()
-            listener.robots.clear()
+            listener.heard.clear()
             pub = subprocess.run(
                 [sys.executable, "-c", PUBLISHER, ",".join(topics), str(RATE), str(SECONDS)],
                 env=ros_env(DOMAIN),
@@ -210,7 +167,7 @@ def run(robots: int, monitors: int, listener: VerdictListener) -> dict[str, Any]
             sent = int(pub.stdout.split()[0])
             time.sleep(1)
             lat = sorted(listener.latencies)
-            heard = len(listener.robots)
+            heard = len({name.rsplit(".", 1)[1] for name in listener.heard})  # NS.NAME.ROBOT
             if heard != robots:
                 raise RuntimeError(f"probe verdicts came from {heard} of the {robots} robots")
         finally:
@@ -232,7 +189,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robots", type=int, default=ROBOTS)
     args = ap.parse_args([] if argv is None else argv)
-    listener = VerdictListener()
+    listener = VerdictListener(DOMAIN, lambda name: name.startswith(f"{NAMESPACE}.probe."))
     try:
         probes = run(args.robots, 1, listener)
         fleet = run(args.robots, MONITORS, listener)

@@ -23,6 +23,7 @@ import tempfile
 import threading
 import time
 import urllib.request
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -87,16 +88,25 @@ def resident_bytes(port: int) -> float:
 
 
 class VerdictListener:
-    def __init__(self) -> None:
+    """The probe monitors' verdicts on /edgerv/verdicts (in ROS domain ``domain``; a probe:
+    a monitor whose name ``probe`` accepts): publish-to-arrival in ms, and who spoke."""
+
+    def __init__(
+        self,
+        domain: str = DOMAIN,
+        probe: Callable[[str], bool] = lambda name: name.startswith("probe"),
+    ) -> None:
         import rclpy
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from std_msgs.msg import String
 
-        os.environ.update(env())
+        os.environ.update(ros_env(domain))
         rclpy.init()
         self.rclpy = rclpy
+        self.probe = probe
         self.node = rclpy.create_node("scale_listener")
         self.latencies: list[float] = []
+        self.heard: set[str] = set()  # the probes whose verdicts came
         self.node.create_subscription(
             String,
             "/edgerv/verdicts",
@@ -110,8 +120,9 @@ class VerdictListener:
     def _on(self, msg: Any) -> None:
         now = time.time_ns()
         verdict = json.loads(msg.data)
-        if verdict["monitor"].startswith("probe"):
+        if self.probe(verdict["monitor"]):
             self.latencies.append((now - verdict["stamp"]) / 1e6)
+            self.heard.add(verdict["monitor"])
 
     def _spin(self) -> None:
         while not self.stop.is_set():
