@@ -39,7 +39,7 @@ import yaml
 from edgerv.core.documents import API_VERSION, KIND
 from edgerv.core.robots import ROBOT_LABEL, in_namespace, instance_name, instance_spec
 from ros_env import ros_env
-from scale import VerdictListener, resident_bytes
+from scale import PUBLISHER, VerdictListener, resident_bytes
 
 ROBOTS = 100
 MONITORS = 200  # a robot's, the paper's count
@@ -47,29 +47,6 @@ RATE = 1000.0
 SECONDS = 10.0
 DOMAIN = "93"
 NAMESPACE = "fleet"  # the Monitors' Kubernetes namespace: instance NAMESPACE.NAME.ROBOT
-
-PUBLISHER = r"""
-import sys, time, rclpy
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from std_msgs.msg import Float64
-topics, rate, seconds = sys.argv[1].split(","), float(sys.argv[2]), float(sys.argv[3])
-rclpy.init(); node = rclpy.create_node("fleet_publisher")
-qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-pubs = [node.create_publisher(Float64, t, qos) for t in topics]
-deadline = time.monotonic() + 60
-while any(p.get_subscription_count() == 0 for p in pubs) and time.monotonic() < deadline:
-    time.sleep(0.1)
-time.sleep(1.0)
-n = int(rate * seconds)
-start = time.perf_counter()
-for i in range(n):
-    ahead = start + i / rate - time.perf_counter()
-    if ahead > 0:
-        time.sleep(ahead)
-    pubs[i % len(pubs)].publish(Float64(data=float(i)))
-time.sleep(2)
-print(n, flush=True)
-"""
 
 
 def robot(i: int) -> str:

@@ -34,16 +34,19 @@ MONITORS = 10_000
 RATE = 1000.0
 SECONDS = 10.0
 DOMAIN = "94"
+TOPIC_NAMES = ",".join(f"/s{i}" for i in range(TOPICS))
 
+# A paced publisher of std_msgs/Float64: RATE messages/s for SECONDS round-robin over the
+# topics named (comma-separated), once each has a subscriber; prints how many it sent.
 PUBLISHER = r"""
 import sys, time, rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64
-topics, rate, seconds = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
+topics, rate, seconds = sys.argv[1].split(","), float(sys.argv[2]), float(sys.argv[3])
 rclpy.init(); node = rclpy.create_node("scale_publisher")
 qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-pubs = [node.create_publisher(Float64, f"/s{i}", qos) for i in range(topics)]
-deadline = time.monotonic() + 30
+pubs = [node.create_publisher(Float64, t, qos) for t in topics]
+deadline = time.monotonic() + 60
 while any(p.get_subscription_count() == 0 for p in pubs) and time.monotonic() < deadline:
     time.sleep(0.1)
 time.sleep(1.0)
@@ -53,7 +56,7 @@ for i in range(n):
     ahead = start + i / rate - time.perf_counter()
     if ahead > 0:
         time.sleep(ahead)
-    pubs[i % topics].publish(Float64(data=float(i)))
+    pubs[i % len(pubs)].publish(Float64(data=float(i)))
 time.sleep(2)
 print(n, flush=True)
 """
@@ -172,7 +175,7 @@ def run(total: int, listener: VerdictListener) -> dict[str, float]:
             rss = resident_bytes(port)
             listener.latencies.clear()
             pub = subprocess.run(
-                [sys.executable, "-c", PUBLISHER, str(TOPICS), str(RATE), str(SECONDS)],
+                [sys.executable, "-c", PUBLISHER, TOPIC_NAMES, str(RATE), str(SECONDS)],
                 env=env(),
                 capture_output=True,
                 text=True,
