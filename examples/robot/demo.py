@@ -57,6 +57,9 @@ GOAL_SECONDS = 20.0  # the goal monitor's F[0..20s]
 LOST = re.compile(r"(/\S+): \d+ message\(s\) lost before this handler took them, (\d+) in all")
 CALM_SECONDS = 8
 COOLDOWN_SECONDS = 20
+# edgerv orchestrate's --interval: a reading of the loop's deadline every half second (its
+# p95 is over the handler's 2 s window), so that the first plan comes within a second
+POLL_SECONDS = 0.5
 PARK_SECONDS = 30.0  # at most this long parked, waiting for the monitors to come back
 CLOUD_DELAY_MS = 20.0  # one way, edge to cloud
 TOPICS = {
@@ -517,7 +520,7 @@ class Demo:
                     "--tier-latency",
                     "edge=0,cloud=20",
                     "--interval",
-                    "1",
+                    str(POLL_SECONDS),
                     "--calm",
                     str(CALM_SECONDS),
                     "--cooldown",
@@ -688,12 +691,18 @@ class Demo:
             self.view.on_edge = active
 
     def await_policy(
-        self, phase: str, log: RobotLog, quiet: float = 3.0, limit: float = 40.0
+        self,
+        phase: str,
+        log: RobotLog,
+        quiet: float = CALM_SECONDS + 2.0,
+        limit: float = 40.0,
     ) -> float:
         """Before the mission, as a team would: wait until the edge handler reads the loop
         back under its deadline (p95 of at least 8 makespans) and the policy has made no
-        move for ``quiet`` seconds, or ``limit`` seconds. The policy alone decides what
-        moves; this only decides when the robot is sent off. Returns the seconds waited."""
+        move for ``quiet`` seconds (longer than its calm wait: what fits the edge once
+        the loop is calm has come home), or ``limit`` seconds. The policy alone decides
+        what moves; this only decides when the robot is sent off. Returns the seconds
+        waited."""
         started = time.monotonic()
         while time.monotonic() - started < limit:
             moves = self.moves(phase)
@@ -729,7 +738,15 @@ class Demo:
         result.collided = log.event("collision", result.goal_time) is not None
         if result.migrations:  # orchestrated: how the policy brought the loop back
             stop = int(result.stop_time * 1e9)
-            phase_frames = [(r["stamp"] / 1e9, bool(r["met"])) for r in log.kind("frame")]
+            # from the real-time stage's first command: the frames before it were sent
+            # while the stage was still starting (not yet receiving frames), not late
+            commands = [r["stamp"] for r in log.kind("cmd")]
+            running = min(commands, default=0)
+            phase_frames = [
+                (r["stamp"] / 1e9, bool(r["met"]))
+                for r in log.kind("frame")
+                if r["stamp"] >= running
+            ]
             settled = result.on_edge_at_goal
             result.recovery = recovery(
                 [f for f in phase_frames if f[0] * 1e9 <= stop],

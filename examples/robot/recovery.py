@@ -1,8 +1,9 @@
 """How a placement policy brought the robot's control loop back under its deadline.
 
 Issue 37's measure of a policy, from what the robot and ``edgerv orchestrate`` wrote:
-the seconds from the first missed deadline to the first of ``RUN`` frames in a row that
-met theirs, the handoffs and monitor moves the policy made until then, the deadlines
+the seconds from the first missed deadline (of a frame the real-time stage received: the
+demo gives the frames from its first command on) to the first of ``RUN`` frames in a row
+that met theirs, the handoffs and monitor moves the policy made until then, the deadlines
 missed meanwhile, and how many monitors were in the cloud once it had settled.
 """
 

@@ -69,7 +69,10 @@ class PodCpuBudget:
         return self._ceiling
 
     def cores(self) -> float:
-        return self._limit(self._call("read", self.api.read_namespaced_pod_resize))
+        pod = self._call("read", self.api.read_namespaced_pod_resize)
+        if infeasible(pod) is not None:  # the spec's limit was never put in force
+            return self._in_force(pod)
+        return self._limit(pod)
 
     def set_cores(self, cores: float) -> float:
         wanted = bounded(cores, self._floor, self._ceiling)
@@ -83,7 +86,15 @@ class PodCpuBudget:
                 ]
             }
         }
-        return self._limit(self._call("resize", self.api.patch_namespaced_pod_resize, body))
+        pod = self._call("resize", self.api.patch_namespaced_pod_resize, body)
+        refused = infeasible(pod)
+        if refused is not None:
+            raise CpuBudgetError(
+                f"the kubelet cannot resize pod {self.namespace}/{self.pod} to "
+                f"{cpu_quantity(wanted)} CPU: Infeasible ({refused}); its budget stays "
+                f"{self._in_force(pod):g} cores, and monitors move instead"
+            )
+        return self._limit(pod)
 
     def _call(self, verb: str, method: Callable[..., Any], *body: Any) -> Any:
         """``method`` on this pod, within API_TIMEOUT (a placement round waits for it);
@@ -114,6 +125,18 @@ class PodCpuBudget:
         except (OSError, HTTPError) as exc:
             raise CpuBudgetError(f"the API server did not answer ({exc})") from None
 
+    def _in_force(self, pod: Any) -> float:
+        """The handler container's CPU limit the kubelet has put in force (its status),
+        in cores; the spec's where the status does not say."""
+        for status in (pod.status and pod.status.container_statuses) or ():
+            if status.name == HANDLER_CONTAINER and status.resources is not None:
+                cpu = (status.resources.limits or {}).get("cpu")
+                if cpu is None:
+                    return self._ceiling
+                with contextlib.suppress(ValueError):
+                    return cpu_cores(cpu)
+        return self._limit(pod)
+
     def _limit(self, pod: Any) -> float:
         """The handler container's CPU limit in ``pod`` (as the API sent it), in cores."""
         for container in pod.spec.containers or ():
@@ -129,6 +152,16 @@ class PodCpuBudget:
         raise CpuBudgetError(
             f"pod {self.namespace}/{self.pod} has no container '{HANDLER_CONTAINER}'"
         )
+
+
+def infeasible(pod: Any) -> str | None:
+    """Why the kubelet refuses ``pod``'s resize for good (its ``PodResizePending``
+    condition, reason ``Infeasible``: the node has not the CPU), else None. A resize
+    ``Deferred`` (the node may have the CPU later) is left to the kubelet."""
+    for condition in (pod.status and pod.status.conditions) or ():
+        if condition.type == "PodResizePending" and condition.reason == "Infeasible":
+            return condition.message or "the node cannot give it"
+    return None
 
 
 def core_api() -> Any:

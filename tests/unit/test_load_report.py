@@ -68,7 +68,7 @@ def test_what_a_handler_may_leave_out_reads_as_its_default() -> None:
         }
     )
     assert (report["ingestLag"], report["deadline"], report["monotonic"]) == (0.0, None, 1.0)
-    assert report["host"] is None
+    assert report["host"] is None and report["topics"] == {}
     assert report["monitors"]["m"] == {
         "active": False,
         "handoff": None,
@@ -78,7 +78,10 @@ def test_what_a_handler_may_leave_out_reads_as_its_default() -> None:
         "cpuSeconds": 0.0,
         "migrationWanted": False,
         "placement": {"tier": None, "migrate": "auto", "maxLatencyMs": None},
+        "topics": [],
     }
+    topic = parse_load({**GOOD, "topics": {"/imu": {"messages": 4}}})["topics"]
+    assert topic == {"/imu": {"messages": 4, "cpuSeconds": 0.0}}
 
 
 GOOD: dict[str, Any] = {
@@ -97,6 +100,12 @@ GOOD: dict[str, Any] = {
         ({"cpuSeconds": None}, "cpuSeconds is not a number"),
         ({"ingestLag": True}, "ingestLag is not a number"),
         ({"monitors": []}, "monitors is not an object"),
+        ({"topics": []}, "topics is not an object"),
+        ({"topics": {"/imu": 1}}, "topics./imu is not an object"),
+        ({"topics": {"/imu": {"messages": 1.5}}}, "topics./imu.messages is not a whole number"),
+        ({"topics": {"/imu": {"messages": 1, "cpuSeconds": "x"}}}, "topics./imu.cpuSeconds"),
+        ({"monitors": {"m": {"active": True, "events": 1, "migrationWanted": False,
+                             "topics": ["/a", 2]}}}, "monitors.m.topics is not a list of strings"),
         ({"monitors": {"m": 1}}, "monitors.m is not an object"),
         ({"monitors": {"m": {"active": "yes", "events": 1}}}, "monitors.m.active is not true"),
         ({"monitors": {"m": {"active": True, "events": 1.5, "migrationWanted": False}}},

@@ -14,7 +14,7 @@ import pytest
 from edgerv.control.cpu_budget import CpuBudgetError
 from edgerv.control.orchestrate import Target
 from edgerv.core.planner import BudgetConfig
-from edgerv_operator.budget import Levers, PodCpuBudget, cpu_cores, cpu_quantity
+from edgerv_operator.budget import Levers, PodCpuBudget, cpu_cores, cpu_quantity, infeasible
 from edgerv_operator.config import ConfigError, OperatorConfig
 from edgerv_operator.constants import (
     BUDGET_CEILING,
@@ -144,6 +144,37 @@ def test_the_budget_read_is_the_handler_containers_cpu_limit_as_it_is() -> None:
         budget._limit(handler_pod_with({"cpu": "1"}, name="sidecar"))
     with pytest.raises(CpuBudgetError, match="'lots' is not a CPU quantity"):
         budget._limit(handler_pod_with({"cpu": "lots"}))
+
+
+def test_an_infeasible_resize_reads_as_the_limit_in_force_and_says_why() -> None:
+    """The kubelet refuses a resize for good (PodResizePending, Infeasible: the node has
+    not the CPU): the spec says 2 cores, the container runs with 0.5; the budget read is
+    the 0.5 in force, and why is said. Deferred is the kubelet's to finish."""
+    from kubernetes import client
+
+    pod = handler_pod_with({"cpu": "2"})
+    running = client.V1ContainerStatus(
+        name="handler",
+        image="edgerv/handler:dev",
+        image_id="",
+        ready=True,
+        restart_count=0,
+        resources=client.V1ResourceRequirements(limits={"cpu": "500m"}),
+    )
+    pending = client.V1PodCondition(
+        type="PodResizePending",
+        status="True",
+        reason="Infeasible",
+        message="Node didn't have enough capacity: cpu, requested: 2000, capacity: 1000",
+    )
+    pod.status = client.V1PodStatus(conditions=[pending], container_statuses=[running])
+    budget = PodCpuBudget(None, "ns", "h-a", 0.1, 4.0)
+    assert infeasible(pod) == pending.message
+    assert budget._in_force(pod) == 0.5 and budget._limit(pod) == 2.0
+    pending.reason = "Deferred"
+    assert infeasible(pod) is None
+    pod.status.container_statuses = None  # (a kubelet that does not say): the spec's
+    assert budget._in_force(pod) == 2.0
 
 
 def test_an_api_server_that_does_not_answer_is_a_budget_error_not_a_crash() -> None:

@@ -121,6 +121,7 @@ def load(
     busy: float,
     total: float,
     outputs: int | None = None,
+    taking: dict[str, float] | None = None,
 ) -> LoadReport:
     deadline: DeadlineLoad | None = None
     if outputs is not None:  # the deadline topic's messages so far, and a window's reading
@@ -136,6 +137,7 @@ def load(
         "host": {"cores": 2, "busySeconds": busy, "totalSeconds": total},
         "ingestLag": 0.0,
         "deadline": deadline,
+        "topics": {t: {"messages": 0, "cpuSeconds": v} for t, v in (taking or {}).items()},
         "monitors": {
             m: {
                 "active": True,
@@ -146,6 +148,7 @@ def load(
                 "cpuSeconds": s,
                 "migrationWanted": False,
                 "placement": {"tier": None, "migrate": "auto", "maxLatencyMs": None},
+                "topics": ["/imu"] if m == "a" else ["/odom"],
             }
             for m, s in monitors.items()
         },
@@ -166,6 +169,33 @@ def test_the_orchestrator_reads_each_monitors_cost_and_the_headroom_from_two_rep
     assert report.monitors["b"].cpu is None
     assert report.headroom is not None and math.isclose(report.headroom, 1.5 + 0.1)
     assert math.isclose(report.cpu, 0.3)
+
+
+def test_a_topics_ingestion_is_the_handlers_cpu_besides_its_monitors_by_what_taking_it_cost() -> (
+    None
+):
+    """Two reports 2 s apart: the handler spent 0.3 cores, its monitors 0.1 and 0.05: the
+    0.15 besides them is its topics' ingestion, shared by what taking each cost (/imu
+    0.03 CPU seconds, /odom 0.01): 0.1125 and 0.0375 cores; counted in the headroom."""
+    target, previous = Target("edge", "e:1"), dict[Target, Counters]()
+    taken = {"/imu": 1.0, "/odom": 0.5}
+    build_reports({target: load(10.0, 5.0, {"a": 1.0, "b": 2.0}, 100, 400, taking=taken)}, previous)
+    assert previous[target].taking == taken
+    later = {"/imu": 1.03, "/odom": 0.51}
+    second, _, _ = build_reports(
+        {target: load(12.0, 5.6, {"a": 1.2, "b": 2.1}, 101, 404, taking=later)}, previous
+    )
+    report = second[0]
+    assert report.monitors["a"].topics == ("/imu",)
+    assert report.topics.keys() == {"/imu", "/odom"}
+    assert math.isclose(report.topics["/imu"], 0.1125)
+    assert math.isclose(report.topics["/odom"], 0.0375)
+    assert report.headroom is not None and math.isclose(report.headroom, 1.5 + 0.3)
+    # a monitor's cost unknown (its counter restarted): what is besides them is not known
+    third, _, _ = build_reports(
+        {target: load(14.0, 6.2, {"a": 1.4, "b": 0.0}, 102, 408, taking=later)}, previous
+    )
+    assert third[0].topics == {}
 
 
 def test_the_real_time_tasks_work_per_output_is_what_its_cpus_did_besides_the_handler() -> None:

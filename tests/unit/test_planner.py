@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import pytest
 from hypothesis import event, given
 from hypothesis import strategies as st
 
+from edgerv.core import selection
 from edgerv.core.planner import (
     MICRO,
     MILLI,
@@ -39,8 +40,9 @@ def edge(
     cloud_ms: float = CLOUD_MS,
     handler: float | None = None,
     work: float | None = None,
+    topics: Mapping[str, float] | None = None,
 ) -> EdgeState:
-    return EdgeState(headroom, DEADLINE, p95, cloud_ms, handler, work)
+    return EdgeState(headroom, DEADLINE, p95, cloud_ms, handler, work, dict(topics or {}))
 
 
 def on(
@@ -52,8 +54,9 @@ def on(
     max_latency_ms: float | None = None,
     pinned: bool = False,
     in_handoff: bool = False,
+    topics: tuple[str, ...] = (),
 ) -> MonitorCost:
-    return MonitorCost(name, tier, cost, rate, max_latency_ms, pinned, in_handoff)
+    return MonitorCost(name, tier, cost, rate, max_latency_ms, pinned, in_handoff, topics=topics)
 
 
 # --- instances: up to 12 monitors, costs and rates already in the planner's units ---
@@ -75,9 +78,17 @@ def monitors(draw: st.DrawFn, fewest: int, edge_share: float) -> list[MonitorCos
             pinned=draw(one_in),
             in_handoff=draw(one_in),
             home=draw(st.sampled_from(("edge", "edge", "edge", "cloud"))),
+            topics=tuple(draw(st.sets(st.sampled_from(TOPICS), max_size=2))),
         )
         for i in range(count)
     ]
+
+
+TOPICS = ("/a", "/b", "/c")
+# what each topic's ingestion costs on the edge, when known (absent: nothing)
+topic_costs = st.dictionaries(
+    st.sampled_from(TOPICS), st.integers(0, 200_000).map(lambda u: u / MICRO), max_size=3
+)
 
 
 configs = st.builds(
@@ -94,9 +105,9 @@ def instances(
     """Monitors, a reading and a configuration. The headroom is drawn against what is at
     stake: on the way up, 20% to 100% of what runs on the edge is allowed; on the way home,
     what runs there plus -10% to 110% of what is away (so that some fit and some do not)."""
-    ms, config = draw(monitors(fewest, edge_share)), draw(configs)
-    here = verification(ms)
-    away = sum(microcores(m.cost) for m in ms) - here
+    ms, config, topics = draw(monitors(fewest, edge_share)), draw(configs), draw(topic_costs)
+    here = verification(ms, topics)
+    away = sum(microcores(m.cost) for m in ms) + sum(map(microcores, topics.values())) - here
     p95 = draw(p95_ms) / 1000
     if p95 >= DEADLINE:
         room = draw(st.integers(20, 100)) * here // 100
@@ -107,7 +118,7 @@ def instances(
     # and the real-time task's CPU per output, when measured: up to 1.2 deadlines' worth
     work = draw(st.one_of(st.none(), st.integers(0, 120).map(lambda p: DEADLINE * p / 100)))
     headroom = max(0, room) / MICRO / (1 - config.margin)
-    return ms, edge(headroom, p95, handler=handler, work=work), config
+    return ms, edge(headroom, p95, handler=handler, work=work, topics=topics), config
 
 
 AT_RISK = instances(st.integers(100, 150), 4, 0.8)  # ratio 1.0 .. 1.5, most on the edge
@@ -118,8 +129,20 @@ ANY = instances(st.integers(0, 200))
 # --- the rules as the module's docstring states them, written out again ---
 
 
-def verification(ms: Sequence[MonitorCost]) -> int:
-    return sum(microcores(m.cost) for m in ms if m.tier == "edge" or m.in_handoff)
+def charges(topics: Mapping[str, float]) -> dict[str, int]:
+    return {t: microcores(g) for t, g in topics.items() if microcores(g) > 0}
+
+
+def here(ms: Sequence[MonitorCost]) -> list[MonitorCost]:
+    """What counts on the edge: what runs there, and what is in a handoff either way."""
+    return [m for m in ms if m.tier == "edge" or m.in_handoff]
+
+
+def verification(ms: Sequence[MonitorCost], topics: Mapping[str, float] | None = None) -> int:
+    """The monitors' costs on the edge, and the ingestion of each topic one of them reads."""
+    g = charges(topics or {})
+    read = {t for m in here(ms) for t in m.topics if t in g}
+    return sum(microcores(m.cost) for m in here(ms)) + sum(g[t] for t in read)
 
 
 def allowed(e: EdgeState, c: PlannerConfig) -> int:
@@ -128,16 +151,18 @@ def allowed(e: EdgeState, c: PlannerConfig) -> int:
 
 def calm(e: EdgeState, c: PlannerConfig) -> float:
     """Processor sharing: the task's output takes its work W over the 1 - h of the core
-    the handler leaves it; W measured, else read off the p95 (W = p95 (1 - h))."""
+    the handler leaves it; W read off the p95 (W = p95 (1 - h)), and when W is measured,
+    the smaller of the two handler CPUs."""
     ratio, h = e.ratio, e.handler_cpu
     assert ratio is not None and h is not None
-    if e.task_work is not None:
-        return 1.0 - e.task_work / (c.low * e.deadline)
-    return 1.0 - (1.0 - h) * ratio / c.low
+    read_off = 1.0 - (1.0 - h) * ratio / c.low
+    if e.task_work is None:
+        return read_off
+    return min(read_off, 1.0 - e.task_work / (c.low * e.deadline))
 
 
 def need(ms: Sequence[MonitorCost], e: EdgeState, c: PlannerConfig) -> int:
-    v, ratio, h = verification(ms), e.ratio, e.handler_cpu
+    v, ratio, h = verification(ms, e.topic_costs), e.ratio, e.handler_cpu
     assert ratio is not None
     if h is None:  # the share of verification by which the p95 is over the calm mark
         shed = math.ceil(v * (1 - c.low / ratio))
@@ -148,7 +173,7 @@ def need(ms: Sequence[MonitorCost], e: EdgeState, c: PlannerConfig) -> int:
 
 def room(ms: Sequence[MonitorCost], e: EdgeState, c: PlannerConfig) -> int:
     h = e.handler_cpu
-    fits = allowed(e, c) - verification(ms)
+    fits = allowed(e, c) - verification(ms, e.topic_costs)
     if h is None:
         return fits
     return min(fits, math.floor(max(0.0, calm(e, c) - h) * (1 - c.margin) * MICRO))
@@ -163,43 +188,64 @@ def may_come_home(m: MonitorCost) -> bool:
     return m.tier == "cloud" and m.home == "edge" and not m.pinned and not m.in_handoff
 
 
-Item = tuple[str, int, int]  # name, microcores, millievents
+Item = tuple[str, int, int, frozenset[str]]  # name, microcores, millievents, topics
 
 
 def items(ms: Sequence[MonitorCost]) -> list[Item]:
-    return [(m.name, microcores(m.cost), millievents(m.events_per_second)) for m in ms]
+    return [
+        (m.name, microcores(m.cost), millievents(m.events_per_second), frozenset(m.topics))
+        for m in ms
+    ]
 
 
-def fewest_then_least_events(candidates: list[Item], target: int) -> tuple[int, int] | None:
+def freed_up(s: Sequence[Item], ms: Sequence[MonitorCost], e: EdgeState) -> int:
+    """Moving ``s`` up frees their costs, and each topic's ingestion once no monitor
+    that counts on the edge reads it any more."""
+    names = {n for n, _, _, _ in s}
+    g = charges(e.topic_costs)
+    left = {t for m in here(ms) if m.name not in names for t in m.topics}
+    gone = {t for _, _, _, ts in s for t in ts if t in g and t not in left}
+    return sum(c for _, c, _, _ in s) + sum(g[t] for t in gone)
+
+
+def taken_home(s: Sequence[Item], ms: Sequence[MonitorCost], e: EdgeState) -> int:
+    """Bringing ``s`` home takes their costs, and each topic's ingestion that no monitor
+    counting on the edge reads now."""
+    g = charges(e.topic_costs)
+    read = {t for m in here(ms) for t in m.topics}
+    new = {t for _, _, _, ts in s for t in ts if t in g and t not in read}
+    return sum(c for _, c, _, _ in s) + sum(g[t] for t in new)
+
+
+def fewest_then_least_events(
+    candidates: list[Item], target: int, ms: Sequence[MonitorCost], e: EdgeState
+) -> tuple[int, int] | None:
     """Exhaustively: the smallest (monitors, events) over sets freeing ``target``."""
     for k in range(len(candidates) + 1):
         rates = [
-            sum(e for _, _, e in s)
+            sum(ev for _, _, ev, _ in s)
             for s in itertools.combinations(candidates, k)
-            if sum(c for _, c, _ in s) >= target
+            if freed_up(s, ms, e) >= target
         ]
         if rates:
             return k, min(rates)
     return None
 
 
-def most_then_most_events(candidates: list[Item], room: int, limit: int) -> tuple[int, int]:
+def most_then_most_events(
+    candidates: list[Item], room: int, limit: int, ms: Sequence[MonitorCost], e: EdgeState
+) -> tuple[int, int]:
     """Exhaustively: the largest (monitors, events) over sets of at most ``limit`` that fit
     ``room``."""
     for k in range(limit, -1, -1):
         rates = [
-            sum(e for _, _, e in s)
+            sum(ev for _, _, ev, _ in s)
             for s in itertools.combinations(candidates, k)
-            if sum(c for _, c, _ in s) <= room
+            if taken_home(s, ms, e) <= room
         ]
         if rates:
             return k, max(rates)
     return 0, 0
-
-
-def cost_of(names: Sequence[str], ms: Sequence[MonitorCost]) -> int:
-    by_name = {m.name: m for m in ms}
-    return sum(microcores(by_name[n].cost) for n in names)
 
 
 # --- the optimum ---
@@ -214,7 +260,7 @@ def test_up_is_the_optimum_of_an_exhaustive_search(
     p = plan_moves(ms, e, c)
     event(f"method {p.method}")  # --hypothesis-show-statistics: how many the solver made
     candidates = items([m for m in ms if may_go_up(m, e)])
-    if verification(ms) == 0 or not candidates:
+    if verification(ms, e.topic_costs) == 0 or not candidates:
         assert (p.up, p.down, p.method) == ((), (), "none")
         return
     target = need(ms, e, c)
@@ -222,14 +268,15 @@ def test_up_is_the_optimum_of_an_exhaustive_search(
     if target == 0:  # at risk, but the handler's CPU is not what makes the task late
         assert (p.up, p.down, p.method) == ((), (), "none")
         return
-    best = fewest_then_least_events(candidates, target)
+    best = fewest_then_least_events(candidates, target, ms, e)
     if best is None:  # they cannot free it: all of them go, and the plan says it falls short
-        assert p.method == "all" and set(p.up) == {n for n, _, _ in candidates}
+        assert p.method == "all" and set(p.up) == {n for n, _, _, _ in candidates}
         assert "short" in p.reason
         return
     assert p.method in ("milp", "all"), p.reason
     assert p.objective == best
-    assert p.moved_microcores == cost_of(p.up, ms) >= target
+    chosen = [i for i in candidates if i[0] in p.up]
+    assert p.moved_microcores == freed_up(chosen, ms, e) >= target
 
 
 @props(80)
@@ -243,15 +290,16 @@ def test_home_is_the_optimum_of_an_exhaustive_search(
     candidates = items([m for m in ms if may_come_home(m)])
     fits = room(ms, e, c)
     limit = len(candidates) if c.max_home is None else min(c.max_home, len(candidates))
-    best = most_then_most_events(candidates, fits, limit)
+    best = most_then_most_events(candidates, fits, limit, ms, e)
     assert p.up == ()
     if best[0] == 0:
         assert (p.down, p.method) == ((), "none")
         return
     assert p.method in ("milp", "all"), p.reason
     assert p.objective == best
-    assert verification(ms) + cost_of(p.down, ms) <= allowed(e, c)
-    assert cost_of(p.down, ms) <= fits
+    home = taken_home([i for i in candidates if i[0] in p.down], ms, e)
+    assert p.moved_microcores == home <= fits
+    assert verification(ms, e.topic_costs) + home <= allowed(e, c)
 
 
 def test_up_moves_the_fewest_then_the_fewest_events_where_the_greedy_rule_does_not() -> None:
@@ -319,7 +367,7 @@ def test_a_plan_never_moves_what_it_must_not_and_goes_one_way(
         movable = sum(microcores(m.cost) for m in ms if may_go_up(m, e))
         assert p.moved_microcores >= min(p.target_microcores, movable)
     if p.down:
-        assert verification(ms) + p.moved_microcores <= allowed(e, c)
+        assert verification(ms, e.topic_costs) + p.moved_microcores <= allowed(e, c)
     again = plan_moves(list(reversed(ms)), e, c)  # the order given plays no part
     assert (again.up, again.down, again.method) == (p.up, p.down, p.method)
 
@@ -440,16 +488,112 @@ def test_the_deadline_is_sized_by_processor_sharing_when_the_handlers_cpu_is_kno
     )
 
 
-def test_the_real_time_tasks_measured_work_sizes_the_deadline_over_its_p95() -> None:
-    """Far past its deadline the loop's outputs queue behind late ones and the p95 grows
-    more than sharing alone makes it: read off the p95 (210%), W = 0.263 (1 - 0.29) =
-    0.19 s and no share of the core keeps the deadline (all move); measured (the CPU its
-    core spent besides the handler, per output: 0.1 s), the handler may keep
-    1 - 0.1 / (0.95 * 0.125) = 0.158 cores: 0.132 to free, about half of the monitors."""
+def test_the_deadline_is_sized_by_the_p95_and_the_measured_work_whichever_asks_more() -> None:
+    """Far past its deadline (210%) the p95 read off asks for more than the handler
+    has (W = 0.263 (1 - 0.29) = 0.19 s: no share of the core keeps the deadline): all
+    move at once, in one handoff, and what fits comes home once the loop is calm. Just
+    past it (102%), the task's measured work (0.105 s an output: 1 - 0.105 / (0.95 *
+    0.125) = 0.116 cores may stay) asks for more than the p95 (which says 0.16): the
+    work followed a change in the task's load that the p95's window has not yet."""
     ms = [on("edge", f"m{i:02d}", 0.01, 10.0) for i in range(20)]  # 0.2 cores of monitors
-    read_off = plan_moves(ms, EdgeState(0.2, 0.125, 0.2628, 40.0, 0.29), ROOMY)
-    assert len(read_off.up) == 20 and read_off.method == "all"
-    measured = plan_moves(ms, EdgeState(0.2, 0.125, 0.2628, 40.0, 0.29, 0.1), ROOMY)
-    free = 0.29 - (1 - 0.1 / (0.95 * 0.125))
-    assert measured.target_microcores == math.ceil(free * MICRO)
-    assert len(measured.up) == math.ceil(free / 0.01) == 14
+    far = plan_moves(ms, EdgeState(0.2, 0.125, 0.2628, 40.0, 0.29, 0.1), ROOMY)
+    assert len(far.up) == 20 and far.method == "all"
+    assert far.target_microcores == math.ceil((0.29 - (1 - 0.71 * 0.2628 / 0.125 / 0.95)) * MICRO)
+    near = plan_moves(ms, EdgeState(0.2, 0.125, 0.1275, 40.0, 0.2, 0.105), ROOMY)
+    free = 0.2 - (1 - 0.105 / (0.95 * 0.125))
+    assert 1 - 0.8 * 1.02 / 0.95 > 1 - 0.105 / (0.95 * 0.125)  # the work asks for more
+    assert near.target_microcores == math.ceil(free * MICRO)
+    assert len(near.up) == math.ceil(round(free, 6) / 0.01) == 9
+
+
+def test_what_comes_home_keeps_the_p95_not_the_mean_under_the_calm_mark() -> None:
+    """The demo's loop, calm: 0.106 s of work an output, its p95 at 90% of 0.125 s, the
+    handler at 0.03 cores. By the work alone the handler may take 1 - 0.106 / (0.95 *
+    0.125) = 0.107 cores; read off the p95, which carries the loop's spread, 1 - 0.97 *
+    0.9 / 0.95 = 0.081: coming home, the smaller, less the margin."""
+    away = [on("cloud", f"c{i:02d}", 0.005, 10.0) for i in range(30)]
+    reading = EdgeState(1.0, 0.125, 0.1125, 40.0, 0.03, 0.106)
+    p = plan_moves(away, reading, ROOMY)
+    fits = (1 - 0.97 * 0.9 / 0.95 - 0.03) * 0.9
+    assert p.target_microcores == math.floor(fits * MICRO)
+    assert len(p.down) == math.floor(fits / 0.005) == 9
+
+
+@props(60)
+@given(AT_RISK, CALM)
+def test_both_exact_methods_agree_whatever_the_number_of_topics(
+    at_risk: tuple[list[MonitorCost], EdgeState, PlannerConfig],
+    calm: tuple[list[MonitorCost], EdgeState, PlannerConfig],
+) -> None:
+    """Up to ENUMERATED_TOPICS charged topics the count comes from trying each set of
+    them; past it, from an integer program over all of them: the same optimum."""
+    for ms, e, c in (at_risk, calm):
+        by_sets = plan_moves(ms, e, c)
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(selection, "ENUMERATED_TOPICS", -1)
+            by_program = plan_moves(ms, e, c)
+        assert by_program.method == by_sets.method, (by_program.reason, by_sets.reason)
+        assert by_program.objective == by_sets.objective
+        assert by_program.moved_microcores >= 0
+
+
+# --- a topic's ingestion: freed by its last reader leaving, paid by its first coming home ---
+
+
+def test_a_topics_ingestion_makes_its_readers_together_the_fewest_to_move() -> None:
+    """/imu's ingestion (0.1 cores) is freed only when all three of its readers leave:
+    they free 0.16 cores together, where the two largest monitors free 0.11 (with
+    /odom's ingestion) and the largest first take four monitors to free 0.15."""
+    ms = [
+        on("edge", "odom-1", 0.05, 50, topics=("/odom",)),
+        on("edge", "odom-2", 0.05, 50, topics=("/odom",)),
+        *(on("edge", f"imu-{i}", 0.02, 200, topics=("/imu",)) for i in range(3)),
+    ]
+    topics = {"/imu": 0.1, "/odom": 0.01}
+    reading = edge(0.2 / 0.9, 0.12, topics=topics)  # 0.16 + 0.11 on the edge, 0.2 allowed
+    p = plan_moves(ms, reading, ROOMY)
+    assert p.target_microcores == 70_000
+    # the fewest: both /odom readers (0.1 and its 0.01) or all of /imu (0.16): two win
+    assert (p.up, p.method) == (("odom-1", "odom-2"), "milp")
+    assert p.moved_microcores == 110_000
+    # 0.15 to free: /odom's two and one /imu reader free 0.13; all of /imu, 0.16
+    tighter = plan_moves(ms, edge(0.12 / 0.9, 0.12, topics=topics), ROOMY)
+    assert (tighter.up, tighter.objective) == (("imu-0", "imu-1", "imu-2"), (3, 600_000))
+    assert tighter.moved_microcores == 160_000
+    greedy = plan_moves(ms, edge(0.12 / 0.9, 0.12, topics=topics), PlannerConfig(time_budget=0))
+    assert greedy.up == tighter.up and greedy.method == "greedy"  # a topic's readers first
+
+
+def test_what_comes_home_pays_for_the_topics_it_starts_reading() -> None:
+    """Calm, with a room of 0.12 cores: /scan is read on the edge already, /imu is not
+    (its ingestion 0.1 cores): the two /scan monitors fit, an /imu one would not."""
+    ms = [
+        on("edge", "scan-0", 0.05, 20, topics=("/scan",)),
+        on("cloud", "imu-0", 0.01, 200, topics=("/imu",)),
+        on("cloud", "scan-1", 0.03, 20, topics=("/scan",)),
+        on("cloud", "scan-2", 0.03, 20, topics=("/scan",)),
+    ]
+    reading = edge(0.2 / 0.9, 0.05, topics={"/imu": 0.1, "/scan": 0.03})  # 0.08 on the edge
+    p = plan_moves(ms, reading, ROOMY)
+    assert p.target_microcores == 120_000
+    assert (p.down, p.moved_microcores) == (("scan-1", "scan-2"), 60_000)
+    assert plan_moves(ms, reading, PlannerConfig(time_budget=0)).down == p.down
+
+
+@props(150)
+@given(ANY)
+def test_the_greedy_rule_frees_the_need_and_fits_the_room_with_topics(
+    instance: tuple[list[MonitorCost], EdgeState, PlannerConfig],
+) -> None:
+    """Without the solver the plan is feasible (not optimal): up, it frees what it says
+    and at least the need unless all move; home, what it takes fits the room."""
+    ms, e, c = instance
+    p = plan_moves(ms, e, PlannerConfig(c.high, c.low, c.margin, c.max_home, time_budget=0))
+    assert p.method in ("greedy", "all", "none")
+    if p.up:
+        chosen = items([m for m in ms if m.name in p.up])
+        assert p.moved_microcores == freed_up(chosen, ms, e)
+        assert p.method == "all" or p.moved_microcores >= p.target_microcores
+    if p.down:
+        chosen = items([m for m in ms if m.name in p.down])
+        assert p.moved_microcores == taken_home(chosen, ms, e) <= room(ms, e, c)

@@ -53,6 +53,7 @@ from edgerv.control.token import Token
 from edgerv.control.wire import LoadReport, placement_from_json
 from edgerv.core.documents import Placement
 from edgerv.core.planner import BudgetConfig, EdgeState, PlannerConfig, handler_budget
+from edgerv.core.selection import solver_ready
 
 log = logging.getLogger("edgerv.orchestrate")
 
@@ -89,6 +90,7 @@ class Counters:
     monitor_cpu: Mapping[str, float] = field(default_factory=dict)  # cpuSeconds per monitor
     host: tuple[float, float] | None = None  # its CPUs' busy and total seconds
     outputs: int | None = None  # the deadline topic's messages so far (--deadline)
+    taking: Mapping[str, float] = field(default_factory=dict)  # cpuSeconds per topic
 
 
 def build_reports(
@@ -105,7 +107,9 @@ def build_reports(
     before, and after its counter restarted: it moved or was redefined); the handler's
     ``headroom`` (cores its CPUs idle, plus what its monitors take) from its second, and
     with ``--deadline`` the real-time task's ``task_work`` (CPU seconds per output: what
-    its CPUs spent besides the handler, per message of the deadline topic).
+    its CPUs spent besides the handler, per message of the deadline topic); what each
+    topic's ingestion costs (:func:`topic_costs`) from its second, counted in the headroom
+    with its monitors.
     """
     reports: list[HandlerReport] = []
     placements: dict[str, Placement] = {}
@@ -128,6 +132,8 @@ def build_reports(
             before = last.monitor_cpu.get(m) if last else None
             ok = before is not None and seconds >= before and span > 0
             costs[m] = (seconds - before) / span if ok and before is not None else None
+        taking = {t: d["cpuSeconds"] for t, d in load["topics"].items()}
+        topics = topic_costs(taking, last.taking if last else None, span, max(0.0, cpu), costs)
         host = load["host"]
         busy_total = None if host is None else (host["busySeconds"], host["totalSeconds"])
         headroom = work = None
@@ -137,13 +143,14 @@ def build_reports(
             (busy, total), (busy0, total0) = busy_total, last.host
             if total > total0:  # its CPUs' busy share since the last poll, in cores
                 used = host["cores"] * min(1.0, max(0.0, (busy - busy0) / (total - total0)))
-                headroom = host["cores"] - used + sum(v for v in costs.values() if v is not None)
+                mine = sum(v for v in costs.values() if v is not None)
+                headroom = host["cores"] - used + mine + sum(topics.values())
                 # the real-time task's CPU per output: what its CPUs did besides the
                 # handler, per message of the deadline topic
                 made = None if outputs is None or last.outputs is None else outputs - last.outputs
                 if made and made > 0 and span > 0:
                     work = max(0.0, used - max(0.0, cpu)) / (made / span)
-        previous[target] = Counters(now, cpu_s, events, spent, busy_total, outputs)
+        previous[target] = Counters(now, cpu_s, events, spent, busy_total, outputs, taking)
         reports.append(
             HandlerReport(
                 name=name,
@@ -158,18 +165,46 @@ def build_reports(
                         migration_wanted=d["migrationWanted"],
                         in_handoff=d["handoff"] is not None,
                         cpu=costs.get(m),
+                        topics=tuple(d["topics"]),
                     )
                     for m, d in monitors.items()
                 },
                 headroom=headroom,
                 task_work=work,
                 robot=target.robot,
+                topics=topics,
             )
         )
         where[name] = target
         for m, d in monitors.items():
             placements.setdefault(m, placement_from_json(d["placement"]))
     return reports, placements, where
+
+
+def topic_costs(
+    taking: Mapping[str, float],
+    before: Mapping[str, float] | None,
+    span: float,
+    cpu: float,
+    monitors: Mapping[str, float | None],
+) -> dict[str, float]:
+    """What each topic's ingestion costs on a handler (cores), whatever number of its
+    monitors read it: the handler's CPU besides its monitors' (``cpu`` less the costs in
+    ``monitors``: the middleware delivering the messages, taking and decoding them, and
+    what the handler does besides), shared among its topics in proportion to the CPU it
+    spent taking and decoding each (``taking``: cpuSeconds counters, ``before`` at the
+    last poll, ``span`` seconds ago). Empty before two polls, while a monitor's cost is
+    not known, or when nothing was taken; a topic new since the last poll counts from 0.
+    It is an upper bound: what the handler does with no topic at all (its API, its
+    timers: about 0.02 cores) is counted in its topics too."""
+    if before is None or span <= 0 or any(v is None for v in monitors.values()):
+        return {}
+    rates = {t: max(0.0, (s - before.get(t, 0.0)) / span) for t, s in taking.items()}
+    total = sum(rates.values())
+    if total <= 0:
+        return {}
+    besides = max(0.0, cpu - sum(v for v in monitors.values() if v is not None))
+    return {t: besides * r / total for t, r in rates.items()}
 
 
 @dataclass(frozen=True)
@@ -554,9 +589,10 @@ class BudgetLever:
 
 def budget_reading(h: HandlerReport, c: PolicyConfig) -> tuple[EdgeState | None, float]:
     """``h``'s reading as :func:`~edgerv.core.planner.handler_budget` takes it (None: no
-    headroom or deadline reading yet), and the cores of its monitors counted in the
-    headroom (those whose cost is known)."""
+    headroom or deadline reading yet), and the cores of its monitors and topics counted
+    in the headroom (those whose cost is known)."""
     verification = sum(m.cpu for m in h.monitors.values() if m.active and m.cpu is not None)
+    verification += sum(h.topics.values())  # (counted in the headroom with them)
     state = edge_state(h, c, None)
     return state, verification
 
@@ -594,6 +630,8 @@ class Orchestrator:
         # why the rounds move nothing: said when the reason changes (the last one's key)
         self.on_idle = on_idle or (lambda idle: log.info("nothing to move: %s", idle.text))
         self.idle: Idle | None = None
+        if config.planner:  # its solver loaded now (0.4 s), not in the first plan's round
+            solver_ready()
 
     def set_targets(self, targets: Sequence[Target]) -> None:
         """The handlers to poll from now on (the operator's change as pods come and go)."""

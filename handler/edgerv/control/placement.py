@@ -59,6 +59,7 @@ class MonitorLoad:
     migration_wanted: bool = False
     in_handoff: bool = False  # being moved right now (by anyone): placed, leave it alone
     cpu: float | None = None  # cores its handler spends on it (measured); None: not yet known
+    topics: tuple[str, ...] = ()  # the topics it reads
 
 
 @dataclass(frozen=True)
@@ -85,6 +86,9 @@ class HandlerReport:
     # the real-time task's CPU seconds per output on its CPUs (None: not known)
     task_work: float | None = None
     robot: str | None = None  # the robot whose node it runs on (None: a shared node)
+    # cores each topic its monitors read takes to ingest there (measured), whatever
+    # number of monitors read it: freed when the last leaves
+    topics: Mapping[str, float] = field(default_factory=dict)
 
     def active(self) -> list[str]:
         return [m for m, load in self.monitors.items() if load.active]
@@ -183,6 +187,9 @@ class PolicyMemory:
     # monitor -> tier -> what it last cost there (cores): a monitor away from home is
     # planned home at what it cost there, not at what it costs where it runs now
     costs: dict[str, dict[str, float]] = field(default_factory=dict)
+    # handler -> topic -> what its ingestion last cost there (cores): a topic no monitor
+    # reads there now is planned home at it
+    topic_costs: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 def is_loaded(h: HandlerReport, c: PolicyConfig) -> bool:
@@ -277,10 +284,16 @@ def _planner_config(c: PolicyConfig) -> PlannerConfig:
     )
 
 
-def edge_state(h: HandlerReport, c: PolicyConfig, above: str | None) -> EdgeState | None:
+def edge_state(
+    h: HandlerReport,
+    c: PolicyConfig,
+    above: str | None,
+    topics: Mapping[str, float] | None = None,
+) -> EdgeState | None:
     """``h``'s reading as the planner takes it (``above``: the tier it would move
-    monitors to; None: none, its latency 0), or None when it has no headroom or deadline
-    reading."""
+    monitors to; None: none, its latency 0; ``topics``: what each topic's ingestion
+    costs there, default what ``h`` measures now), or None when it has no headroom or
+    deadline reading."""
     d = h.deadline
     if h.headroom is None or d is None or d.budget <= 0:
         return None
@@ -291,6 +304,7 @@ def edge_state(h: HandlerReport, c: PolicyConfig, above: str | None) -> EdgeStat
         cloud_latency_ms=c.tier_latency_ms.get(above, 0.0) if above else 0.0,
         handler_cpu=h.cpu,
         task_work=h.task_work,
+        topic_costs=dict(h.topics if topics is None else topics),
     )
 
 
@@ -315,6 +329,7 @@ def _costs_here(
                 load.events_per_second,
                 pinned=pinned(m),
                 in_handoff=load.in_handoff,
+                topics=load.topics,
             )
         )
     return out
@@ -341,6 +356,7 @@ def plan(
         for m, load in h.monitors.items():
             if load.active and load.cpu is not None:
                 memory.costs.setdefault(m, {})[h.tier] = load.cpu
+        memory.topic_costs.setdefault(h.name, {}).update(h.topics)
     moves: list[Move] = []
     moved: set[str] = set()
 
@@ -389,7 +405,7 @@ def plan(
     def plan_up(h: HandlerReport, up: str) -> tuple[tuple[str, ...], str] | None:
         """The planner's monitors to move up from ``h`` for its deadline, or None when
         it cannot plan (no headroom or reading, a cost not known yet)."""
-        state = edge_state(h, c, up)
+        state = edge_state(h, c, up, memory.topic_costs.get(h.name))
         here = _costs_here(h, held, memory)
         if state is None or state.p95 is None or here is None:
             return None
@@ -462,7 +478,10 @@ def plan(
         """The planner's monitors of ``candidates`` (on ``h``) to bring home to the calm
         ``b``, or None when it cannot plan (no headroom or reading there, a cost there not
         known yet)."""
-        state = edge_state(b, c, h.tier)
+        # a topic read below now at what it costs there; else at what it last cost there,
+        # else at what it costs where its monitors run now
+        topics = {**h.topics, **memory.topic_costs.get(b.name, {}), **b.topics}
+        state = edge_state(b, c, h.tier, topics)
         here = _costs_here(b, held, memory)
         if state is None or state.p95 is None or here is None:
             return None
@@ -470,8 +489,17 @@ def plan(
         for m in candidates:
             cost = memory.costs.get(m, {}).get(b.tier, h.monitors[m].cpu)
             if cost is not None:  # (its cost known nowhere yet: it waits a round)
-                rate = h.monitors[m].events_per_second
-                away.append(MonitorCost(m, "cloud", cost, rate, latency_of(m)))
+                load = h.monitors[m]
+                away.append(
+                    MonitorCost(
+                        m,
+                        "cloud",
+                        cost,
+                        load.events_per_second,
+                        latency_of(m),
+                        topics=load.topics,
+                    )
+                )
         planned = plan_moves(here + coming.get(b.name, []) + away, state, _planner_config(c))
         coming.setdefault(b.name, []).extend(
             dataclasses.replace(a, tier="edge") for a in away if a.name in planned.down

@@ -10,7 +10,7 @@ A load report (``GET /v1/load``) is read by :func:`parse_load`, which checks its
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any, Literal, NotRequired, TypedDict
 
 from edgerv.core.deadline import DeadlineLoad
@@ -171,6 +171,14 @@ class MonitorLoadReport(TypedDict):
     cpuSeconds: float
     migrationWanted: bool
     placement: PlacementJson
+    topics: list[str]  # the topics it reads
+
+
+class TopicLoadReport(TypedDict):
+    """A topic the handler subscribes to for its monitors: counters since it started."""
+
+    messages: int  # taken and ingested
+    cpuSeconds: float  # CPU the handler spent taking and decoding them
 
 
 class HostLoad(TypedDict):
@@ -190,6 +198,7 @@ class LoadReport(TypedDict):
     host: HostLoad | None  # None: unreadable there (not Linux)
     ingestLag: float  # seconds
     deadline: DeadlineLoad | None  # None: the handler measures no deadline (--deadline)
+    topics: dict[str, TopicLoadReport]  # the topics its monitors read
     monitors: dict[str, MonitorLoadReport]
 
 
@@ -275,15 +284,38 @@ def _monitor_load(name: str, d: object) -> MonitorLoadReport:
         "cpuSeconds": _number(d, "cpuSeconds", w, 0.0),
         "migrationWanted": _flag(d, "migrationWanted", w),
         "placement": placement_json(placement_from_json(placement)),
+        "topics": _texts(d, "topics", w),
     }
+
+
+def _texts(d: Mapping[str, Any], key: str, where: str) -> list[str]:
+    value = d.get(key, [])
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise ValueError(f"{where}{key} is not a list of strings")
+    return list(value)
+
+
+def _object(d: Mapping[str, Any], key: str) -> Iterable[tuple[Any, Any]]:
+    value = d.get(key, {})
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{key} is not an object")
+    return value.items()
+
+
+def _topic_load(name: str, d: object) -> TopicLoadReport:
+    if not isinstance(d, Mapping):
+        raise ValueError(f"topics.{name} is not an object")
+    w = f"topics.{name}."
+    return {"messages": _whole(d, "messages", w), "cpuSeconds": _number(d, "cpuSeconds", w, 0.0)}
 
 
 def parse_load(value: object) -> LoadReport:
     """A load report as JSON decoded it, checked field by field: raises
     :class:`ValueError` saying what is not as the API promises. What a handler may leave
-    out reads as its default (``ingestLag`` 0, ``deadline`` and ``host`` null, a monitor's
-    ``epoch`` and ``cpuSeconds`` 0, ``handoff`` and ``peer`` null, the default placement;
-    in a ``deadline``, all but ``budgetMs`` and ``count``)."""
+    out reads as its default (``ingestLag`` 0, ``deadline`` and ``host`` null, ``topics``
+    empty, a monitor's ``epoch`` and ``cpuSeconds`` 0, ``handoff`` and ``peer`` null, the
+    default placement, its ``topics`` empty; a topic's ``cpuSeconds`` 0; in a
+    ``deadline``, all but ``budgetMs`` and ``count``)."""
     if not isinstance(value, Mapping):
         raise ValueError("it is not an object")
     handler, monitors = value.get("handler"), value.get("monitors")
@@ -298,5 +330,6 @@ def parse_load(value: object) -> LoadReport:
         "host": _host(value.get("host")),
         "ingestLag": _number(value, "ingestLag", "", 0.0),
         "deadline": _deadline(value.get("deadline")),
+        "topics": {str(name): _topic_load(str(name), d) for name, d in _object(value, "topics")},
         "monitors": {str(name): _monitor_load(str(name), d) for name, d in monitors.items()},
     }

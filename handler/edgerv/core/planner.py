@@ -37,21 +37,28 @@ arriving) and *allowed* ``headroom * (1 - margin)``:
 * **Neither** between the two marks (the hysteresis band), without a deadline signal
   (``p95`` None), or when nothing may or needs to move.
 
+A topic's ingestion (``EdgeState.topic_costs``: the middleware delivering its messages,
+taking and decoding them, whatever number of monitors read it) counts in *verification*
+while a monitor that counts on the edge reads it. Moving up frees it only with the last
+of its readers there (none of them held); coming home pays it with the first reader of a
+topic the edge does not read now. So the monitors freeing ``need`` with the fewest may
+be a whole topic's readers, where their own costs alone would not free it.
+
 Costs are counted in millionths of a core and rates in thousandths of an event per second
 (:func:`microcores`, :func:`millievents`): integers, so the solver's feasibility and
-objective are exact. The fewest (most) monitors is found by sorting (largest cost first
-reaches the need with the fewest; smallest first fits the most); the second criterion
-among those is an integer program (a cardinality-constrained knapsack; monitors of equal
-cost and rate one variable, taken by name) solved by SciPy's :func:`scipy.optimize.milp`
-(HiGHS, presolve off: on its two dense rows it costs seconds) within ``time_budget``.
-If the solver does not prove the optimum within it (or its answer fails the exact
-check), the plan is the greedy rule's: today's rule (the busiest first, until enough is
-shed) with the measured cost in place of its proxy, the event rate: largest cost first
-up, smallest cost first home, ties by fewer (up) or more (home) events, then name. It is
-optimal in the number of monitors; only the events/s may be worse. ``Plan.method`` says
-which made the plan. SciPy is imported at the first solve (0.4 s); where it is not
-installed (the ``planner`` extra: a handler's image has none) the greedy rule plans, and
-the plan's reason says why.
+objective are exact. The selection (:mod:`edgerv.core.selection`) is solved exactly by
+SciPy's :func:`scipy.optimize.milp` (HiGHS) within ``time_budget``: the fewest (most)
+monitors, then of those the fewest (most) events/s, each stage an integer program proven
+optimal (without topic charges the count is the greedy rule's, exact by sorting: largest
+cost first reaches the need with the fewest, smallest first fits the most). If the
+solver does not prove the optimum within it (or its answer fails the exact check), the
+plan is the greedy rule's: today's rule (the busiest first, until enough is shed) with
+the measured cost in place of its proxy, the event rate: largest cost first up (and each
+charged topic's readers first, the fewest of those tries), smallest cost (with the
+topics it would start reading) first home. ``Plan.method`` says which made the plan.
+SciPy is loaded before the first plan (:func:`~edgerv.core.selection.solver_ready`, 0.4
+s); where it is not installed (the ``planner`` extra: a handler's image has none) the
+greedy rule plans, and the plan's reason says why.
 
 The second lever, :func:`handler_budget`: the edge handler's CPU budget (a cgroup quota,
 cores) by the same model, lowered to the calm mark's ``1 - (1 - h) * ratio / low`` when
@@ -64,10 +71,19 @@ from __future__ import annotations
 
 import itertools
 import math
-import time
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Literal
+
+from edgerv.core.selection import (
+    Charges,
+    Item,
+    Selection,
+    fewest_freeing,
+    freed,
+    most_fitting,
+    paid,
+)
 
 Tier = Literal["edge", "cloud"]
 Method = Literal["milp", "greedy", "all", "none"]
@@ -102,6 +118,7 @@ class MonitorCost:
     pinned: bool = False  # placement.migrate: pinned
     in_handoff: bool = False  # being moved right now: left alone
     home: Tier = "edge"  # placement.tier: only a monitor whose home is the edge comes home
+    topics: tuple[str, ...] = ()  # the topics it reads (their ingestion: EdgeState.topic_costs)
 
     def __post_init__(self) -> None:
         if not self.name:
@@ -129,8 +146,15 @@ class EdgeState:
     # the real-time task's CPU per output (seconds of CPU a message of its deadline topic
     # took): what its CPUs spent besides the handler, per output; None: unknown
     task_work: float | None = None
+    # cores each topic's ingestion takes on the edge (the middleware delivering its
+    # messages, taking and decoding them), whatever number of monitors read it: freed when
+    # the last of them leaves the edge, paid again when the first comes home
+    topic_costs: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        for topic, cost in self.topic_costs.items():
+            if not _finite_at_least(cost, 0.0):
+                raise ValueError(f"topic {topic}: ingestion {cost} is not >= 0 cores")
         if self.handler_cpu is not None and not _finite_at_least(self.handler_cpu, 0.0):
             raise ValueError(f"handler CPU {self.handler_cpu} is not >= 0 cores")
         if self.task_work is not None and not _finite_at_least(self.task_work, 0.0):
@@ -188,13 +212,6 @@ class Plan:
         return len(self.up) + len(self.down), self.events_milli
 
 
-@dataclass(frozen=True)
-class _Item:
-    name: str
-    cost: int  # microcores
-    events: int  # millievents
-
-
 def _cores(units: int) -> str:
     return f"{units / MICRO:.3g} cores"
 
@@ -217,10 +234,13 @@ def plan_moves(
     if ratio is None:
         return Plan((), (), "none", "no deadline signal: nothing moves without a reading")
     deadline = f"p95 {edge.p95 or 0.0:.4g} s of a {edge.deadline:.4g} s deadline ({ratio:.0%})"
-    verification = sum(microcores(m.cost) for m in ordered if m.tier == "edge" or m.in_handoff)
+    here = [m for m in ordered if m.tier == "edge" or m.in_handoff]
+    charges = {t: g for t, g in map(_charge, edge.topic_costs.items()) if g > 0}
+    read_here = {t for m in here for t in m.topics if t in charges}
+    verification = sum(microcores(m.cost) for m in here) + sum(charges[t] for t in read_here)
     allowed = microcores(edge.headroom * (1 - c.margin))
     if ratio >= c.high:
-        return _up(ordered, edge, c, ratio, verification, allowed, deadline)
+        return _up(ordered, edge, c, ratio, verification, allowed, deadline, charges)
     if ratio > c.low:
         return Plan(
             (),
@@ -229,24 +249,36 @@ def plan_moves(
             f"hysteresis: {deadline} is between the marks {c.low:.0%} (monitors come home "
             f"at or below) and {c.high:.0%} (they move up at or above)",
         )
-    return _home(ordered, c, verification, allowed, deadline, deadline_room(edge, c, ratio))
+    room = deadline_room(edge, c, ratio)
+    away = {t: g for t, g in charges.items() if t not in read_here}
+    return _home(ordered, c, verification, allowed, deadline, room, Charges(away))
+
+
+def _charge(item: tuple[str, float]) -> tuple[str, int]:
+    return item[0], microcores(item[1])
 
 
 def calm_cpu(edge: EdgeState, c: PlannerConfig, ratio: float) -> float | None:
     """The handler's CPU (cores) at which the real-time task's p95 sits at the calm mark
     ``low``, the two sharing a core (processor sharing: the task's output takes its work
-    ``W`` over the ``1 - h`` of the core the handler leaves it). Given the task's work
-    (``task_work``, measured): ``1 - W / (low * deadline)``. Else from the p95 itself,
-    ``W = p95 * (1 - h)``: ``1 - (1 - h) * ratio / low``, which over-asks when the loop is
-    far past its deadline (its outputs then queue behind late ones: the p95 grows more
-    than sharing alone would make it). None without ``handler_cpu``. May be below 0: no
-    share of the core keeps the deadline."""
+    ``W`` over the ``1 - h`` of the core the handler leaves it), read off the p95 itself,
+    ``W = p95 * (1 - h)``: ``1 - (1 - h) * ratio / low``. Given the task's measured work
+    (``task_work``), the smaller of that and ``1 - W / (low * deadline)``: the measured
+    work is the task's mean over the last poll, which follows a change of the task's load
+    sooner than the p95's window does, but not the loop's spread, which the p95 carries
+    (the demo's loop: a p95 at 102% of its deadline where its work alone says 95%); and
+    the deadline is the p95's. Far past its deadline the read-off over-asks (outputs queue
+    behind late ones: the p95 grows more than sharing alone would make it): the plan then
+    moves more than the deadline needs, at once, and what fits comes home once the loop is
+    calm. None without ``handler_cpu``. May be below 0: no share of the core keeps the
+    deadline."""
     h = edge.handler_cpu
     if h is None:
         return None
-    if edge.task_work is not None:
-        return 1.0 - edge.task_work / (c.low * edge.deadline)
-    return 1.0 - (1.0 - h) * ratio / c.low
+    read_off = 1.0 - (1.0 - h) * ratio / c.low
+    if edge.task_work is None:
+        return read_off
+    return min(read_off, 1.0 - edge.task_work / (c.low * edge.deadline))
 
 
 def deadline_shed(edge: EdgeState, c: PlannerConfig, verification: int, ratio: float) -> int:
@@ -276,6 +308,7 @@ def _up(
     verification: int,
     allowed: int,
     deadline: str,
+    charges: Mapping[str, int],
 ) -> Plan:
     at_risk = f"the deadline is at risk ({deadline}, high mark {c.high:.0%})"
     if verification <= 0:
@@ -292,11 +325,12 @@ def _up(
         and m.max_latency_ms < edge.cloud_latency_ms
     ]
     held = set(pinned) | set(moving) | set(far)
-    items = [
-        _Item(m.name, microcores(m.cost), millievents(m.events_per_second))
-        for m in on_edge
-        if m.name not in held
-    ]
+    items = [_item(m) for m in on_edge if m.name not in held]
+    # a topic's ingestion is freed only if every monitor reading it on the edge may move
+    taken = {i.name for i in items}
+    here = (m for m in ordered if m.tier == "edge" or m.in_handoff)
+    stay = {t for m in here if m.name not in taken for t in m.topics}
+    free = Charges({t: g for t, g in charges.items() if t not in stay})
     holds = "; ".join(
         f"{what} {_names(names)}"
         for what, names in (
@@ -314,23 +348,34 @@ def _up(
         return Plan((), (), "none", f"{at_risk}, but by the real-time task's work {sizing}", 0)
     if not items:
         return Plan((), (), "none", f"{at_risk}: {sizing}, but no monitor may move ({holds})", need)
-    movable = sum(i.cost for i in items)
+    movable = freed(items, items, free)
     if movable < need:
         return _made(
             items,
             "all",
-            f"{at_risk}: {sizing}; the movable monitors take only {_cores(movable)}: all "
+            f"{at_risk}: {sizing}; the movable monitors free only {_cores(movable)}: all "
             f"{len(items)} move up, {_cores(need - movable)} short"
             + (f" ({holds})" if holds else ""),
             need,
+            movable,
             up=True,
         )
-    greedy = _largest_first(items, need)
-    if len(greedy) == len(items):
+    chosen = fewest_freeing(items, need, free, c.time_budget)
+    if len(chosen.chosen) == len(items):
         return _made(
-            items, "all", f"{at_risk}: {sizing}; only all the movable free it", need, up=True
+            items,
+            "all",
+            f"{at_risk}: {sizing}; only all the movable free it",
+            need,
+            movable,
+            up=True,
         )
-    return _optimise(items, greedy, need, c.time_budget, f"{at_risk}: {sizing}", up=True)
+    done = freed(chosen.chosen, items, free)
+    return _selected(chosen, f"{at_risk}: {sizing}", need, done, up=True)
+
+
+def _item(m: MonitorCost) -> Item:
+    return Item(m.name, microcores(m.cost), millievents(m.events_per_second), frozenset(m.topics))
 
 
 def _home(
@@ -340,14 +385,11 @@ def _home(
     allowed: int,
     deadline: str,
     deadline_room: int | None,
+    charges: Charges,
 ) -> Plan:
     calm = f"the deadline is met ({deadline}, low mark {c.low:.0%})"
     away = [m for m in ordered if m.tier == "cloud" and m.home == "edge"]
-    items = [
-        _Item(m.name, microcores(m.cost), millievents(m.events_per_second))
-        for m in away
-        if not (m.pinned or m.in_handoff)
-    ]
+    items = [_item(m) for m in away if not (m.pinned or m.in_handoff)]
     if not items:
         held = f" ({len(away)} pinned or in a handoff)" if away else ""
         return Plan((), (), "none", f"{calm}, and no monitor may come home{held}")
@@ -359,54 +401,30 @@ def _home(
     if deadline_room is not None and deadline_room < room:
         room = deadline_room
         sizing += f", {_cores(room)} by the deadline"
-
     limit = len(items) if c.max_home is None else min(c.max_home, len(items))
-    greedy = _smallest_first(items, room, limit)
-    if not greedy:
+    chosen = most_fitting(items, room, limit, charges, c.time_budget)
+    if not chosen.chosen:
         return Plan(
             (), (), "none", f"{calm}: {sizing}, and none of the {len(items)} away fits", room
         )
-    if len(greedy) == len(items):
-        return _made(items, "all", f"{calm}: {sizing}; all of those away fit", room, up=False)
-    return _optimise(items, greedy, room, c.time_budget, f"{calm}: {sizing}", up=False)
-
-
-def _largest_first(items: list[_Item], need: int) -> list[_Item]:
-    """The greedy rule up: largest cost first (then fewer events, name) until ``need``;
-    the fewest monitors that free it. ``need`` must be at most the items' sum."""
-    chosen: list[_Item] = []
-    freed = 0
-    for item in sorted(items, key=lambda i: (-i.cost, i.events, i.name)):
-        if freed >= need:
-            break
-        chosen.append(item)
-        freed += item.cost
-    return chosen
-
-
-def _smallest_first(items: list[_Item], room: int, limit: int) -> list[_Item]:
-    """The greedy rule home: smallest cost first (then more events, name) while it fits
-    ``room``, at most ``limit``: the most monitors that fit."""
-    chosen: list[_Item] = []
-    used = 0
-    for item in sorted(items, key=lambda i: (i.cost, -i.events, i.name)):
-        if len(chosen) >= limit or used + item.cost > room:
-            break
-        chosen.append(item)
-        used += item.cost
-    return chosen
+    cost = paid(chosen.chosen, charges)
+    if len(chosen.chosen) == len(items):
+        return _made(items, "all", f"{calm}: {sizing}; all of those away fit", room, cost, up=False)
+    return _selected(chosen, f"{calm}: {sizing}", room, cost, up=False)
 
 
 def _made(
-    chosen: list[_Item],
+    chosen: Sequence[Item],
     method: Method,
     reason: str,
     target: int,
+    cost: int,
     up: bool,
     seconds: float = 0.0,
 ) -> Plan:
+    """The plan moving ``chosen`` (``cost``: what it frees up, or takes home)."""
     names = tuple(sorted(i.name for i in chosen))
-    cost, events = sum(i.cost for i in chosen), sum(i.events for i in chosen)
+    events = sum(i.events for i in chosen)
     direction = "up" if up else "home"
     said = (
         f"{reason}; {len(names)} move {direction}: {_names(list(names))} "
@@ -424,90 +442,17 @@ def _made(
     )
 
 
-def _optimise(
-    items: list[_Item], greedy: list[_Item], bound: int, budget: float, reason: str, up: bool
-) -> Plan:
-    """The fewest (up) or most (home) events/s among sets of ``len(greedy)`` monitors that
-    free at least (up) or fit in (home) ``bound``; the greedy set if not proven in time."""
+def _selected(chosen: Selection, reason: str, bound: int, cost: int, up: bool) -> Plan:
     criterion = "the fewest that free it" if up else "the most that fit"
-    seconds = 0.0
-    if budget <= 0:
-        why = "no time budget for the solver"
-    else:
-        chosen, seconds, why = _solve(items, len(greedy), bound, budget, up)
-        if chosen is not None:
-            events, fallback = sum(i.events for i in chosen), sum(i.events for i in greedy)
-            if events <= fallback if up else events >= fallback:
-                return _made(
-                    chosen,
-                    "milp",
-                    f"{reason}; {criterion}, and of those the {'fewest' if up else 'most'} "
-                    f"events/s (milp, proven optimal in {seconds * 1e3:.0f} ms)",
-                    bound,
-                    up,
-                    seconds,
-                )
-            why = "the solver's answer is worse than the greedy rule's"
-    largest = "largest" if up else "smallest"
-    return _made(
-        greedy,
-        "greedy",
-        f"{reason}; {criterion}, {largest} cost first (the greedy rule: {why})",
-        bound,
-        up,
-        seconds,
-    )
-
-
-def _solve(
-    items: list[_Item], k: int, bound: int, budget: float, up: bool
-) -> tuple[list[_Item] | None, float, str]:
-    """HiGHS on ``k`` of ``items``: up the fewest events with cost >= bound, home the most
-    with cost <= bound. (chosen or None, seconds, why None).
-
-    Monitors of equal cost and rate are one integer variable (how many of them), taken
-    by name: the program has no symmetric columns (HiGHS's symmetry detection, which
-    does not heed the time limit, took 2 s on 10,000 monitors of a few thousand kinds)."""
-    import numpy as np
-
-    try:
-        from scipy.optimize import (  # type: ignore[import-untyped]
-            Bounds,
-            LinearConstraint,
-            milp,
+    if chosen.method == "milp":
+        said = (
+            f"{reason}; {criterion}, and of those the {'fewest' if up else 'most'} events/s "
+            f"(milp, proven optimal in {chosen.seconds * 1e3:.0f} ms)"
         )
-    except ImportError:  # the handler's image has no solver; a planner's host should
-        return None, 0.0, "SciPy is not installed (pip install 'edgerv[planner]')"
-
-    kinds: dict[tuple[int, int], list[_Item]] = {}
-    for item in sorted(items, key=lambda i: i.name):
-        kinds.setdefault((item.cost, item.events), []).append(item)
-    keys = sorted(kinds)
-    events = np.array([e for _, e in keys], dtype=np.float64)
-    rows = np.array([[c for c, _ in keys], [1] * len(keys)], dtype=np.float64)
-    lower = [float(bound), float(k)] if up else [-np.inf, float(k)]
-    upper = [np.inf, float(k)] if up else [float(bound), float(k)]
-    start = time.perf_counter()
-    result = milp(
-        events if up else -events,
-        integrality=np.ones(len(keys)),
-        bounds=Bounds(0, np.array([len(kinds[key]) for key in keys], dtype=np.float64)),
-        constraints=LinearConstraint(rows, lower, upper),
-        options={"time_limit": budget, "mip_rel_gap": 0.0, "presolve": False},
-    )
-    seconds = time.perf_counter() - start
-    if int(result.status) != 0 or result.x is None:
-        message = str(result.message).split(".")[0].lower()
-        return None, seconds, f"the solver stopped unproven in {budget:g} s: {message}"
-    chosen = [
-        item
-        for key, x in zip(keys, result.x, strict=True)
-        for item in kinds[key][: max(0, round(float(x)))]
-    ]
-    cost = sum(i.cost for i in chosen)
-    if len(chosen) != k or (cost < bound if up else cost > bound):
-        return None, seconds, "the solver's answer failed the exact check"
-    return chosen, seconds, ""
+    else:
+        largest = "largest" if up else "smallest"
+        said = f"{reason}; {criterion}, {largest} cost first (the greedy rule: {chosen.why})"
+    return _made(chosen.chosen, chosen.method, said, bound, cost, up, chosen.seconds)
 
 
 @dataclass(frozen=True)

@@ -153,6 +153,9 @@ class Engine(HandoffSteps):
         self.routes_version = 0  # bumped whenever topics or their fields change
         self.messages: dict[str, int] = {}  # topic -> messages ingested
         self.lost: dict[str, int] = {}  # topic -> messages the middleware lost (ROS layer's)
+        # topic -> CPU ns the ROS layer spent taking and decoding its messages (the load
+        # report's topics: what each topic's ingestion costs, whatever monitors read it)
+        self.taking_ns: dict[str, int] = {}
         # per topic: the newest stamp and when a message last came (a sender's release)
         self.newest: dict[str, int] = {}
         self.heard: dict[str, float] = {}
@@ -803,6 +806,13 @@ class Engine(HandoffSteps):
                 "host": None if host is None else host.json(),
                 "ingestLag": self.ingest_lag,
                 "deadline": deadline,
+                "topics": {
+                    topic: {
+                        "messages": self.messages.get(topic, 0),
+                        "cpuSeconds": self.taking_ns.get(topic, 0) / 1e9,
+                    }
+                    for topic in self.router.routes
+                },
                 "monitors": {
                     slot.name: {
                         "active": slot.active,
@@ -813,6 +823,7 @@ class Engine(HandoffSteps):
                         "cpuSeconds": slot.runtime.cost_ns / 1e9 if slot.runtime else 0.0,
                         "migrationWanted": slot.migration_wanted,
                         "placement": placement_json(slot.compiled.spec.placement),
+                        "topics": list(slot.compiled.spec.topics),
                     }
                     for slot in self.slots.values()
                 },

@@ -90,10 +90,13 @@ class TakeLoop:
         delivered = 0  # subscriptions that had messages
         lags, lag_cap = self.engine.stamp_lag, int(self.engine.flush_after * 1e9)
         published = None if self.sim is None else self.sim.published  # ROS time of a source
+        taking = self.engine.taking_ns
+        clock = time.thread_time_ns
         for sub in subs:
             topic = sub.route.topic
             handle, reader, cls = sub.subscription.handle, sub.reader, sub.subscription.msg_type
             take = handle.take_message
+            began = clock()
             got = take(cls, True)
             if got is None:
                 continue
@@ -125,8 +128,13 @@ class TakeLoop:
             if lag > lags.get(topic, 0):
                 lags[topic] = min(lag, lag_cap)
             self._count_lost(sub, seqs)
-        if oldest_source is not None:
-            self.engine.ingest_lag = max(0.0, (time.time_ns() - oldest_source) / 1e9)
+            taking[topic] = taking.get(topic, 0) + clock() - began
+        # how old the oldest message waiting here was: nothing waited, none (a lag read
+        # once would otherwise stay after the last monitor left, and keep the handler
+        # from reading as calm: the policy would never bring monitors home)
+        self.engine.ingest_lag = (
+            0.0 if oldest_source is None else max(0.0, (time.time_ns() - oldest_source) / 1e9)
+        )
         if delivered > 1:
             batch.sort(key=_FIRST)  # one order across topics: by timestamp
         return batch, through
@@ -256,6 +264,7 @@ class TakeLoop:
                     ready.discard(timed.subscription.handle.pointer)  # not a monitor's topic
                     timed.take()
                 if not ready:  # (the monitors' topics: the deadline's does not count)
+                    self.engine.ingest_lag = 0.0  # nothing waits
                     self.drained(waited_at, reorder)  # everything here was taken
                     continue
                 if burst:  # let a burst gather: fewer, larger batches
