@@ -54,7 +54,10 @@ def test_monitors_on_the_edge_slow_the_loop_and_moving_them_brings_it_back(
     assert total > 200
     assert edge["monitorsOnEdge"] == total
     assert orch["monitorsOnEdge"] < total
-    assert base["goalReached"], text  # (whether the orchestrated robot makes it: see README)
+    assert base["goalReached"], text
+    # what the demo is for (issue 37): the orchestrated robot reaches its goal, its loop
+    # back under the deadline (test_the_policy_brings_the_loop_back_under_its_deadline...)
+    assert orch["goalReached"], text
 
 
 def test_the_moves_were_decided_by_the_policy_on_deadline_pressure(

@@ -94,6 +94,26 @@ def test_the_makespan_of_a_stamped_command_stream_is_in_the_load_report(
         reading = deadline(handler)
         assert calm and reading["count"] > 0 and reading["p95Ms"] < 125, reading
         assert reading["missesTotal"] > 0  # the counter keeps the past
+
+        # what ingesting /cmd costs the handler, for the planner (issue 37): the take
+        # loop's CPU on the topic its monitor reads, and which topics each monitor reads
+        _, load = handler.request("GET", "/v1/load")
+        assert load["monitors"]["slow-enough"]["topics"] == ["/cmd"]
+        assert set(load["topics"]) == {"/cmd"}, load["topics"]
+        assert load["topics"]["/cmd"]["messages"] > 30 and load["topics"]["/cmd"]["cpuSeconds"] > 0
+        assert load["ingestLag"] > 0  # (each message waits a little before it is taken)
+        # the monitor stopped, no monitor reads /cmd: the handler takes nothing, and its
+        # ingest lag reads 0 (not the last one measured: it kept an idle handler from
+        # reading as calm, and the policy from bringing monitors home)
+        status, _ = handler.request("POST", "/v1/monitors/slow-enough/deactivate")
+        assert status == 200
+        idle = wait_for(lambda: handler.request("GET", "/v1/load")[1]["topics"] == {}, timeout=10)
+        assert idle, handler.request("GET", "/v1/load")[1]["topics"]
+        settled = wait_for(
+            lambda: handler.request("GET", "/v1/load")[1]["ingestLag"] == 0.0, timeout=10
+        )
+        assert settled, handler.request("GET", "/v1/load")[1]["ingestLag"]
+        assert deadline(handler)["count"] > 0  # the deadline's own subscription measures on
     finally:
         task.kill()
         task.wait()

@@ -302,12 +302,12 @@ def _stuck(
             f"{h.name} is under pressure ({pressure}) but runs no monitor",
             ("nothing to shed", *key),
         )
-    shed_at = memory.deadline_shed.get(h.name, -math.inf)
+    shed_at = memory.deadline_moved.get(h.name, -math.inf)
     if not is_loaded(h, c) and now - shed_at < c.deadline_wait:
         return Idle(
             "hysteresis",
             f"hysteresis holds: {h.name}'s deadline is at risk ({pressure}), but monitors "
-            f"were moved off it for its deadline {now - shed_at:.1f} s ago: it counts again "
+            f"were moved for its deadline {now - shed_at:.1f} s ago: it counts again "
             f"in {c.deadline_wait - (now - shed_at):.1f} s, once its window holds makespans "
             f"measured since (--deadline-wait {c.deadline_wait:g} s)",
             ("hysteresis", *key),
@@ -751,6 +751,11 @@ class Orchestrator:
                 self.unsettled.update(dict.fromkeys(names, (where[source], where[destination])))
             record["ms"] = round((time.monotonic() - started) * 1000, 1)
             done.append(record)
+            # the deadline's window refills with makespans measured since the handoff
+            # ended, not during it: the moves' own work weighs on the edge while it lasts
+            moved_for = {"deadline": source, "calm below": destination}.get(reason)
+            if moved_for is not None and moved_for in self.memory.deadline_moved:
+                self.memory.deadline_moved[moved_for] = time.monotonic()
         for lever in self.levers:
             done.extend(self._budget(lever, reports, where, now))
         return done

@@ -182,8 +182,11 @@ class PolicyMemory:
     last_move: dict[str, float] = field(default_factory=dict)  # monitor -> when it moved
     last_down: dict[str, float] = field(default_factory=dict)  # monitor -> when it came down
     bounces: dict[str, int] = field(default_factory=dict)  # monitor -> up soon after down
-    # handler -> when monitors were last shed from it for its deadline
-    deadline_shed: dict[str, float] = field(default_factory=dict)
+    # handler -> when a move last changed what runs on it for its deadline: monitors shed
+    # from it for its deadline, or brought home to it (the orchestrator sets it again when
+    # the handoff ends); its deadline counts again once its window holds makespans
+    # measured since (deadline_wait): not those of the handoff's own transient
+    deadline_moved: dict[str, float] = field(default_factory=dict)
     # monitor -> tier -> what it last cost there (cores): a monitor away from home is
     # planned home at what it cost there, not at what it costs where it runs now
     costs: dict[str, dict[str, float]] = field(default_factory=dict)
@@ -418,7 +421,7 @@ def plan(
         loaded = is_loaded(h, c)
         deadline = (
             deadline_at_risk(h, c)
-            and now - memory.deadline_shed.get(h.name, float("-inf")) >= c.deadline_wait
+            and now - memory.deadline_moved.get(h.name, float("-inf")) >= c.deadline_wait
         )
         if not (loaded or deadline) or rank[h.tier] + 1 >= len(c.tiers):
             continue
@@ -438,7 +441,7 @@ def plan(
                 if now - memory.last_down.get(m, float("-inf")) < c.cooldown_seconds:
                     memory.bounces[m] = memory.bounces.get(m, 0) + 1
             if names:
-                memory.deadline_shed[h.name] = now  # its window must refill first
+                memory.deadline_moved[h.name] = now  # its window must refill first
             continue
         candidates = [m for m in h.active() if movable(m, up, destination)]
         # those that want to migrate first; then what frees most per millisecond added
@@ -465,7 +468,7 @@ def plan(
             shed += load.events_per_second
             memory.last_move[m] = now
             if deadline:
-                memory.deadline_shed[h.name] = now  # its window must refill first
+                memory.deadline_moved[h.name] = now  # its window must refill first
             if now - memory.last_down.get(m, float("-inf")) < c.cooldown_seconds:
                 memory.bounces[m] = memory.bounces.get(m, 0) + 1  # it came down too soon
 
@@ -544,6 +547,8 @@ def plan(
                     moves.append(Move(m, h.name, destination.name, "calm below", why))
                     moved.add(m)
                     memory.last_move[m] = memory.last_down[m] = now
+                if names:  # what comes home weighs on its deadline: the window refills first
+                    memory.deadline_moved[destination.name] = now
                 continue
             for m in candidates:
                 if budget <= 0:

@@ -51,6 +51,8 @@ class Charges:
 
     def of(self, items: Iterable[Item]) -> frozenset[str]:
         """The charged topics ``items`` read."""
+        if not self.cost:
+            return frozenset()
         return frozenset(t for i in items for t in i.topics if self.cost.get(t, 0) > 0)
 
 
@@ -136,15 +138,20 @@ def greedy_home(items: Sequence[Item], room: int, limit: int, charges: Charges) 
     chosen: list[Item] = []
     topics: set[str] = set()
     used = 0
+    if not charges.cost:  # the most that fit: the smallest first, while they fit
+        for item in sorted(items, key=lambda i: (i.cost, -i.events, i.name)):
+            if len(chosen) >= limit or used + item.cost > room:
+                break
+            chosen.append(item)
+            used += item.cost
+        return chosen
     own = {i.name: sum(charges.cost[t] for t in charges.of([i])) for i in items}
     for item in sorted(items, key=lambda i: (i.cost + own[i.name], -i.events, i.name)):
         if len(chosen) >= limit:
             break
         extra = item.cost + sum(charges.cost[t] for t in charges.of([item]) - topics)
         if used + extra > room:
-            if not charges.cost:
-                break  # sorted by cost: none after it fits either
-            continue
+            continue  # (one reading fewer topics may fit still)
         chosen.append(item)
         topics |= charges.of([item])
         used += extra
