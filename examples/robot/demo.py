@@ -581,6 +581,7 @@ class Demo:
             self.mission(phase, result, log)
         else:
             result.goal_time = result.end_time = time.time()
+            self.note_placement(result, final=True)
             result.on_edge_at_goal = self.view.on_edge
         result.stop_time = time.time()
         self.procs.stop("slam")
@@ -755,7 +756,10 @@ class Demo:
                 for r in log.kind("frame")
                 if r["stamp"] >= running
             ]
-            settled = result.on_edge_at_goal
+            # once the policy settled: at the end of the mission (it brings home what fits
+            # once the loop is calm, which may be while the robot drives), before it parks;
+            # without a mission, at the phase's end
+            settled = result.monitors_on_edge
             result.recovery = recovery(
                 [f for f in phase_frames if f[0] * 1e9 <= stop],
                 result.migrations,

@@ -23,7 +23,8 @@ def recovery(
 ) -> dict[str, Any] | None:
     """``frames``: (wall seconds, met its deadline) in time order; ``moves``: the
     orchestrator's records (``at`` wall seconds, ``monitors``, ``ok``, ``from``: a move,
-    not a start); ``in_cloud``: monitors in the cloud once the policy settled. None when
+    not a start); ``in_cloud``: monitors in the cloud once the policy settled (the demo:
+    at the mission's end, before the robot parks; without a mission, the phase's). None when
     no deadline was missed (nothing to recover from); ``seconds`` None when the loop never
     met ``run`` deadlines in a row after the first miss (then the moves and misses are
     those of the whole run)."""

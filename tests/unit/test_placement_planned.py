@@ -107,9 +107,10 @@ def test_a_calm_edge_takes_home_what_fits_in_one_batch_at_what_it_cost_there() -
 
 
 def test_what_comes_home_lets_the_deadlines_window_refill_before_it_counts() -> None:
-    """Monitors brought home to the edge weigh on its deadline while their handoff lasts
-    (taking them over, subscribing again): the p95 right after reads that, not what they
-    cost. Until deadline_wait has passed, the edge's deadline does not send them up."""
+    """Monitors brought home to the edge weigh on its deadline while their handoff
+    settles (taking them over, subscribing again, the events held for them): the p95
+    right after reads that, not what they cost. For one deadline_wait to settle and one
+    for the window to refill, the edge's deadline does not send them up."""
     memory = PolicyMemory(costs={f"m{i}": {"edge": 0.05} for i in range(6)})
     away = {f"m{i}": costed(0.01) for i in range(6)}
     config = PolicyConfig(
@@ -118,11 +119,13 @@ def test_what_comes_home_lets_the_deadlines_window_refill_before_it_counts() -> 
     calm = edge(60.0, {}, cpu=0.1, headroom=0.9)
     plan([calm, cloud(**away)], {}, config, memory, now=0)
     assert len(plan([calm, cloud(**away)], {}, config, memory, now=1)) == 6
-    assert memory.deadline_moved["edge-1"] == 1
+    wait = config.deadline_wait
+    assert memory.deadline_moved["edge-1"] == 1 + wait
     home = {f"m{i}": costed(0.05) for i in range(6)}
     transient = edge(160.0, home, cpu=0.4, headroom=0.5)  # the handoff's own work, in the p95
-    assert plan([transient, cloud()], {}, config, memory, now=2) == []
-    assert len(plan([transient, cloud()], {}, config, memory, now=1 + config.deadline_wait)) > 0
+    assert plan([transient, cloud()], {}, config, memory, now=1 + wait) == []
+    assert plan([transient, cloud()], {}, config, memory, now=1 + 2 * wait - 0.1) == []
+    assert len(plan([transient, cloud()], {}, config, memory, now=1 + 2 * wait)) > 0
 
 
 def test_inside_the_band_nothing_moves_either_way() -> None:

@@ -307,9 +307,9 @@ def _stuck(
         return Idle(
             "hysteresis",
             f"hysteresis holds: {h.name}'s deadline is at risk ({pressure}), but monitors "
-            f"were moved for its deadline {now - shed_at:.1f} s ago: it counts again "
-            f"in {c.deadline_wait - (now - shed_at):.1f} s, once its window holds makespans "
-            f"measured since (--deadline-wait {c.deadline_wait:g} s)",
+            f"were moved for its deadline: it counts again in "
+            f"{c.deadline_wait - (now - shed_at):.1f} s, once its window holds makespans "
+            f"measured since the handoff (--deadline-wait {c.deadline_wait:g} s)",
             ("hysteresis", *key),
         )
     if rank[h.tier] + 1 >= len(c.tiers):
@@ -753,9 +753,10 @@ class Orchestrator:
             done.append(record)
             # the deadline's window refills with makespans measured since the handoff
             # ended, not during it: the moves' own work weighs on the edge while it lasts
-            moved_for = {"deadline": source, "calm below": destination}.get(reason)
-            if moved_for is not None and moved_for in self.memory.deadline_moved:
-                self.memory.deadline_moved[moved_for] = time.monotonic()
+            settle = {"deadline": (source, 0.0), "calm below": (destination, 1.0)}.get(reason)
+            if settle is not None and settle[0] in self.memory.deadline_moved:
+                waits = settle[1] * self.config.deadline_wait  # (PolicyMemory.deadline_moved)
+                self.memory.deadline_moved[settle[0]] = time.monotonic() + waits
         for lever in self.levers:
             done.extend(self._budget(lever, reports, where, now))
         return done

@@ -182,10 +182,12 @@ class PolicyMemory:
     last_move: dict[str, float] = field(default_factory=dict)  # monitor -> when it moved
     last_down: dict[str, float] = field(default_factory=dict)  # monitor -> when it came down
     bounces: dict[str, int] = field(default_factory=dict)  # monitor -> up soon after down
-    # handler -> when a move last changed what runs on it for its deadline: monitors shed
-    # from it for its deadline, or brought home to it (the orchestrator sets it again when
-    # the handoff ends); its deadline counts again once its window holds makespans
-    # measured since (deadline_wait): not those of the handoff's own transient
+    # handler -> from when its deadline's window refills after a move that changed what
+    # runs on it: monitors shed from it for its deadline (from then), or a batch brought
+    # home to it (one deadline_wait later: taking them over, subscribing to their topics
+    # again and the events held for them are work on its core for about that long); the
+    # orchestrator sets it again when the handoff ends. Its deadline counts again once its
+    # window holds makespans measured since (deadline_wait): not the handoff's own.
     deadline_moved: dict[str, float] = field(default_factory=dict)
     # monitor -> tier -> what it last cost there (cores): a monitor away from home is
     # planned home at what it cost there, not at what it costs where it runs now
@@ -547,8 +549,8 @@ def plan(
                     moves.append(Move(m, h.name, destination.name, "calm below", why))
                     moved.add(m)
                     memory.last_move[m] = memory.last_down[m] = now
-                if names:  # what comes home weighs on its deadline: the window refills first
-                    memory.deadline_moved[destination.name] = now
+                if names:  # its deadline counts again once the handoff has settled
+                    memory.deadline_moved[destination.name] = now + c.deadline_wait
                 continue
             for m in candidates:
                 if budget <= 0:
