@@ -322,7 +322,6 @@ class PhaseResult:
     stop_time: float = 0.0  # the phase's end (after the mission, and parked if it parked)
     parked: dict[str, Any] = field(default_factory=dict)  # orchestrated: after the goal
     parked_at: float = 0.0
-    on_edge_at_goal: int | None = None  # monitors on the edge when the goal was given
     recovery: dict[str, Any] | None = None  # orchestrated: recovery.recovery's measure
 
     def figures(self) -> dict[str, Any]:
@@ -582,7 +581,6 @@ class Demo:
         else:
             result.goal_time = result.end_time = time.time()
             self.note_placement(result, final=True)
-            result.on_edge_at_goal = self.view.on_edge
         result.stop_time = time.time()
         self.procs.stop("slam")
         self.procs.stop("base")
@@ -615,7 +613,6 @@ class Demo:
             self.work = json.loads(line)["calibrated"]["workMs"] / 1000
         cpu0 = self.cpu_seconds()
         result.goal_time = time.time()
-        result.on_edge_at_goal = self.view.on_edge
         result.goal_stamp = self.planner.start_mission()
         wait_verdict = phase.wait_verdict and not self.args.short
         # the goal monitor's window, and for the orchestrated robot as long again: one that

@@ -46,16 +46,17 @@ be a whole topic's readers, where their own costs alone would not free it.
 
 Costs are counted in millionths of a core and rates in thousandths of an event per second
 (:func:`microcores`, :func:`millievents`): integers, so the solver's feasibility and
-objective are exact. The selection (:mod:`edgerv.core.selection`) is solved exactly by
-SciPy's :func:`scipy.optimize.milp` (HiGHS) within ``time_budget``: the fewest (most)
-monitors, then of those the fewest (most) events/s, each stage an integer program proven
-optimal (without topic charges the count is the greedy rule's, exact by sorting: largest
-cost first reaches the need with the fewest, smallest first fits the most). If the
-solver does not prove the optimum within it (or its answer fails the exact check), the
-plan is the greedy rule's: today's rule (the busiest first, until enough is shed) with
-the measured cost in place of its proxy, the event rate: largest cost first up (and each
-charged topic's readers first, the fewest of those tries), smallest cost (with the
-topics it would start reading) first home. ``Plan.method`` says which made the plan.
+objective are exact. The selection (:mod:`edgerv.core.selection`) is solved exactly
+within ``time_budget``: the fewest (most) monitors, by sorting for each set of charged
+topics the plan may free (pay for), then of those the fewest (most) events/s, an integer
+program solved by SciPy's :func:`scipy.optimize.milp` (HiGHS); without topic charges the
+count is the greedy rule's, exact by sorting (largest cost first reaches the need with
+the fewest, smallest first fits the most). If the solver does not prove the optimum
+within it (or its answer fails the exact check), the plan is the greedy rule's: today's
+rule (the busiest first, until enough is shed) with the measured cost in place of its
+proxy, the event rate: largest cost first up (and each charged topic's readers first,
+the fewest of those tries), smallest cost (with the topics it would start reading) first
+home. ``Plan.method`` says which made the plan.
 SciPy is loaded before the first plan (:func:`~edgerv.core.selection.solver_ready`, 0.4
 s); where it is not installed (the ``planner`` extra: a handler's image has none) the
 greedy rule plans, and the plan's reason says why.

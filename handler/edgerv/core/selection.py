@@ -14,13 +14,17 @@ fewest monitors may be a whole topic's.
 * :func:`most_fitting`: the most items (at most ``limit``), then the most events/s, whose
   costs plus the charges of the topics they read fit in ``room``.
 
-Both are solved exactly by SciPy's :func:`scipy.optimize.milp` (HiGHS) within a time
-budget, as two integer programs in turn (the count, then the events/s at that count: a
-lexicographic optimum, each stage proven), falling back to a greedy rule when the solver
-is absent, out of time, or its answer fails the exact check. Without charges the count
-is the greedy rule's (largest cost first up, smallest first home: exact for the count),
-and only the events/s need the solver. Monitors of equal cost, rate and topics are one
-integer variable (how many of them), taken by name.
+Both are solved exactly within a time budget, the count first and then the events/s at
+that count (a lexicographic optimum). A selection frees (up) or pays for (home) some set
+of the charged topics; with at most ENUMERATED_TOPICS of them, each set is tried, its
+count found by sorting (up: that set's readers, then the largest costs; home: of the
+items reading no other charged topic, the smallest), and the events/s of the sets with
+the best count by SciPy's :func:`scipy.optimize.milp` (HiGHS). With more, both stages
+are integer programs over all of them. Without charges there is one set, the empty one:
+the count is the greedy rule's. A greedy rule (:func:`greedy_up`, :func:`greedy_home`)
+plans when the solver is absent, out of time, or its answer fails the exact check: it
+frees the need (fits the room), not proven the fewest (most). Monitors of equal cost,
+rate and topics are one integer variable (how many of them), taken by name.
 """
 
 from __future__ import annotations
@@ -69,7 +73,7 @@ def freed(chosen: Iterable[Item], items: Sequence[Item], charges: Charges) -> in
     topic none of the others reads."""
     picked = list(chosen)
     names = {i.name for i in picked}
-    left = Charges(charges.cost).of(i for i in items if i.name not in names)
+    left = charges.of(i for i in items if i.name not in names)
     return sum(i.cost for i in picked) + sum(
         charges.cost[t] for t in charges.of(picked) if t not in left
     )
