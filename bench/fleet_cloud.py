@@ -39,7 +39,7 @@ import yaml
 from edgerv.core.documents import API_VERSION, KIND
 from edgerv.core.robots import ROBOT_LABEL, in_namespace, instance_name, instance_spec
 from ros_env import ros_env
-from scale import PUBLISHER, VerdictListener, resident_bytes
+from scale import PUBLISHER, VerdictListener, resident_bytes, wait_until_serving
 
 ROBOTS = 100
 MONITORS = 200  # a robot's, the paper's count
@@ -118,15 +118,7 @@ def run(robots: int, monitors: int, listener: VerdictListener) -> dict[str, Any]
             env=ros_env(DOMAIN),
         )  # fmt: skip
         try:
-            while True:
-                try:
-                    resident_bytes(port)
-                    break
-                except OSError:
-                    if proc.poll() is not None or time.perf_counter() - started > 900:
-                        raise RuntimeError("the handler did not start") from None
-                    time.sleep(0.5)
-            load_seconds = time.perf_counter() - started
+            load_seconds = wait_until_serving(proc, port, started, 900)
             loaded = running(port)
             if loaded != total:  # never a number measured on fewer than it says
                 raise RuntimeError(f"the handler runs {loaded} of the {total} instances")

@@ -90,6 +90,21 @@ def resident_bytes(port: int) -> float:
     raise RuntimeError("no resident memory metric")
 
 
+def wait_until_serving(
+    proc: subprocess.Popen[Any], port: int, started: float, limit: float
+) -> float:
+    """Seconds from ``started`` (perf_counter) until the handler ``proc`` answers on
+    ``port``; RuntimeError if it exits or ``limit`` seconds pass first."""
+    while True:
+        try:
+            resident_bytes(port)
+            return time.perf_counter() - started
+        except OSError:
+            if proc.poll() is not None or time.perf_counter() - started > limit:
+                raise RuntimeError("the handler did not start") from None
+            time.sleep(0.5)
+
+
 class VerdictListener:
     """The probe monitors' verdicts on /edgerv/verdicts (in ROS domain ``domain``; a probe:
     a monitor whose name ``probe`` accepts): publish-to-arrival in ms, and who spoke."""
@@ -162,15 +177,7 @@ def run(total: int, listener: VerdictListener) -> dict[str, float]:
             env=env(),
         )
         try:
-            while True:
-                try:
-                    resident_bytes(port)
-                    break
-                except OSError:
-                    if proc.poll() is not None or time.perf_counter() - started > 600:
-                        raise RuntimeError("the handler did not start") from None
-                    time.sleep(0.5)
-            load_seconds = time.perf_counter() - started
+            load_seconds = wait_until_serving(proc, port, started, 600)
             time.sleep(2)
             rss = resident_bytes(port)
             listener.latencies.clear()
