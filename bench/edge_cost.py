@@ -42,6 +42,7 @@ but the numbers of a profiled run are not the bench's).
 from __future__ import annotations
 
 import argparse
+import http.client
 import json
 import os
 import shutil
@@ -62,6 +63,9 @@ DOMAIN = "95"
 RX_CORE, PUB_CORE = "0", "1"
 SETTLE = 3.0  # seconds after a receiver is ready (and matched) before the window
 LATER = 75.0  # seconds after idle monitors are ready: their second window
+POLL_SECONDS = 0.5  # the orchestrator's default --interval: a load report twice a second
+API_PORT = 19500 + os.getpid() % 400  # each handler's API (on loopback)
+TOKEN = ros_env(DOMAIN)["EDGERV_TOKEN"]  # its bearer token (bench/ros_env.py's)
 COMPARE_MARGIN_NS = 2_000_000_000
 TICK = os.sysconf("SC_CLK_TCK")
 
@@ -351,7 +355,7 @@ def handler_argv(monitors: Path, verdict_log: Path | None) -> list[str]:
         "--monitors",
         str(monitors),
         "--listen",
-        f"127.0.0.1:{19500 + os.getpid() % 400}",
+        f"127.0.0.1:{API_PORT}",
         "--log-level",
         "info",
     ]
@@ -422,13 +426,32 @@ def traffic_window(rx: Receiver, seconds: float, record: Path, spy: Path | None)
 
 
 def idle_window(
-    rx: Receiver, seconds: float, spy: Path | None, settle: float = SETTLE
+    rx: Receiver, seconds: float, spy: Path | None, settle: float = SETTLE, poll: float = 0.0
 ) -> dict[str, Any]:
-    """``seconds`` of ``rx`` idle, from ``settle`` seconds after it was ready."""
+    """``seconds`` of ``rx`` idle, from ``settle`` seconds after it was ready; given
+    ``poll``, its load report read every ``poll`` seconds meanwhile (from the other core,
+    as an orchestrator polls it: ``GET /v1/load``)."""
     time.sleep(max(0.0, rx.ready_at + settle - time.monotonic()))
     cpu0, t0, th0 = cpu_seconds(rx.pid), time.monotonic(), thread_cpu(rx.pid)
     sampler = profile(rx.pid, seconds, spy)
-    time.sleep(seconds)
+    polls = 0
+    if poll > 0:
+        cores = os.sched_getaffinity(0)
+        os.sched_setaffinity(0, {int(PUB_CORE)})  # (polled from the publisher's core)
+        # one connection kept alive, as the orchestrator's client keeps it
+        conn = http.client.HTTPConnection("127.0.0.1", API_PORT, timeout=10)
+        try:
+            while time.monotonic() < t0 + seconds:
+                conn.request("GET", "/v1/load", headers={"Authorization": f"Bearer {TOKEN}"})
+                if b'"monitors"' not in conn.getresponse().read():
+                    raise RuntimeError("GET /v1/load answered no load report")
+                polls += 1
+                time.sleep(max(0.0, t0 + polls * poll - time.monotonic()))
+        finally:
+            conn.close()
+            os.sched_setaffinity(0, cores)
+    else:
+        time.sleep(seconds)
     cpu1, t1, th1 = cpu_seconds(rx.pid), time.monotonic(), thread_cpu(rx.pid)
     if sampler is not None:
         sampler.wait(timeout=120)
@@ -437,6 +460,7 @@ def idle_window(
         "wall": t1 - t0,
         "pct": 100 * (cpu1 - cpu0) / (t1 - t0),
         "threads": thread_split(th0, th1, t1 - t0),
+        "polls": polls,
     }
 
 
@@ -521,6 +545,9 @@ def run(
                 results[f"{side}_idle"] = idle_window(rx, seconds, spy)
                 spy = spy_dir / f"{side}-idle-later.txt" if spy_dir else None
                 results[f"{side}_idle_later"] = idle_window(rx, seconds, spy, LATER)
+                spy = spy_dir / f"{side}-idle-polled.txt" if spy_dir else None
+                after = LATER + seconds  # right after the window above
+                results[f"{side}_idle_polled"] = idle_window(rx, seconds, spy, after, POLL_SECONDS)
             finally:
                 rx.stop()
         rx = Receiver([sys.executable, "-c", BARE], "ready", tmp / "bare.out")
@@ -651,6 +678,36 @@ def rows(res: dict[str, Any], seconds: float) -> list[dict[str, str]]:
         later + f"steps at 10 s (stale) and 1 min (the next at 10 min); pinned to core {RX_CORE}",
         "target 0.3% of a core",
         0.3,
+    )
+    polled, quiet = res["handler_idle_polled"], res["handler_idle_later"]
+    per_report = (polled["cpu"] - quiet["cpu"] * polled["wall"] / quiet["wall"]) / polled["polls"]
+    measured = (
+        f"idle and polled {polled['pct']:.2f}% of a core: {per_report * 1000:.2f} ms of CPU "
+        "a load report"
+    )
+    ratio = f"the polls {(polled['pct'] - quiet['pct']):.2f}% of a core"
+    if has_before:
+        b_polled, b_quiet = res["before_idle_polled"], res["before_idle_later"]
+        b_per = (b_polled["cpu"] - b_quiet["cpu"] * b_polled["wall"] / b_quiet["wall"]) / b_polled[
+            "polls"
+        ]
+        measured = (
+            f"before: {b_polled['pct']:.2f}% ({b_per * 1000:.2f} ms a report); after: "
+            f"{polled['pct']:.2f}% of a core ({per_report * 1000:.2f} ms a report)"
+        )
+        ratio = f"a report costs {per_report / b_per:.2f}x before's; " + ratio
+    out.append(
+        {
+            "name": "the edge's cost, idle and polled: the same 200 monitors, their load "
+            f"report read every {POLL_SECONDS:g} s (the orchestrator's --interval)",
+            "detail": f"{seconds:g} s right after the window above, {polled['polls']} "
+            f"reads of GET /v1/load from core {PUB_CORE} on one kept-alive connection (as "
+            "the orchestrator's client); a report's cost: the window's CPU less the idle "
+            "window's, over the reads (a clock tick is 10 ms: 0.25 ms a report at 40 reads)",
+            "baseline": f"the same handler unpolled {quiet['pct']:.2f}% of a core",
+            "measured": measured,
+            "ratio": ratio,
+        }
     )
     if "handler_idle_10k" in res:
         idle_row(

@@ -58,6 +58,25 @@ def test_what_the_handler_sends_reads_back_as_sent(api: ControlApi) -> None:
     assert read["host"] is not None and read["host"]["cores"] >= 1  # (this is Linux)
 
 
+def test_a_monitor_redefined_or_removed_shows_in_the_next_report() -> None:
+    # each entry's definition part is made once per definition (Engine._monitor_load):
+    # a new definition of the same name is read again, a removed one is gone
+    engine = Engine("edge-1", flush_after=1e9)
+    engine.put(compiled("always (a)", {"a": "bool"}), active=True)
+    first = engine.load()["monitors"]["m"]
+    assert first["topics"] == ["/a"] and first["placement"]["tier"] is None
+    engine.put(
+        compiled("always (b)", {"b": "bool"}, placement={"tier": "cloud", "maxLatencyMs": 40}),
+        active=True,
+    )
+    again = engine.load()["monitors"]["m"]
+    assert again["topics"] == ["/b"]
+    assert again["placement"] == {"tier": "cloud", "migrate": "auto", "maxLatencyMs": 40.0}
+    assert first["topics"] == ["/a"]  # (a report once sent is not changed by a later one)
+    assert engine.remove("m") and engine.load()["monitors"] == {}
+    assert engine._definitions == {}  # nothing kept of a monitor no longer defined
+
+
 def test_what_a_handler_may_leave_out_reads_as_its_default() -> None:
     report = parse_load(
         {

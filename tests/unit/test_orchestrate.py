@@ -146,7 +146,7 @@ def test_the_deadline_of_a_load_report_becomes_the_policys_reading() -> None:
         "messagesTotal": 400,
     }
     (r,), _, _ = build_reports({edge: parse_load(report)}, {})
-    assert r.deadline == DeadlineReading(budget=0.125, p95=0.13, count=40)
+    assert r.deadline == DeadlineReading(budget=0.125, p95=0.13, count=40, misses=3)
     empty = {"budgetMs": 125.0, "count": 0, "p95Ms": None}
     assert deadline_reading(empty) == DeadlineReading(0.125, None, 0)
     for odd in (None, "fast", [], {"count": 4}, {"budgetMs": "125", "count": 4}):
@@ -225,7 +225,7 @@ def test_an_unsettled_move_is_not_done_and_is_settled_before_the_monitor_moves_a
         moves.append(names)
         if len(moves) == 1:
             raise Unsettled("http://c did not say whether it adopted m", ["m"], ["http://c"])
-        return Moved(0.1, 10, 5, 8, {})
+        return Moved(0.1, 10, 5, 8, {"hold": 0.0123, "commit": 0.1})
 
     asked: list[tuple[object, list[str]]] = []
 
@@ -248,3 +248,4 @@ def test_an_unsettled_move_is_not_done_and_is_settled_before_the_monitor_moves_a
     settled, moved = o.round()  # settled (the edge held nothing more): then it may move
     assert (settled["settle"], settled["ok"], settled["monitors"]) == (True, True, ["m"])
     assert (moved["ok"], moves, o.unsettled) == (True, [["m"], ["m"]], {})
+    assert moved["steps"] == {"hold": 12.3, "commit": 100.0}  # each step's end, in ms

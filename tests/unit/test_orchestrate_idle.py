@@ -72,8 +72,8 @@ def test_no_deadline_signal_yet() -> None:
     idle = why([edge(count=0, a=busy(100)), cloud(a=busy(0, active=False))])
     assert (idle.kind, idle.text) == (
         "no deadline signal",
-        "no deadline signal yet: edge-1 has 0 makespan(s) in its window, 4 needed (is the "
-        "--deadline topic published, its header stamped with the robot's clock?)",
+        "no deadline signal yet: edge-1 has 0 makespan(s) in its window, 4 needed (2 if all "
+        "miss) (is the --deadline topic published, its header stamped with the robot's clock?)",
     )
     assert why([edge(p95_ms=500, count=3, a=busy(100)), cloud()]).kind == "no deadline signal"
 

@@ -187,10 +187,10 @@ def test_a_monitor_running_nowhere_starts_on_its_home_tier() -> None:
 
 
 def timed(
-    cpu: float, p95_ms: float | None, count: int = 40, **monitors: MonitorLoad
+    cpu: float, p95_ms: float | None, count: int = 40, misses: int = 0, **monitors: MonitorLoad
 ) -> HandlerReport:
     """The edge handler with a --deadline of 125 ms whose window reads ``p95_ms``."""
-    reading = DeadlineReading(0.125, None if p95_ms is None else p95_ms / 1000, count)
+    reading = DeadlineReading(0.125, None if p95_ms is None else p95_ms / 1000, count, misses)
     return HandlerReport("edge-1", "edge", cpu, monitors=monitors, deadline=reading)
 
 
@@ -257,6 +257,12 @@ def test_too_few_makespans_are_no_information() -> None:
     assert [m.reason for m in plan(enough, {}, CONFIG, PolicyMemory(), now=0)] == ["deadline"]
     empty = [timed(0.3, p95_ms=None, count=0, **mon), idle("fog", "fog-1")]
     assert plan(empty, {}, CONFIG, PolicyMemory(), now=0) == []
+    # fewer, but every one missed: two or more are information (were the p95 within the
+    # budget, two misses in a row would come at most 0.25% of the time); one is not
+    for count, misses, pressed in [(2, 2, True), (3, 3, True), (3, 2, False), (1, 1, False)]:
+        window = [timed(0.3, 500, count, misses, **mon), idle("fog", "fog-1")]
+        reasons = [m.reason for m in plan(window, {}, CONFIG, PolicyMemory(), now=0)]
+        assert reasons == (["deadline"] if pressed else []), (count, misses)
     # ... and they do not block calm: a monitor comes back down as without a reading
     memory = PolicyMemory()
     below = [timed(0.2, p95_ms=500, count=3), idle("fog", "fog-1", a=busy(10))]

@@ -39,8 +39,10 @@ from edgerv.control.wire import (
     LoadReport,
     MonitorListing,
     MonitorReport,
+    parse_deadline,
     parse_load,
 )
+from edgerv.core.deadline import DeadlineLoad
 
 
 class ApiError(Exception):
@@ -312,6 +314,16 @@ class HandlerClient:
             return parse_load(self.get("/v1/load", timeout=timeout))
         except ValueError as exc:
             raise BadAnswer(f"{self.base} answered /v1/load with no load report: {exc}") from None
+
+    def deadline(self, after: int | None = None, wait: float = 0.0) -> DeadlineLoad:
+        """``GET /v1/deadline``: the reading of the handler's deadline; given ``after``,
+        once more than ``after`` makespans missed it since the handler started, or after
+        ``wait`` seconds (:class:`NotFound`: it measures none)."""
+        query = "" if after is None else f"?after={after}&wait={wait:g}"
+        try:
+            return parse_deadline(self.get(f"/v1/deadline{query}", timeout=wait + 10.0))
+        except ValueError as exc:
+            raise BadAnswer(f"{self.base} answered /v1/deadline with no reading: {exc}") from None
 
     # -- monitors -------------------------------------------------------------------------
 

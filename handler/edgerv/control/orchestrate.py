@@ -25,10 +25,11 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 from edgerv.control.client import ApiError, HandlerClient
 from edgerv.control.cpu_budget import CpuBudget, CpuBudgetError
@@ -76,10 +77,14 @@ def deadline_reading(value: object) -> DeadlineReading | None:
     something else: the policy then goes without it."""
     if not isinstance(value, Mapping):
         return None
-    budget, p95, count = (_number(value.get(k)) for k in ("budgetMs", "p95Ms", "count"))
+    budget, p95, count, misses = (
+        _number(value.get(k)) for k in ("budgetMs", "p95Ms", "count", "misses")
+    )
     if budget is None or count is None:
         return None
-    return DeadlineReading(budget / 1000, None if p95 is None else p95 / 1000, int(count))
+    return DeadlineReading(
+        budget / 1000, None if p95 is None else p95 / 1000, int(count), int(misses or 0)
+    )
 
 
 @dataclass
@@ -232,6 +237,10 @@ IDLE_KINDS = (
     "no room",  # under pressure, but no handler of the tier above can take monitors
     "nothing to shed",  # under pressure, but the policy's rule sheds nothing (CPU at target)
 )
+
+
+# after a round that said one of these, a missed deadline ends the wait for the next
+WOKEN = frozenset({"no deadline signal", "deadline met"})
 
 
 def _names(names: Sequence[str], most: int = 5) -> str:
@@ -531,7 +540,7 @@ def why_nothing_moves(
     if blind:
         said = [
             f"{h.name} has {h.deadline.count if h.deadline else 0} makespan(s) in its window, "
-            f"{c.deadline_min_count} needed"
+            f"{c.deadline_min_count} needed ({c.deadline_sure_misses} if all miss)"
             for h in blind
         ]
         return Idle(
@@ -619,6 +628,13 @@ class Orchestrator:
         self.clients: dict[Target, HandlerClient] = {}
         self.previous: dict[Target, Counters] = {}
         self.seen: dict[Target, HandlerReport] = {}  # each handler as the last poll read it
+        # each handler measuring a deadline: its misses since it started, as last polled
+        self.misses: dict[Target, int] = {}
+        # Orchestrator.wait's: a thread per handler that waits for its next miss, and its
+        # client (not the rounds': a client is not thread-safe)
+        self.watchers: dict[Target, threading.Thread] = {}
+        self.watch_clients: dict[Target, HandlerClient] = {}
+        self.woke = threading.Event()  # set by a watcher that saw a miss
         self.set_targets(targets)
         self.starts = starts  # start monitors that run nowhere (off: someone else does)
         self.memory = PolicyMemory()
@@ -639,6 +655,9 @@ class Orchestrator:
         self.clients = {t: self.clients.get(t) or self._new_client(t) for t in targets}
         self.previous = {t: c for t, c in self.previous.items() if t in targets}
         self.seen = {t: r for t, r in self.seen.items() if t in targets}
+        self.misses = {t: n for t, n in self.misses.items() if t in targets}
+        self.watch_clients = {t: c for t, c in self.watch_clients.items() if t in targets}
+        self.watchers = {t: w for t, w in self.watchers.items() if t in targets}
 
     def set_levers(self, levers: Sequence[BudgetLever]) -> None:
         """The budgets to set from now on (the operator's, one a budgeted handler pod, as
@@ -654,9 +673,56 @@ class Orchestrator:
                 log.warning("%s (%s) left out of this round: %s", t.address, t.tier, exc)
         return loads
 
+    def wait(self, seconds: float, stop: threading.Event) -> Literal["stopped", "missed", "waited"]:
+        """Between rounds: until ``stop`` is set ("stopped") or ``seconds`` pass
+        ("waited"). After a round that found every deadline met or not yet measured, a
+        handler measuring one that misses it ends the wait at once ("missed": ``GET
+        /v1/deadline`` answers at its next miss): the round that moves monitors starts at
+        the miss, not up to an interval later. Under pressure, or in a move's wake, the
+        wait is the interval's: a round at every miss would only poll more."""
+        watched = dict(self.misses) if self.idle is not None and self.idle.kind in WOKEN else {}
+        woke = self.woke
+        woke.clear()
+        for target, misses in watched.items():
+            if target in self.targets and not self._watching(target):
+                watcher = threading.Thread(
+                    target=self._watch,
+                    args=(target, misses, seconds),
+                    name=f"edgerv-deadline-{target.address}",
+                    daemon=True,
+                )
+                self.watchers[target] = watcher
+                watcher.start()
+        end = time.monotonic() + seconds
+        while not stop.is_set() and not woke.is_set() and (left := end - time.monotonic()) > 0:
+            woke.wait(min(left, 0.05))  # (stop is a signal handler's: looked at each 50 ms)
+        return "stopped" if stop.is_set() else "missed" if woke.is_set() else "waited"
+
+    def _watching(self, target: Target) -> bool:
+        watcher = self.watchers.get(target)
+        return watcher is not None and watcher.is_alive()
+
+    def _watch(self, target: Target, misses: int, seconds: float) -> None:
+        """Wait for ``target``'s next missed deadline, up to ``seconds``, then wake the
+        wait (a thread of its own, with a client of its own: a client is not
+        thread-safe). One still waiting from an earlier wait wakes the next one."""
+        client = self.watch_clients.get(target)
+        if client is None:
+            client = self.watch_clients[target] = self._new_client(target)
+        try:
+            reading = client.deadline(after=misses, wait=seconds)
+        except ApiError as exc:  # (an older handler: 404) the wait is the interval's
+            log.debug("%s: no wait for its deadline: %s", target.address, exc)
+            return
+        if reading["missesTotal"] > misses:
+            self.woke.set()
+
     def round(self) -> list[dict[str, Any]]:
         """Poll, decide, act; return what was done, one record per action."""
         loads = self.poll()
+        self.misses = {
+            t: d["missesTotal"] for t, load in loads.items() if (d := load["deadline"]) is not None
+        }
         done = self._settle(loads)
         first = {load["handler"] for t, load in loads.items() if t not in self.previous}
         reports, placements, where = build_reports(loads, self.previous)
@@ -737,6 +803,8 @@ class Orchestrator:
             try:
                 moved = migrate(src, dst, names, self.timeout, self.grace)
                 record.update(ok=True, bytes=moved.snapshot_bytes, events=moved.letters)
+                # when each step of the handoff ended, in ms from its start (protocol.md)
+                record["steps"] = {k: round(v * 1000, 1) for k, v in moved.steps.items()}
                 record.update({"already": moved.already} if moved.already else {})
                 record.update({"note": moved.note} if moved.note else {})
             except Unsettled as exc:  # not done: settled before it moves again

@@ -79,7 +79,8 @@ positive_number = finite("a number above 0", zero=False)  # a ratio, a fraction
 
 
 DESCRIPTION = """\
-Poll the handlers' load reports (GET /v1/load) every --interval seconds, ask the
+Poll the handlers' load reports (GET /v1/load) every --interval seconds (at once
+when a handler measuring a deadline misses it while all were met), ask the
 placement policy where each monitor should run, and do it: start a monitor that
 runs nowhere, move the others by the handoff of edgerv migrate. Each action is
 printed as one JSON line on stdout. A round that moves nothing says why on
@@ -127,7 +128,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=seconds_above_zero,
         default=1.0,
         metavar="SECONDS",
-        help="between two rounds",
+        help="between two rounds; a missed deadline ends it when every deadline was met "
+        "(GET /v1/deadline)",
     )
     p.add_argument(
         "--calm",
@@ -397,5 +399,5 @@ def run(args: argparse.Namespace) -> int:
     while True:
         for record in orchestrator.round():
             print(json.dumps(record), flush=True)
-        if args.once or stop.wait(args.interval):
+        if args.once or orchestrator.wait(args.interval, stop) == "stopped":
             return 0

@@ -9,7 +9,8 @@ migration protocol moves.
   above the high mark, or the robot's real-time task it shares the CPU with is at
   risk of missing its deadline (*deadline pressure*: the 95th percentile of the
   task's makespan is at or above ``deadline_high`` times its budget, over a window
-  of at least ``deadline_min_count`` measurements; a handler started with
+  of at least ``deadline_min_count`` measurements, or of ``deadline_sure_misses``
+  or more that all missed the budget; a handler started with
   ``--deadline``, :mod:`edgerv.core.deadline`). Its movable monitors go one tier
   up: those that want to migrate first, then the busiest (most events freed) with
   the least added latency, until the load it sheds brings it to the CPU target
@@ -70,6 +71,7 @@ class DeadlineReading:
     budget: float
     p95: float | None  # None: no makespan in the window
     count: int  # makespans in the window
+    misses: int = 0  # of those, longer than the budget
 
 
 @dataclass(frozen=True)
@@ -121,7 +123,10 @@ class PolicyConfig:
     deadline_low: float = 0.95
     deadline_shed: float = 0.5
     deadline_wait: float = 2.0
-    deadline_min_count: int = 4  # fewer makespans in the window: no information
+    deadline_min_count: int = 4  # fewer makespans in the window: no information, unless
+    # every one of at least deadline_sure_misses missed: were the task's p95 within its
+    # budget, a makespan would miss at most 5% of the time, two in a row 0.25% of it
+    deadline_sure_misses: int = 2
     # The planner (edgerv.core.planner) sizes deadline moves, up and home, from the
     # monitors' measured costs once every one of a handler's is known; else the rule above.
     # planner_margin: the share of the headroom verification leaves free; planner_seconds:
@@ -206,10 +211,18 @@ def is_loaded(h: HandlerReport, c: PolicyConfig) -> bool:
     )
 
 
+def informs(d: DeadlineReading, c: PolicyConfig) -> bool:
+    """Whether the window's p95 is information: at least ``deadline_min_count``
+    makespans, or fewer that all missed (at least ``deadline_sure_misses``)."""
+    return d.count >= c.deadline_min_count or (
+        d.count >= c.deadline_sure_misses and d.misses == d.count
+    )
+
+
 def deadline_ratio(h: HandlerReport, c: PolicyConfig) -> float | None:
     """p95 makespan / budget, or None without information (no reading, too few makespans)."""
     d = h.deadline
-    if d is None or d.p95 is None or d.count < c.deadline_min_count or d.budget <= 0:
+    if d is None or d.p95 is None or not informs(d, c) or d.budget <= 0:
         return None
     return d.p95 / d.budget
 
@@ -305,7 +318,7 @@ def edge_state(
     return EdgeState(
         headroom=max(0.0, h.headroom),
         deadline=d.budget,
-        p95=d.p95 if d.count >= c.deadline_min_count else None,
+        p95=d.p95 if informs(d, c) else None,
         cloud_latency_ms=c.tier_latency_ms.get(above, 0.0) if above else 0.0,
         handler_cpu=h.cpu,
         task_work=h.task_work,

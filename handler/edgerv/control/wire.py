@@ -255,6 +255,15 @@ def _deadline(d: object) -> DeadlineLoad | None:
     }
 
 
+def parse_deadline(value: object) -> DeadlineLoad:
+    """``GET /v1/deadline``'s answer: the deadline's reading (a ValueError naming the
+    field that is wrong)."""
+    reading = _deadline(value)
+    if reading is None:
+        raise ValueError("deadline is null")
+    return reading
+
+
 def _host(d: object) -> HostLoad | None:
     if d is None:
         return None

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import threading
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypedDict
 
@@ -129,6 +130,9 @@ class MakespanWindow:
         self.messages_total = 0
         self.misses_total = 0
         self.unstamped = 0  # messages whose header nobody stamped: not measured
+        # called (outside the lock, on the thread that adds) after each makespan that
+        # misses the budget: the control API wakes who waits for one (GET /v1/deadline)
+        self.on_miss: Callable[[], None] | None = None
 
     def add(self, published_ns: int, stamp_ns: int, taken_ns: int) -> bool:
         """One output of the task: published at ``published_ns`` (its source timestamp),
@@ -143,8 +147,11 @@ class MakespanWindow:
             if self._newest is None or published_ns >= self._newest[0]:
                 self._newest = (published_ns, taken_ns)
             self.messages_total += 1
-            self.misses_total += span > self.budget_ns
-            return True
+            missed = span > self.budget_ns
+            self.misses_total += missed
+        if missed and self.on_miss is not None:
+            self.on_miss()
+        return True
 
     def _evict(self, now_ns: int) -> None:
         if self._newest is None:

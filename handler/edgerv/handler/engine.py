@@ -24,7 +24,13 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from edgerv.control.wire import LoadReport, MonitorReport, placement_json
+from edgerv.control.wire import (
+    LoadReport,
+    MonitorLoadReport,
+    MonitorReport,
+    PlacementJson,
+    placement_json,
+)
 from edgerv.core import arrivals as batches
 from edgerv.core.deadline import MakespanWindow
 from edgerv.core.diagnostics import Diagnostic, InputError
@@ -149,6 +155,9 @@ class Engine(HandoffSteps):
         self.drained_said = 0.0  # (time.monotonic) when the take loop last said how far
         self.reached: list[Verdict] = []  # evaluated by ingest, for the scheduler to emit
         self.slots: dict[str, MonitorSlot] = {}
+        # name -> the definition its load report's entry was made from, and that entry's
+        # parts that only a new definition changes (Engine._monitor_load)
+        self._definitions: dict[str, tuple[CompiledMonitor, PlacementJson, list[str]]] = {}
         self.router = Router()
         self.routes_version = 0  # bumped whenever topics or their fields change
         self.messages: dict[str, int] = {}  # topic -> messages ingested
@@ -267,6 +276,7 @@ class Engine(HandoffSteps):
             if slot is None:
                 return False
             self.in_handoff.pop(name, None)
+            self._definitions.pop(name, None)
             if slot.runtime is not None:
                 self.router.remove(name)
             if self.budget is not None:
@@ -813,21 +823,29 @@ class Engine(HandoffSteps):
                     }
                     for topic in self.router.routes
                 },
-                "monitors": {
-                    slot.name: {
-                        "active": slot.active,
-                        "handoff": slot.handoff,
-                        "epoch": slot.epoch,
-                        "peer": slot.peer if slot.handoff else None,
-                        "events": slot.events,
-                        "cpuSeconds": slot.runtime.cost_ns / 1e9 if slot.runtime else 0.0,
-                        "migrationWanted": slot.migration_wanted,
-                        "placement": placement_json(slot.compiled.spec.placement),
-                        "topics": list(slot.compiled.spec.topics),
-                    }
-                    for slot in self.slots.values()
-                },
+                "monitors": {name: self._monitor_load(slot) for name, slot in self.slots.items()},
             }
+
+    def _monitor_load(self, slot: MonitorSlot) -> MonitorLoadReport:
+        """One monitor's entry of the load report: its definition's part made once per
+        definition (a report is made every poll, for every monitor defined here)."""
+        kept = self._definitions.get(slot.name)
+        if kept is None or kept[0] is not slot.compiled:
+            spec = slot.compiled.spec
+            kept = (slot.compiled, placement_json(spec.placement), list(spec.topics))
+            self._definitions[slot.name] = kept
+        runtime = slot.runtime
+        return {
+            "active": slot.active,
+            "handoff": slot.handoff,
+            "epoch": slot.epoch,
+            "peer": slot.peer if slot.handoff else None,
+            "events": slot.events,
+            "cpuSeconds": runtime.cost_ns / 1e9 if runtime is not None else 0.0,
+            "migrationWanted": slot.migration_wanted,
+            "placement": kept[1],
+            "topics": kept[2],
+        }
 
     def snapshot(self) -> list[MonitorReport]:
         with self.lock:
