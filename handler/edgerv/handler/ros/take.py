@@ -92,8 +92,8 @@ class TakeLoop:
         published = None if self.sim is None else self.sim.published  # ROS time of a source
         taking = self.engine.taking_ns
         # CPU (this thread's) since the last topic that delivered: a topic's share is what
-        # its takes and reads cost, with the empty takes before it (two readings a round
-        # and one a topic that delivers; a reading is ~0.75 us, a round reads 8 topics)
+        # its takes and reads cost, with the empty takes before it (one reading a round
+        # and one a topic that delivers, where each topic's took two: ~0.75 us a reading)
         clock = time.thread_time_ns
         mark = clock()
         for sub in subs:
