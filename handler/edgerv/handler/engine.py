@@ -168,8 +168,9 @@ class Engine(HandoffSteps):
         # per topic: the newest stamp and when a message last came (a sender's release)
         self.newest: dict[str, int] = {}
         self.heard: dict[str, float] = {}
-        # per topic: the most a message was published after its stamp (ns; header stamps
-        # taken before processing lag their publication), at most flush_after
+        # per topic: the most a message reached this handler after its stamp (ns: header
+        # stamps taken before processing lag their publication, and the way here takes
+        # time), at most flush_after (the ROS layer's; a handoff's release waits for it)
         self.stamp_lag: dict[str, int] = {}
         self.ingest_lag = 0.0  # seconds between publication and ingestion, last batch
         self.waiting: dict[str, MonitorRuntime] = {}  # monitors with letters to evaluate

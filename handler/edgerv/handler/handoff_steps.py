@@ -166,19 +166,19 @@ class HandoffSteps:
         (The API encodes it, outside the lock: the ingest goes on meanwhile.)
 
         Each topic is its own channel: an event stamped at or before the cut can reach
-        H1 after a later one on another topic. So H1 waits until every topic of the
-        monitor brought an event past the cut. A quiet topic is let go when another
-        one has run ``grace`` seconds of stamps past the cut, or when nothing at all
-        came for ``grace`` seconds since H1 learned the cut: stream time, not H1's
-        clock, so that a lagging H1 does not give up on events still in its queues.
-        A ``quiet`` topic (one H2 vouched for: it brought H2 nothing) is let go sooner,
-        once H1's stream (the newest stamp it took on any topic) ran ``settle`` past
-        the cut, or its ROS layer found nothing left to take that long after the cut
-        (a parked robot), plus the most that topic's messages were published after
-        their stamps (:attr:`stamp_lag`: a command stamped with its camera frame's time
-        is published a makespan later): with the topics' skew within the reorder
-        window, nothing at or before the cut is still on its way (docs/protocol.md,
-        "Silent topics").
+        H1 after a later one on another topic. So H1 waits until each topic of the
+        monitor brought an event past the cut, or until nothing of it stamped at or
+        before the cut can still come: its ROS layer took everything that reached H1
+        up to ``settle`` past the cut, plus the most that topic's messages reached H1
+        after their stamps (:attr:`stamp_lag`: a command stamped with its camera
+        frame's time is published a makespan later, and every message takes its way
+        here). A ``quiet`` topic (one H2 vouched for: it brought H2 nothing) is also
+        let go once H1's stream (the newest stamp it took on any topic) ran that far
+        (docs/protocol.md, "Silent topics"). Failing those (no ROS layer, a stalled
+        one), a topic is let go when another one has run ``grace`` seconds of stamps
+        past the cut, or when nothing at all came for ``grace`` seconds since H1
+        learned the cut: stream time, not H1's clock, so that a lagging H1 does not give
+        up on events still in its queues.
 
         Then the monitor stops running here, but H1 keeps the snapshot and goes on
         holding the events after the cut until the handoff commits (H2 adopted) or is
@@ -207,10 +207,9 @@ class HandoffSteps:
             topics = slot.compiled.spec.topics
             newest = [self.newest.get(t, cut) for t in topics]
             quiet_since = max([slot.held_at] + [self.heard.get(t, 0.0) for t in topics])
-            lag = self.stamp_lag
             if not (
                 all(
-                    n > cut or (t in quiet and self._settled(cut + self.settle_ns + lag.get(t, 0)))
+                    n > cut or self._all_in(cut, t, t in quiet)
                     for t, n in zip(topics, newest, strict=True)
                 )
                 or max(newest) - cut >= grace * 1e9  # the others ran grace past it: quiet
@@ -233,13 +232,23 @@ class HandoffSteps:
             self._set_handoff(slot, RELEASED)
             return snap
 
-    def _settled(self, stamp: int) -> bool:
-        """Nothing stamped up to ``stamp`` is still on its way to this handler: its stream
-        (the newest stamp it took, on any topic) is past it, or its ROS layer found
-        nothing left to take after that instant. (Stalled, a handler has neither.)"""
-        if self.newest and max(self.newest.values()) >= stamp:
+    def _all_in(self, cut: int, topic: str, vouched: bool) -> bool:
+        """Nothing of ``topic`` stamped up to ``cut`` is still on its way to this handler:
+        its ROS layer has taken everything that reached it until a reorder window plus
+        the most the topic's messages reached it after their stamps past the cut (wall
+        time; stalled, it has not), or, for a topic the receiver ``vouched`` for (it
+        brought nothing there), the handler's stream (the newest stamp it took, on any
+        topic) ran that far. Stream time alone does not let go of a topic that brings
+        messages: a round takes at most TAKE_PER_WAKE of each, so a busy topic's
+        backlog can lag a slow one's stamps; the drained instant accounts for that. A
+        topic that brought H2 a message and never one here waits for it."""
+        reach = self.stamp_lag.get(topic)
+        if reach is None and not vouched:
+            return False
+        stamp = cut + self.settle_ns + (reach or 0)
+        if self.drained_at is not None and self.drained_at >= stamp:
             return True
-        return self.drained_at is not None and self.drained_at >= stamp
+        return vouched and bool(self.newest) and max(self.newest.values()) >= stamp
 
     def commit(self, name: str, epoch: int) -> str:
         """H1, after H2 adopted: let go of the snapshot and the held events."""

@@ -106,7 +106,7 @@ class TakeLoop:
             delivered += 1
             first = got[1]["source_timestamp"]  # a subscription's first message is its oldest
             oldest_source = first if oldest_source is None else min(oldest_source, first)
-            lag = 0  # the most a message here was published after its header stamp
+            lag = 0  # the most a message here reached this handler after its stamp
             left = TAKE_PER_WAKE
             seqs: list[int] = []
             while got is not None:
@@ -119,8 +119,12 @@ class TakeLoop:
                     self.subscriptions.bad_message(topic, sub.route.msg_type)
                 else:
                     at = source if published is None else published(source)
-                    if stamp and at - stamp > lag:
-                        lag = at - stamp
+                    # published after its stamp (a header stamp), then on its way here
+                    # (0: the middleware did not say when it came; taken now, at latest)
+                    received = info["received_timestamp"] or time.time_ns()
+                    reach = (at - stamp if stamp else 0) + received - source
+                    if reach > lag:
+                        lag = reach
                     # unstamped: 0; the bytes and the routes' version: read again if they change
                     append((stamp or at, topic, values, raw, version))
                 left -= 1
@@ -128,7 +132,7 @@ class TakeLoop:
                     through = min(through, source)
                     break
                 got = take(cls, True)
-            if lag > lags.get(topic, 0):
+            if lag > lags.get(topic, -1):  # (a topic that reached it at all has one)
                 lags[topic] = min(lag, lag_cap)
             self._count_lost(sub, seqs)
             now = clock()
