@@ -19,7 +19,8 @@ migration protocol moves.
   alone moves nothing). After such a shed the handler's deadline pressure is not
   acted on for ``deadline_wait`` seconds: its window must first fill with
   makespans measured after the move. A handler under any pressure receives no
-  monitors.
+  monitors. Robots that ask one shared handler for more than the room below its CPU
+  target share that room, least served first (:func:`_shared_fairly`).
 * **Down** (beyond the paper): a monitor above its home tier comes back one tier
   once the handler below has been calm (CPU and lag below the low marks, nobody
   wanting to migrate, the deadline's 95th percentile at most ``deadline_low`` of
@@ -49,6 +50,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from edgerv.core.documents import Placement
+from edgerv.core.fair_share import fill
 from edgerv.core.planner import EdgeState, MonitorCost, PlannerConfig, plan_moves
 from edgerv.core.robots import may_host
 
@@ -353,6 +355,70 @@ def _costs_here(
     return out
 
 
+@dataclass
+class _Ask:
+    """What one handler under pressure would move up to ``destination`` this round."""
+
+    source: HandlerReport
+    destination: HandlerReport
+    names: list[str]
+    reason: str
+    why: str  # the plan's method and reason ("": today's rule)
+    deadline: bool  # for its deadline: its window must refill after
+
+
+def _shared_fairly(
+    asks: list[_Ask],
+    placements: Mapping[str, Placement],
+    memory: PolicyMemory,
+    c: PolicyConfig,
+) -> list[_Ask]:
+    """``asks``, those of several robots to one shared handler trimmed to a fair share
+    of it (:func:`edgerv.core.fair_share.fill`): when what they ask costs more than the
+    room it has below the CPU target, the room is filled least-served robot first, what
+    each runs there already counting (nothing there is sent back for it). Only where
+    every monitor asked has a measured cost (before, the rule's shares are guesses).
+    One robot alone takes what it must shed: a robot's deadline comes before the shared
+    handler's target."""
+    by_destination: dict[str, list[_Ask]] = {}
+    for ask in asks:
+        if ask.destination.robot is None and ask.source.robot is not None and ask.names:
+            by_destination.setdefault(ask.destination.name, []).append(ask)
+    for group in by_destination.values():
+        robots = sorted({a.source.robot for a in group if a.source.robot is not None})
+        destination = group[0].destination
+        asked: dict[str, list[tuple[str, float]]] = {r: [] for r in robots}
+        measured = True
+        for a in group:
+            for m in a.names:
+                cost = memory.costs.get(m, {}).get(destination.tier, a.source.monitors[m].cpu)
+                if cost is None:
+                    measured = False
+                    break
+                asked[str(a.source.robot)].append((f"{a.source.name}\0{m}", cost))
+        if len(robots) < 2 or not measured:
+            continue
+        running: dict[str, float] = {}
+        for m, load in destination.monitors.items():
+            robot = placements.get(m, Placement()).robot
+            if load.active and robot is not None:
+                running[robot] = running.get(robot, 0.0) + (load.cpu or 0.0)
+        room = max(0.0, c.cpu_target - destination.cpu)
+        kept = fill(room, running, asked)
+        if kept is None:
+            continue
+        given = {name for names in kept.values() for name in names}
+        for a in group:
+            before = len(a.names)
+            a.names = [m for m in a.names if f"{a.source.name}\0{m}" in given]
+            note = (
+                f"{destination.name}'s room ({room:.3f} cores) shared between "
+                f"{len(robots)} robots: {len(a.names)} of {before} up"
+            )
+            a.why = f"{a.why}; {note}" if a.why else note
+    return asks
+
+
 def plan(
     handlers: Sequence[HandlerReport],
     placements: Mapping[str, Placement],
@@ -431,7 +497,9 @@ def plan(
         planned = plan_moves(here, state, _planner_config(c))
         return planned.up, f"{planned.method}: {planned.reason}"
 
-    # Up: relieve each handler under pressure.
+    # Up: relieve each handler under pressure. What each asks of a shared handler is
+    # given once all have asked: the robots share its room (_shared_fairly).
+    asks: list[_Ask] = []
     for h in sorted(handlers, key=lambda h: (rank[h.tier], h.name)):
         loaded = is_loaded(h, c)
         deadline = (
@@ -449,14 +517,7 @@ def plan(
         planned = plan_up(h, up) if deadline and not loaded and c.planner else None
         if planned is not None:  # the deadline alone, every cost known: one planned batch
             names, why = planned
-            for m in names:
-                moves.append(Move(m, h.name, destination.name, "deadline", why))
-                moved.add(m)
-                memory.last_move[m] = now
-                if now - memory.last_down.get(m, float("-inf")) < c.cooldown_seconds:
-                    memory.bounces[m] = memory.bounces.get(m, 0) + 1
-            if names:
-                memory.deadline_moved[h.name] = now  # its window must refill first
+            asks.append(_Ask(h, destination, list(names), "deadline", why, True))
             continue
         candidates = [m for m in h.active() if movable(m, up, destination)]
         # those that want to migrate first; then what frees most per millisecond added
@@ -474,18 +535,25 @@ def plan(
         movable_load = sum(h.monitors[m].events_per_second for m in candidates)
         floor = c.deadline_shed * movable_load if deadline else None
         shed = 0.0
+        chosen: list[str] = []
         for m in candidates:
             load = h.monitors[m]
             if not load.migration_wanted and _shed_enough(shed, total, excess, floor, loaded):
                 break
-            moves.append(Move(m, h.name, destination.name, "deadline" if deadline else "pressure"))
-            moved.add(m)
+            chosen.append(m)
             shed += load.events_per_second
+        asks.append(
+            _Ask(h, destination, chosen, "deadline" if deadline else "pressure", "", deadline)
+        )
+    for ask in _shared_fairly(asks, placements, memory, c):
+        for m in ask.names:
+            moves.append(Move(m, ask.source.name, ask.destination.name, ask.reason, ask.why))
+            moved.add(m)
             memory.last_move[m] = now
-            if deadline:
-                memory.deadline_moved[h.name] = now  # its window must refill first
             if now - memory.last_down.get(m, float("-inf")) < c.cooldown_seconds:
                 memory.bounces[m] = memory.bounces.get(m, 0) + 1  # it came down too soon
+        if ask.names and ask.deadline:
+            memory.deadline_moved[ask.source.name] = now  # its window must refill first
 
     # monitors planned home this round, per destination: they count there for the next plan
     coming: dict[str, list[MonitorCost]] = {}
