@@ -13,6 +13,18 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 RUN = 10  # frames in a row that met their deadline: the loop is back under it
+SETTLED_MIN = 16  # makespans (2 s at 8 Hz) for a reading of the loop once settled
+# seconds after a handoff before the loop counts as settled: the policy's own wait for a
+# deadline's window to refill after a move (edgerv orchestrate --deadline-wait)
+SETTLED_AFTER = 2.0
+
+
+def percentile(values: Sequence[float], q: float) -> float | None:
+    """The demo's percentile: the nearest rank at or above ``q`` (None: no values)."""
+    if not values:
+        return None
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
 def recovery(
@@ -54,4 +66,36 @@ def recovery(
         "monitorsMoved": sum(len(m["monitors"]) for m in made),
         "deadlineMisses": misses,
         "monitorsInCloud": in_cloud,
+    }
+
+
+def settled(
+    makespans: Sequence[tuple[float, float]],
+    moves: Sequence[Mapping[str, Any]],
+    until: float,
+    minimum: int = SETTLED_MIN,
+    after: float = SETTLED_AFTER,
+) -> dict[str, Any] | None:
+    """The loop once the policy settled, which says whether the monitors left in the
+    cloud are what the edge's headroom requires: ``makespans`` (wall seconds, ms) from
+    ``after`` seconds past the end of the last handoff made before ``until`` (the
+    mission's end; a handoff ends at its ``at`` plus its ``ms``) to ``until``: how long
+    that is, how many, and their 95th percentile. A p95 above the policy's calm mark
+    means the edge had no room for more; below it, the policy's hysteresis was still
+    waiting. None with fewer than ``minimum``: the policy moved too late in the mission
+    for a reading."""
+    ends = [
+        float(m["at"]) + float(m.get("ms") or 0.0) / 1000 + after
+        for m in moves
+        if m.get("ok") and float(m["at"]) <= until
+    ]
+    since = max(ends, default=float("-inf"))
+    spans = [ms for at, ms in makespans if since <= at <= until]
+    if len(spans) < minimum:
+        return None
+    first = min(at for at, _ in makespans if since <= at <= until)
+    return {
+        "seconds": round(until - max(since, first), 2),
+        "makespans": len(spans),
+        "p95Ms": percentile(spans, 0.95),
     }

@@ -8,7 +8,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parents[2] / "examples/robot"))
 
-from recovery import RUN, recovery
+from recovery import RUN, percentile, recovery, settled
 
 
 def frames(pattern: str, start: float = 100.0, period: float = 0.125) -> list[tuple[float, bool]]:
@@ -46,3 +46,25 @@ def test_starts_are_not_handoffs() -> None:
     start = {"at": 100.2, "from": "", "to": "edge", "monitors": ["g"], "ok": True}
     got = recovery(frames("x" + "." * RUN), [start, move(100.1, 4)], in_cloud=4)
     assert got is not None and (got["handoffs"], got["monitorsMoved"]) == (1, 4)
+
+
+def test_the_loop_once_settled_is_read_after_the_last_move_until_the_missions_end() -> None:
+    """What the edge's headroom allowed once the policy settled: the makespans from the
+    end of the last handoff made before the mission ended to its end (issue 37: "no more
+    monitors in the cloud than the edge's headroom requires")."""
+    spans = [(100.0 + i * 0.125, 100.0 + i) for i in range(80)]  # 100 ms, 101 ms, ...
+    last = {**move(102.0, 5), "ms": 500.0}  # it ends at 102.5 s: frames 20.. count
+    after_end = move(109.0, 9)  # the homecoming once parked: after the mission's end
+    got = settled(spans, [move(101.0, 3), last, after_end], until=105.0, after=0.0)
+    # frames 20 to 40 (102.5 s to 105.0 s): 21 makespans, 120 to 140 ms
+    assert got == {"seconds": 2.5, "makespans": 21, "p95Ms": percentile(
+        [100.0 + i for i in range(20, 41)], 0.95
+    )}  # fmt: skip
+    assert got is not None and got["p95Ms"] == 139.0  # (the demo's percentile: nearest rank)
+    # by default from the policy's own wait after a move (its window refills): 104.5 s on
+    later = settled(spans, [last], until=107.0)
+    assert later is not None and (later["seconds"], later["makespans"]) == (2.5, 21)
+    # a failed move does not count (no move: the run until then); too few: no reading
+    failed = settled(spans, [move(104.9, 1, ok=False)], until=105.0)
+    assert failed is not None and failed["makespans"] == 41
+    assert settled(spans, [move(104.9, 1)], until=105.0, after=0.0) is None  # one since
