@@ -106,6 +106,25 @@ def test_a_calm_edge_takes_home_what_fits_in_one_batch_at_what_it_cost_there() -
     assert len(plan([tight, cloud(**away)], {}, config, memory, now=1)) == 1
 
 
+def test_coming_home_a_monitor_counts_at_the_larger_of_its_cost_there_and_now() -> None:
+    """What a monitor cost on the edge was last read while the edge was overloaded (the
+    reason it moved): a handler that falls behind takes its messages in long batches,
+    each message far cheaper than one at a time (bench/RESULTS.md: 5x at batch 100), so
+    that under-reads what it costs at the robot's rates once the edge is calm. Where it
+    runs now its handler keeps up. Home, it counts at the larger of the two (`make
+    demo`: 233 planned home at 0.07 cores took the loop to 201% of its deadline, and
+    went back up 4.8 s later)."""
+    config = PolicyConfig(
+        tiers=("edge", "cloud"), tier_latency_ms={"cloud": 40.0}, calm_seconds=0, cooldown_seconds=0
+    )
+    tight = edge(110.0, {}, cpu=0.1, headroom=0.9)  # 88%: room for (0.9)(0.074)(0.9) = 0.06
+    for there, now, fit in ((0.01, 0.05, 1), (0.05, 0.01, 1), (0.01, 0.01, 5)):
+        memory = PolicyMemory(costs={f"m{i}": {"edge": there} for i in range(6)})
+        away = {f"m{i}": costed(now) for i in range(6)}
+        plan([tight, cloud(**away)], {}, config, memory, now=0)
+        assert len(plan([tight, cloud(**away)], {}, config, memory, now=1)) == fit, (there, now)
+
+
 def test_what_comes_home_lets_the_deadlines_window_refill_before_it_counts() -> None:
     """Monitors brought home to the edge weigh on its deadline while their handoff
     settles (taking them over, subscribing again, the events held for them): the p95

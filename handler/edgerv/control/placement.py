@@ -197,7 +197,8 @@ class PolicyMemory:
     # window holds makespans measured since (deadline_wait): not the handoff's own.
     deadline_moved: dict[str, float] = field(default_factory=dict)
     # monitor -> tier -> what it last cost there (cores): a monitor away from home is
-    # planned home at what it cost there, not at what it costs where it runs now
+    # planned home at the larger of what it cost there and what it costs where it runs
+    # now (there it was last read overloaded, in long batches: cheaper a message)
     costs: dict[str, dict[str, float]] = field(default_factory=dict)
     # handler -> topic -> what its ingestion last cost there (cores): a topic no monitor
     # reads there now is planned home at it
@@ -573,7 +574,11 @@ def plan(
             return None
         away = []
         for m in candidates:
-            cost = memory.costs.get(m, {}).get(b.tier, h.monitors[m].cpu)
+            # at the larger of what it last cost there and what it costs now: there it was
+            # last read overloaded (why it moved), in long batches that under-read it
+            there, current = memory.costs.get(m, {}).get(b.tier), h.monitors[m].cpu
+            known = [x for x in (there, current) if x is not None]
+            cost = max(known) if known else None
             if cost is not None:  # (its cost known nowhere yet: it waits a round)
                 load = h.monitors[m]
                 away.append(
