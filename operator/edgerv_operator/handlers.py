@@ -124,6 +124,10 @@ class Operator:
     entries: dict[str, tuple[Any, dict[str, Any]]] = field(default_factory=dict)
     # the budgeted tier's handler pods' CPU budgets (None: no tier's is set)
     levers: Levers | None = None
+    # the survey's client of each handler pod (used under ``surveying`` only): each
+    # keeps the last listing and is sent only what changed since (an idle fleet's
+    # instances are not read again each round)
+    surveyors: dict[HandlerPod, HandlerClient] = field(default_factory=dict)
 
     def client(self, pod: HandlerPod) -> HandlerClient:
         return HandlerClient(self.config.url(pod.address), self.config.token, self.config.tls)
@@ -321,9 +325,10 @@ def survey_and_tend(op: Operator, handlers: Handlers) -> None:
         started = time.monotonic()  # a move noted after this is not in these reports
         reports: dict[HandlerPod, dict[str, MonitorReport]] = {}
         silent: set[HandlerPod] = set()
+        op.surveyors = {p: op.surveyors.get(p) or op.client(p) for p in handlers.every}
         for pod in handlers.every:
             try:
-                listing = op.client(pod).monitors(timeout=5.0)
+                listing = op.surveyors[pod].monitors(timeout=5.0)
                 reports[pod] = {m["name"]: m for m in listing}
             except ApiError as exc:
                 silent.add(pod)
@@ -441,8 +446,9 @@ def _runs(report: MonitorReport | None) -> bool:
 
 
 def survey_of(op: Operator, hname: str) -> Survey:
-    """The last survey's reports on one monitor."""
-    return Survey({p: r.get(hname) for p, r in op.reports.items()}, list(op.silent))
+    """The last survey's reports on one monitor (from its index: the pods that define
+    it, not every pod that answered)."""
+    return Survey(op.index.get(hname) or {}, list(op.silent), op.pods_seen[0])
 
 
 # -- defining and placing a monitor ---------------------------------------------------------
@@ -834,6 +840,7 @@ def _instance_status(
         survey = Survey(
             {**survey.reports, note.source: note.final},
             [p for p in survey.silent if p != note.source],
+            {*survey.pods(), note.source},
         )
     new, more = refreshed(previous, survey, generation, _now(), time.time())
     seen_before = ((previous.get("tally") or {}).get("seen") or {}).keys()
@@ -880,8 +887,9 @@ def _event_owed(entry: Mapping[str, Any]) -> bool:
 def _replace_lost(op: Operator, handlers: Handlers, inst: Instance, spec: dict[str, Any]) -> None:
     """Give the definition again to the handlers that lost it, and start it where it
     runs nowhere (never during a handoff)."""
-    reports = survey_of(op, inst.hname).reports
+    survey = survey_of(op, inst.hname)
+    reports = survey.reports
     moving = any(r and r.get("handoff") for r in reports.values())
-    lacking = any(reports.get(p) is None for p in handlers.ready if p in reports)
+    lacking = any(survey.defines(p) is False for p in handlers.ready)
     if not moving and (lacking or not any(r and r.get("active") for r in reports.values())):
         place(op, handlers, inst, spec, redefine=False)

@@ -79,10 +79,38 @@ class Event(NamedTuple):
 @dataclass(frozen=True)
 class Survey:
     """The handlers' reports on one monitor: ``reports`` for the handlers that answered
-    (None: it does not define the monitor), ``silent`` the handlers that did not."""
+    (None: it does not define the monitor), ``silent`` the handlers that did not.
+    ``answered``: every handler that answered, when ``reports`` holds only those that
+    define the monitor (a fleet's survey: an instance is defined on its robot's handlers
+    and the shared ones, of a hundred; None: the handlers of ``reports``)."""
 
     reports: Mapping[HandlerPod, MonitorReport | None]
     silent: Collection[HandlerPod] = ()
+    answered: Collection[HandlerPod] | None = None
+
+    def pods(self) -> Collection[HandlerPod]:
+        """Every handler that answered."""
+        return self.reports.keys() if self.answered is None else self.answered
+
+    def defines(self, pod: HandlerPod) -> bool | None:
+        """Whether ``pod`` defines the monitor (None: it did not answer)."""
+        if pod in self.reports:
+            return self.reports[pod] is not None
+        return False if pod in self.pods() else None
+
+
+def _copy(value: Any) -> Any:
+    """A deep copy of a status (JSON: dicts, lists and scalars), five times faster than
+    ``copy.deepcopy``, which a fleet's refresh did for each robot's entry of each Monitor."""
+    if isinstance(value, dict):
+        return {k: _copy(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_copy(v) for v in value]
+    if value is None or isinstance(value, str | int | float):
+        return value
+    if isinstance(value, Mapping):  # (Kopf's views of a body)
+        return {k: _copy(v) for k, v in value.items()}
+    return copy.deepcopy(value)
 
 
 def _zero() -> Tally:
@@ -177,7 +205,7 @@ def invalid(
     previous: Mapping[str, Any], message: str, generation: int, now: str
 ) -> tuple[dict[str, Any], list[Event]]:
     """The status of a Monitor whose spec cannot run: phase Error, Valid False."""
-    status = copy.deepcopy(dict(previous))
+    status = _copy(dict(previous))
     conditions = condition(
         status.get("conditions"), "Valid", "False", "InvalidSpec", message, generation, now
     )
@@ -205,7 +233,7 @@ def refreshed(
 ) -> tuple[dict[str, Any], list[Event]]:
     """The status from the handlers' reports (a valid, defined Monitor), and the Events
     that this change of status calls for (none when nothing a user must see changed)."""
-    status = copy.deepcopy(dict(previous))
+    status = _copy(dict(previous))
     events: list[Event] = []
     reports = survey.reports
     running = [(h, r) for h, r in reports.items() if r and r.get("active")]
@@ -222,7 +250,6 @@ def refreshed(
     if last is not None:
         status["lastVerdict"] = last
     was: Mapping[str, Any] | None = previous.get("handler")
-    known = {h.incarnation for h in list(reports) + list(survey.silent)}
 
     if len(running) == 1:
         h, _ = running[0]
@@ -242,6 +269,7 @@ def refreshed(
         message = f"active on several handlers: {nodes}"
     else:
         phase, ready, reason, message = "Pending", "False", "NotRunning", "no handler runs it"
+        known = {h.incarnation for h in list(survey.pods()) + list(survey.silent)}
         if was and was.get("incarnation") not in known and not _lost(previous):
             step = (previous.get("lastVerdict") or {}).get("step")
             lost = (
@@ -331,7 +359,7 @@ def moved(
     ms: float,
 ) -> tuple[dict[str, Any], list[Event]]:
     """The status after the operator moved the monitor by the handoff, and its Event."""
-    status = copy.deepcopy(dict(previous))
+    status = _copy(dict(previous))
     status["migrations"] = _count_move(
         previous.get("migrations"), _where(source), source.tier, destination, reason, now, ms
     )
@@ -369,7 +397,7 @@ FLEET_FIELDS = ("robots", "desired", "running", "violated")
 
 def robot_refreshed(instance: Mapping[str, Any]) -> dict[str, Any]:
     """A robot's entry in ``status.robots``, from its instance's refreshed status."""
-    return {k: copy.deepcopy(instance[k]) for k in ROBOT_FIELDS if k in instance}
+    return {k: _copy(instance[k]) for k in ROBOT_FIELDS if k in instance}
 
 
 def fleet_refreshed(

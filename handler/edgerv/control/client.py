@@ -38,6 +38,7 @@ from edgerv.control.wire import (
     HandoffRequest,
     LoadReport,
     MonitorListing,
+    MonitorLoadReport,
     MonitorReport,
     parse_deadline,
     parse_load,
@@ -170,6 +171,9 @@ class HandlerClient:
         self._host, self._port = parts.hostname or "", parts.port
         self._netloc = parts.netloc
         self._conn: http.client.HTTPConnection | None = None
+        # what the last listing and load report said, by name, and the cursor to ask
+        # for only what changed since (docs/protocol.md, "Reading only what changed")
+        self._kept: dict[str, tuple[str, dict[str, Any]]] = {}
 
     def __repr__(self) -> str:
         return f"HandlerClient({self.base!r})"
@@ -308,12 +312,58 @@ class HandlerClient:
             request["wait"] = wait
         return self.call(f"/v1/handoff/{step}", request, check=check, timeout=timeout)
 
+    def _since(self, path: str, timeout: float) -> tuple[Any, dict[str, Any] | None]:
+        """GET ``path``, asking only for what changed since the last answer kept (the
+        client's own); the answer, and the entries kept to merge it with (None: the
+        answer is whole)."""
+        kept = self._kept.get(path)
+        query = f"?since={urllib.parse.quote(kept[0], safe='')}" if kept else ""
+        answer = self.get(f"{path}{query}", timeout=timeout)
+        honoured = kept is not None and isinstance(answer, dict) and answer.get("since") == kept[0]
+        return answer, kept[1] if kept is not None and honoured else None
+
+    def _keep(
+        self,
+        path: str,
+        answer: dict[str, Any],
+        entries: dict[str, Any] | None,
+        changed: dict[str, Any],
+    ) -> dict[str, Any]:
+        """The whole listing: ``changed`` merged into ``entries`` (less what the answer
+        says was removed), kept with the answer's cursor for the next call."""
+        if entries is None:
+            whole = changed
+        else:
+            removed = answer.get("removed")
+            if not isinstance(removed, list) or not all(isinstance(n, str) for n in removed):
+                self._kept.pop(path, None)
+                raise BadAnswer(f"{self.base} answered {path} with no list of names removed")
+            whole = dict(entries)
+            for name in removed:
+                whole.pop(name, None)
+            whole.update(changed)
+        cursor = answer.get("cursor")
+        if isinstance(cursor, str):
+            self._kept[path] = (cursor, whole)
+        else:  # (a handler that keeps no cursors: every answer is whole)
+            self._kept.pop(path, None)
+        return dict(whole)  # (the caller's to change: the kept one stays as answered)
+
     def load(self, timeout: float = 10.0) -> LoadReport:
-        """``GET /v1/load``: its load report (:class:`BadAnswer` when it is not one)."""
+        """``GET /v1/load``: its load report (:class:`BadAnswer` when it is not one).
+        Only the monitors' entries that changed since this client's last call are sent
+        and parsed; the others are the last call's."""
+        answer, entries = self._since("/v1/load", timeout)
         try:
-            return parse_load(self.get("/v1/load", timeout=timeout))
+            report = parse_load(answer)
         except ValueError as exc:
+            self._kept.pop("/v1/load", None)
             raise BadAnswer(f"{self.base} answered /v1/load with no load report: {exc}") from None
+        report["monitors"] = cast(
+            dict[str, MonitorLoadReport],
+            self._keep("/v1/load", answer, entries, dict(report["monitors"])),
+        )
+        return report
 
     def deadline(self, after: int | None = None, wait: float = 0.0) -> DeadlineLoad:
         """``GET /v1/deadline``: the reading of the handler's deadline; given ``after``,
@@ -328,14 +378,18 @@ class HandlerClient:
     # -- monitors -------------------------------------------------------------------------
 
     def monitors(self, timeout: float = 10.0) -> list[MonitorReport]:
-        """``GET /v1/monitors``: every monitor it defines, each with its name."""
-        listing = self.get("/v1/monitors", timeout=timeout)
+        """``GET /v1/monitors``: every monitor it defines, each with its name (only the
+        reports changed since this client's last call are sent; the others are the last
+        call's, the same objects: read them, do not change them)."""
+        listing, entries = self._since("/v1/monitors", timeout)
         monitors = listing.get("monitors") if isinstance(listing, dict) else None
         if not isinstance(monitors, list) or not all(
             isinstance(m, dict) and isinstance(m.get("name"), str) for m in monitors
         ):
+            self._kept.pop("/v1/monitors", None)
             raise BadAnswer(f"{self.base} answered /v1/monitors with no list of monitors")
-        return cast(MonitorListing, listing)["monitors"]
+        changed = {m["name"]: m for m in cast(MonitorListing, listing)["monitors"]}
+        return list(self._keep("/v1/monitors", listing, entries, changed).values())
 
     def monitor(self, name: str, timeout: float = 10.0) -> MonitorReport | None:
         """``GET /v1/monitors/{name}``; None when it does not define that monitor."""

@@ -89,10 +89,14 @@ class MonitorReport(TypedDict):
 
 
 class MonitorListing(TypedDict):
-    """``GET /v1/monitors``."""
+    """``GET /v1/monitors``; with ``?since=CURSOR`` only the reports changed since the
+    cursor, and ``since`` (the cursor honoured) and ``removed`` (the names gone since)."""
 
     handler: str
     monitors: list[MonitorReport]
+    cursor: NotRequired[str]  # read from here next time (an older handler: none)
+    since: NotRequired[str]
+    removed: NotRequired[list[str]]
 
 
 class ErrorItem(TypedDict, total=False):
