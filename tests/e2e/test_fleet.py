@@ -15,11 +15,23 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
 
-from kit.chart import apply, installed, monitor, running_operator, status, talker_pod, until
+from kit.chart import (
+    apply,
+    counter_pod,
+    counting_monitor,
+    expected_verdicts,
+    installed,
+    monitor,
+    running_operator,
+    status,
+    talker_pod,
+    until,
+)
 from kit.kube import Cluster
 
 ROBOTS = {"amr-a": "edge", "amr-b": "edge-b"}  # robot -> its node
@@ -149,21 +161,31 @@ def test_the_policy_moves_the_pressured_robots_instance_up_and_leaves_the_other(
     cluster.run("delete", "monitor", "pressured", "-n", ns, "--timeout=60s")
 
 
-def test_a_tier_edit_moves_every_instance_up_and_each_back_to_its_own_robot(
-    cluster: Cluster, fleet: str
+def test_a_tier_edit_moves_every_instance_up_and_each_back_with_exact_verdicts(
+    cluster: Cluster, fleet: str, tmp_path: Path
 ) -> None:
+    """Each robot's counter publishes COUNT messages on its own graph while a tier edit
+    moves both instances to the cloud and each back to its own robot's edge, never the
+    other's: each instance's verdicts over the whole run equal ``edgerv check`` on the
+    messages its robot published (none lost, none twice, none of the other robot's)."""
     ns = fleet
-    on(cluster, ns, "limits", {"amr-a": "edge", "amr-b": "edge-b"})
-    for tier, placement in (
-        ("cloud", {"amr-a": "cloud", "amr-b": "cloud"}),
-        ("edge", {"amr-a": "edge", "amr-b": "edge-b"}),
-    ):
-        before = robots_of(cluster, ns, "limits")
+    apply(cluster, ns, counting_monitor("counted"))
+    on(cluster, ns, "counted", ROBOTS)
+    for robot, node in ROBOTS.items():
+        topic = f"/{robot.replace('-', '_')}/e2e/count"
+        pod = counter_pod(cluster, f"counter-{robot}", topic, {"kubernetes.io/hostname": node})
+        apply(cluster, ns, pod)
+    until(
+        "both robots' first violations",
+        lambda: all(e.get("lastVerdict") for e in robots_of(cluster, ns, "counted").values()),
+    )
+    for tier, placement in (("cloud", {"amr-a": "cloud", "amr-b": "cloud"}), ("edge", ROBOTS)):
+        before = robots_of(cluster, ns, "counted")
         cluster.run(
-            "patch", "monitor", "limits", "-n", ns, "--type=merge",
+            "patch", "monitor", "counted", "-n", ns, "--type=merge",
             "-p", json.dumps({"spec": {"placement": {"tier": tier}}}),
         )  # fmt: skip
-        got = on(cluster, ns, "limits", placement)
+        got = on(cluster, ns, "counted", placement)
         for robot, entry in got["robots"].items():
             was = before[robot]
             moves = (was.get("migrations") or {}).get("count", 0)
@@ -172,7 +194,21 @@ def test_a_tier_edit_moves_every_instance_up_and_each_back_to_its_own_robot(
             # the handoff kept its counts: they never go down
             assert entry["events"] >= was["events"], (robot, was, entry)
             assert entry["verdicts"]["violated"] >= was["verdicts"]["violated"]
-        assert got["robots"]["amr-a"]["verdicts"]["violated"] == 0, got
+    violations, last_step = expected_verdicts(tmp_path)
+
+    def evaluated() -> dict[str, Any] | None:
+        entries = robots_of(cluster, ns, "counted")
+        steps = [(e.get("lastVerdict") or {}).get("step", 0) for e in entries.values()]
+        return entries if len(steps) == 2 and min(steps) >= last_step else None
+
+    got = until("every message of both robots evaluated", evaluated, timeout=150)
+    for robot, entry in got.items():
+        assert entry["verdicts"]["violated"] == violations, (robot, entry)  # none lost, twice
+        assert entry["lastVerdict"]["step"] == last_step, (robot, entry)
+        assert entry["handler"]["node"] == ROBOTS[robot], (robot, entry)
+    for robot in ROBOTS:
+        cluster.run("delete", "pod", f"counter-{robot}", "-n", ns, "--wait=false")
+    cluster.run("delete", "monitor", "counted", "-n", ns, "--timeout=60s")
 
 
 def test_a_robot_that_leaves_takes_its_instance_and_leaves_the_others_alone(

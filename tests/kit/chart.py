@@ -12,6 +12,7 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
 import time
 import uuid
@@ -141,6 +142,76 @@ def talker_pod(
             ],
         },
     }
+
+
+COUNTER = """
+import json, sys, time, rclpy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64
+topic, count = sys.argv[1], int(sys.argv[2])
+rclpy.init(); node = rclpy.create_node("e2e_counter")
+qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+pub = node.create_publisher(Float64, topic, qos)
+while pub.get_subscription_count() < 1:  # the edge handler's: every message reaches it
+    time.sleep(0.1)
+print(json.dumps({"subscribers": pub.get_subscription_count()}), flush=True)
+for i in range(count):
+    m = Float64(); m.data = float(i % 100); pub.publish(m); time.sleep(0.02)
+print(json.dumps({"published": count}), flush=True)
+while True:  # then quiet values: no more violations, the last ones evaluated
+    m = Float64(); m.data = 0.0; pub.publish(m); time.sleep(0.02)
+"""
+COUNT = 2500  # 50 s at 50 messages/s: the moves happen meanwhile
+
+
+def counter_pod(
+    cluster: Cluster, name: str, topic: str = "/e2e/count", node: dict[str, str] | None = None
+) -> dict[str, Any]:
+    """A pod publishing ``topic`` reliably once a handler subscribes: 0, 1, ... 99, 0, ...
+    COUNT messages every 20 ms, then 0s (on the node ``node`` selects; default: the edge
+    tier's)."""
+    pod = talker_pod(cluster, name=name, node=node)
+    pod["spec"]["containers"][0]["command"] = ["python3", "-c", COUNTER, topic, str(COUNT)]
+    return pod
+
+
+def counting_monitor(name: str) -> dict[str, Any]:
+    """Violated by each message of value 50 or more: COUNT / 2 times, the last at step COUNT
+    (the step of every verdict shifts if one message is lost or evaluated twice)."""
+    doc = monitor(name, "always (count < limit)", placement={"tier": "edge"})
+    doc["spec"]["signals"] = {
+        "count": {
+            "topic": "/e2e/count",
+            "type": "std_msgs/msg/Float64",
+            "qos": {"reliability": "reliable", "depth": 1000},
+        }
+    }
+    return doc
+
+
+def expected_verdicts(tmp: Path) -> tuple[int, int]:
+    """``edgerv check`` on the messages the counter publishes first: (violations, the
+    last one's step)."""
+    trace = tmp / "count.jsonl"
+    trace.write_text(
+        "".join(
+            json.dumps({"topic": "/e2e/count", "stamp": i * 20_000_000, "msg": {"data": i % 100}})
+            + "\n"
+            for i in range(COUNT)
+        )
+    )
+    spec = counting_monitor("offline")["spec"]
+    doc = tmp / "monitor.yaml"
+    doc.write_text(json.dumps({"apiVersion": "edgerv.io/v1alpha1", "kind": "Monitor",
+                               "metadata": {"name": "offline"}, "spec": spec}))  # fmt: skip
+    done = subprocess.run(
+        [str(Path(sys.executable).with_name("edgerv")), "check", str(doc), str(trace), "--json"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 1, done.stderr
+    (result,) = json.loads(done.stdout)["monitors"]
+    violated = [v for v in result["verdicts"] if v["verdict"] == "violated"]
+    return len(violated), violated[-1]["step"]
 
 
 def handler_pod(cluster: Cluster, namespace: str, tier: str) -> dict[str, Any]:
