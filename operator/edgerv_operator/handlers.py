@@ -305,8 +305,10 @@ def cluster_handlers(
         h = HandlerPod(
             p.node, tier, f"{p.host_ip}:{cfg.port}", p.name, p.incarnation, fleet.robot_of(p.node)
         )
-        # a node whose robot label names no robot serves no one: asked, given nothing
-        ready = p.ready and p.node not in fleet.refused
+        # a node whose robot label names no robot serves no one: asked, given nothing; nor
+        # does a pod whose node is gone (`kubectl delete node`: its pods run on until the
+        # pod garbage collector deletes them), which would otherwise read as a shared node
+        ready = p.ready and p.node not in fleet.refused and p.node in nodes
         (found.leaving if p.leaving else found.ready if ready else found.unready).append(h)
     return found
 

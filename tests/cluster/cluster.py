@@ -29,7 +29,8 @@ What ``up`` does, in order (each step is skipped when already done):
 6. labels ``edgerv.io/tier=edge`` / ``cloud`` (``edge-b`` none: no handler runs there
    until a fleet test labels it); waits until every node is Ready.
 
-``down`` stops everything ``up`` started (recorded in ``.cluster/pids``),
+``rejoin NODE`` restarts a node's kubelet, so that a Node a test deleted (`kubectl
+delete node`) registers again. ``down`` stops everything ``up`` started (recorded in ``.cluster/pids``),
 unmounts what the kubelets and containerds mounted, removes the namespaces and
 cgroups. Traffic stays on this machine: loopback, the veths and the link.
 """
@@ -785,6 +786,46 @@ def _unmount_under(path: Path) -> None:
         subprocess.run(["umount", "-l", point], capture_output=True)
 
 
+def stop(name: str) -> None:
+    """Stop a process ``start`` started (its session: TERM, then KILL after 10 s)."""
+    f = STATE / "pids" / name
+    if not f.exists():
+        return
+    pid = int(f.read_text())
+    try:
+        os.killpg(pid, signal.SIGTERM)
+    except ProcessLookupError:
+        f.unlink()
+        return
+    for _ in range(100):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(pid, signal.SIGKILL)
+    f.unlink()
+
+
+def rejoin(node: str) -> None:
+    """A node whose Node object was deleted (`kubectl delete node`) registers again, as
+    an administrator brings one back: its kubelet restarted (a kubelet registers at its
+    start only), with the labels it registers with."""
+    if node not in NODES:
+        raise RuntimeError(f"no node {node}: the nodes are {', '.join(NODES)}")
+    stop(f"kubelet-{node}")
+    kubelet(node, (STATE / "bin" / "kubectl").resolve().parent)
+    wait(
+        f"node {node} Ready",
+        lambda: kubectl("get", "node", node, "-o", READY).stdout == "True",
+        180,
+        f"kubelet-{node}",
+    )
+    log(f"{node} registered again")
+
+
 def down(quiet: bool = False) -> None:
     pids = STATE / "pids"
     order = ["kubelet-edge", "kubelet-edge-b", "kubelet-cloud", "kube-scheduler",
@@ -797,25 +838,7 @@ def down(quiet: bool = False) -> None:
         else []
     )
     for name in names:
-        f = pids / name
-        if not f.exists():
-            continue
-        pid = int(f.read_text())
-        try:
-            os.killpg(pid, signal.SIGTERM)
-        except ProcessLookupError:
-            f.unlink()
-            continue
-        for _ in range(100):
-            try:
-                os.kill(pid, 0)
-            except ProcessLookupError:
-                break
-            time.sleep(0.1)
-        else:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(pid, signal.SIGKILL)
-        f.unlink()
+        stop(name)
     # processes of this cluster no pid file names (two `up`s at once: the second's pid
     # files replace the first's): every process started with a path in the state directory
     subprocess.run(["pkill", "-9", "-f", f"{STATE}/"], capture_output=True)
@@ -854,7 +877,8 @@ def main() -> int:
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    p.add_argument("action", choices=["up", "down"])
+    p.add_argument("action", choices=["up", "down", "rejoin"])
+    p.add_argument("node", nargs="?", help="rejoin: the node to register again")
     args = p.parse_args()
     if os.geteuid() != 0:
         print("cluster: needs root (network namespaces, containerd, kubelet)", file=sys.stderr)
@@ -865,6 +889,12 @@ def main() -> int:
         except (subprocess.CalledProcessError, RuntimeError, TimeoutError) as exc:
             detail = getattr(exc, "stderr", None) or ""
             print(f"cluster: up failed: {exc}\n{detail}", file=sys.stderr)
+            return 1
+    elif args.action == "rejoin":
+        try:
+            rejoin(args.node or "")
+        except (subprocess.CalledProcessError, RuntimeError, TimeoutError) as exc:
+            print(f"cluster: rejoin failed: {exc}", file=sys.stderr)
             return 1
     else:
         down()

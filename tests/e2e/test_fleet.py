@@ -6,25 +6,34 @@ node. Each robot's publisher runs on its own node, in its own ROS namespace (``/
 One Monitor gives an instance per robot, each on its robot's edge handler; a violation
 published on robot B is B's (its status entry, an Event naming it), A stays clean; the
 placement policy moves B's instance (under pressure) to the cloud while A's stays; a tier
-edit moves both up and each back to its own robot's edge, never the other's; robot B
-leaving (its node's labels removed) removes B's instance and leaves A's as it was.
-(The project's cluster only: it has the node edge-b.)
+edit moves both up and each back to its own robot's edge, never the other's, while each
+robot's counter publishes, and each instance's verdicts equal ``edgerv check`` on its
+robot's messages; robot B's node deleted removes B's instance from the status and from
+every handler and leaves A's as it was. (The project's cluster only: it has the node
+edge-b, and `tests/cluster/cluster.py rejoin` registers it again.)
 """
 
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from edgerv.control.client import HandlerClient
 from kit.chart import (
+    ROOT,
+    TOKEN,
     apply,
     counter_pod,
     counting_monitor,
     expected_verdicts,
+    handler_pod,
+    handler_tls,
     installed,
     monitor,
     running_operator,
@@ -211,23 +220,50 @@ def test_a_tier_edit_moves_every_instance_up_and_each_back_with_exact_verdicts(
     cluster.run("delete", "monitor", "counted", "-n", ns, "--timeout=60s")
 
 
-def test_a_robot_that_leaves_takes_its_instance_and_leaves_the_others_alone(
+def test_a_robot_whose_node_is_removed_loses_its_instance_and_the_others_stay(
     cluster: Cluster, fleet: str
 ) -> None:
+    """`kubectl delete node edge-b`: robot B is gone (its pods run on until the pod
+    garbage collector deletes them, and its handler then serves no one): B's instance is
+    gone from the status and from every handler, A's runs on where it was, not moved nor
+    restarted. (The node registers again afterwards: its kubelet restarted.)"""
     ns = fleet
-    before = on(cluster, ns, "limits", {"amr-a": "edge", "amr-b": "edge-b"})["robots"]["amr-a"]
-    _label(cluster, "edge-b", f"{ROBOT}-", f"{TIER}-")  # robot B leaves the cluster
-    got = until(
-        "B's instance gone",
-        lambda: (s := status(cluster, ns, "limits")).get("desired") == 1 and s,
-        timeout=120,
+    before = on(cluster, ns, "limits", ROBOTS)["robots"]["amr-a"]
+    cloud = HandlerClient(
+        f"{handler_pod(cluster, ns, 'cloud')['status']['hostIP']}:8470",
+        TOKEN,
+        handler_tls(cluster, ns),
     )
-    assert set(got["robots"]) == {"amr-a"}, got
-    a = until(
-        "A going on",
-        lambda: (e := robots_of(cluster, ns, "limits")["amr-a"])["events"] > before["events"] and e,
-    )
-    assert a["handler"] == before["handler"], (before, a)  # not moved, not restarted
-    assert (a.get("migrations") or {}).get("count") == (before.get("migrations") or {}).get("count")
-    assert a["verdicts"]["violated"] == 0, a
-    assert got["phase"] == "Running" and got["running"] == 1, got
+    assert any(m["name"].endswith(".amr-b") for m in cloud.monitors(timeout=10.0))
+    cluster.run("delete", "node", "edge-b", "--timeout=60s")  # robot B's only node
+    try:
+        got = until(
+            "B's instance gone",
+            lambda: (s := status(cluster, ns, "limits")).get("desired") == 1 and s,
+            timeout=120,
+        )
+        assert set(got["robots"]) == {"amr-a"}, got
+        until(
+            "B's instance removed from the cloud's handler",
+            lambda: not [m for m in cloud.monitors(timeout=10.0) if m["name"].endswith(".amr-b")],
+        )
+        a = until(
+            "A going on",
+            lambda: (
+                (e := robots_of(cluster, ns, "limits")["amr-a"])["events"] > before["events"] and e
+            ),
+        )
+        assert a["handler"] == before["handler"], (before, a)  # not moved, not restarted
+        moves = (a.get("migrations") or {}).get("count")
+        assert moves == (before.get("migrations") or {}).get("count"), (before, a)
+        assert a["verdicts"]["violated"] == 0, a
+        got = status(cluster, ns, "limits")
+        assert got["phase"] == "Running" and got["running"] == 1, got
+        header, row = cluster.run("get", "monitors", "limits", "-n", ns).splitlines()[:2]
+        assert row[header.index("ROBOTS") :].split()[0] == "1", (header, row)
+    finally:
+        subprocess.run(
+            [sys.executable, str(ROOT / "tests" / "cluster" / "cluster.py"), "rejoin", "edge-b"],
+            check=True,
+            timeout=300,
+        )

@@ -146,7 +146,7 @@ def test_edgerv_orchestrate_is_told_each_handlers_robot() -> None:
         parse_handlers("edge@Amr_7=10.0.0.2:8470")
 
 
-def test_the_cluster_handlers_know_their_robot_and_a_refused_nodes_runs_nothing() -> None:
+def test_the_cluster_handlers_know_their_robot_and_a_refused_or_deleted_node_runs_nothing() -> None:
     cfg = OperatorConfig.from_env(ENV)
     pods = {
         node: [PodFacts("edgerv", f"h-{node}", node, f"10.0.0.{i}", True, False, f"u{i}")]
@@ -159,6 +159,12 @@ def test_the_cluster_handlers_know_their_robot_and_a_refused_nodes_runs_nothing(
     # "odd" names no robot: it is neither a robot's nor shared; asked, given nothing
     assert [h.node for h in found.unready] == ["odd"]
     assert "odd" not in {h.node for h in found.hosting("amr-7").ready}
+    # jetson-8's Node deleted (its pod runs on until the pod garbage collector comes): not a
+    # shared handler, and robot amr-8 is gone; asked, given nothing
+    gone = {n: [labels] for n, labels in NODES.items() if n != "jetson-8"}
+    found = cluster_handlers(cfg, pods, gone)  # type: ignore[arg-type]
+    assert sorted(h.node for h in found.unready) == ["jetson-8", "odd"]
+    assert "jetson-8" not in {h.node for h in found.hosting("amr-7").ready}
 
 
 def test_a_refresh_patches_only_what_changed() -> None:
