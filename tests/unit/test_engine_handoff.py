@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import random
 from collections.abc import Sequence
 from dataclasses import replace
@@ -330,7 +331,9 @@ def test_a_parked_robot_lets_the_sender_go_a_reorder_window_past_the_cut() -> No
     assert e.release("m", 1, cut=cut, grace=5.0, now=10.5, quiet=quiet) is not None
 
 
-def test_a_slow_topic_the_receiver_heard_goes_once_the_sender_took_all_past_the_cut() -> None:
+def test_a_slow_topic_the_receiver_heard_goes_once_the_sender_took_all_past_the_cut(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     """A 1 Hz topic that brought H2 a message before H2 could vouch for it: H1 need not
     wait for its next message (up to a second: 943 ms of one release in `make demo`)
     once its ROS layer took everything that reached it up to a reorder window and the
@@ -351,8 +354,25 @@ def test_a_slow_topic_the_receiver_heard_goes_once_the_sender_took_all_past_the_
     assert e.release("m", 1, cut=cut, grace=5.0, now=10.1) is None  # under a window + 5 ms
     e.ingest([(99 * ms, "/a", [False])], now=10.2)  # stamped before the cut, come late
     e.drained_at = cut + 25 * ms
-    snap = e.release("m", 1, cut=cut, grace=5.0, now=10.2)
+    with caplog.at_level(logging.INFO, logger="edgerv.handler"):
+        snap = e.release("m", 1, cut=cut, grace=5.0, now=10.2)
     assert snap is not None and False in snap.values  # H1 took it: H2 leaves it to H1
+    # its log line says what it waited for, and how long since it learned the cut
+    assert "released at cut 100000000 (epoch 1) after 100 ms waiting for /a (reach 5 ms)" in (
+        caplog.text
+    )
+
+
+def test_a_release_says_when_grace_let_a_topic_go(caplog: pytest.LogCaptureFixture) -> None:
+    ms = 1_000_000
+    e = Engine("h", flush_after=1e9, reorder_window=0.02)
+    e.put(monitor(), active=True)
+    e.ingest([(1 * ms, "/a", [True]), (2 * ms, "/x", [1.0])], now=10.0)
+    e.hold("m", 1, now=10.0)
+    assert e.release("m", 1, cut=100 * ms, grace=0.5, now=10.0) is None
+    with caplog.at_level(logging.INFO, logger="edgerv.handler"):
+        assert e.release("m", 1, cut=100 * ms, grace=0.5, now=10.5) is not None
+    assert "after 500 ms waiting for /a, /x; grace let go of /a, /x" in caplog.text
 
 
 def test_a_topic_published_after_its_stamps_is_let_go_that_much_later() -> None:

@@ -201,28 +201,31 @@ class HandoffSteps:
             if rt.last_released is not None:
                 cut = max(cut, rt.last_released)
             if slot.cut_known is None or slot.cut_known[0] != cut:
-                slot.cut_known = (cut, now)
+                slot.cut_known, slot.waiting_on = (cut, now), ()
             # (A topic is delivered in order: once an event past the cut came, every event
             # at or before it did, also those that came before the hold.)
             topics = slot.compiled.spec.topics
             newest = [self.newest.get(t, cut) for t in topics]
             quiet_since = max([slot.held_at] + [self.heard.get(t, 0.0) for t in topics])
-            if not (
-                all(
-                    n > cut or self._all_in(cut, t, t in quiet)
-                    for t, n in zip(topics, newest, strict=True)
-                )
-                or max(newest) - cut >= grace * 1e9  # the others ran grace past it: quiet
+            waiting = [
+                t
+                for t, n in zip(topics, newest, strict=True)
+                if not (n > cut or self._all_in(cut, t, t in quiet))
+            ]
+            if waiting and not (
+                max(newest) - cut >= grace * 1e9  # the others ran grace past it: quiet
                 or now - max(slot.cut_known[1], quiet_since) >= grace  # nothing comes
             ):
+                slot.waiting_on = tuple(waiting)
                 return None
             snap = rt.snapshot(cut, epoch)  # rt keeps the events after it
             log.info(
-                "%s: released at cut %d (epoch %d): step %d, %d letters carried, %d events "
-                "and letters after the cut kept",
+                "%s: released at cut %d (epoch %d) %s: step %d, %d letters carried, %d "
+                "events and letters after the cut kept",
                 name,
                 cut,
                 epoch,
+                self._waited(slot, now, waiting),
                 snap.step,
                 len(snap.letters),
                 rt.buffered,
@@ -231,6 +234,21 @@ class HandoffSteps:
             slot.released = snap
             self._set_handoff(slot, RELEASED)
             return snap
+
+    def _waited(self, slot: MonitorSlot, now: float, waiting: list[str]) -> str:
+        """What a release waited for, for its log line: how long since H1 learned the
+        cut, and the topics it last waited for, each with its reach (the most its
+        messages reached H1 after their stamps), or that ``grace`` let them go."""
+        assert slot.cut_known is not None
+        waited = (now - slot.cut_known[1]) * 1e3
+        if not slot.waiting_on:
+            return "at once"
+        topics = ", ".join(
+            f"{t} (reach {self.stamp_lag[t] / 1e6:.0f} ms)" if t in self.stamp_lag else t
+            for t in slot.waiting_on
+        )
+        given_up = f"; grace let go of {', '.join(waiting)}" if waiting else ""
+        return f"after {waited:.0f} ms waiting for {topics}{given_up}"
 
     def _all_in(self, cut: int, topic: str, vouched: bool) -> bool:
         """Nothing of ``topic`` stamped up to ``cut`` is still on its way to this handler:

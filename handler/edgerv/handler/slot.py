@@ -37,6 +37,7 @@ class MonitorSlot:
     vouched: dict[str, int] = field(default_factory=dict)
     quiet: tuple[str, ...] = ()  # H2: the topics the cut it reported vouched for
     cut_known: tuple[int, float] | None = None  # H1: the cut, and when it first heard of it
+    waiting_on: tuple[str, ...] = ()  # H1: the topics its release last waited for
     held_at: float = 0.0  # H1: when it began to hold
     peer: str | None = None  # H1: the receiver, as the driver named it (to settle with)
     handoff_since: float = 0.0  # when it entered its handoff state
