@@ -373,6 +373,16 @@ def test_a_release_says_when_grace_let_a_topic_go(caplog: pytest.LogCaptureFixtu
     with caplog.at_level(logging.INFO, logger="edgerv.handler"):
         assert e.release("m", 1, cut=100 * ms, grace=0.5, now=10.5) is not None
     assert "after 500 ms waiting for /a, /x; grace let go of /a, /x" in caplog.text
+    # at its first look: /x ran grace past the cut, so /a goes; the line says so
+    e = Engine("h", flush_after=1e9, reorder_window=0.02)
+    e.put(monitor(), active=True)
+    e.ingest([(1 * ms, "/a", [True]), (2 * ms, "/x", [1.0])], now=10.0)
+    e.hold("m", 2, now=10.0)
+    e.ingest([(700 * ms, "/x", [2.0])], now=10.0)
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="edgerv.handler"):
+        assert e.release("m", 2, cut=100 * ms, grace=0.5, now=10.0) is not None
+    assert "(epoch 2) after 0 ms waiting for /a; grace let go of /a" in caplog.text
 
 
 def test_a_topic_published_after_its_stamps_is_let_go_that_much_later() -> None:

@@ -241,11 +241,11 @@ class HandoffSteps:
         messages reached H1 after their stamps), or that ``grace`` let them go."""
         assert slot.cut_known is not None
         waited = (now - slot.cut_known[1]) * 1e3
-        if not slot.waiting_on:
+        if not slot.waiting_on and not waiting:
             return "at once"
         topics = ", ".join(
             f"{t} (reach {self.stamp_lag[t] / 1e6:.0f} ms)" if t in self.stamp_lag else t
-            for t in slot.waiting_on
+            for t in slot.waiting_on or waiting
         )
         given_up = f"; grace let go of {', '.join(waiting)}" if waiting else ""
         return f"after {waited:.0f} ms waiting for {topics}{given_up}"
