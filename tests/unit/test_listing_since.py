@@ -173,3 +173,49 @@ def test_a_handler_that_keeps_no_cursor_is_read_whole_each_time() -> None:
         assert client.monitors() == []
     finally:
         served.stop()
+
+
+OPERATIONS = st.lists(
+    st.tuples(
+        st.sampled_from(["put", "put-idle", "remove", "on", "off", "read"]), st.integers(0, 4)
+    ),
+    min_size=1,
+    max_size=15,
+)
+
+
+@settings(max_examples=40, deadline=None)
+@given(OPERATIONS)
+def test_two_clients_of_a_real_handler_each_hold_its_whole_listing(
+    operations: list[tuple[str, int]],
+) -> None:
+    """Monitors defined, redefined, removed, started and stopped on a real handler's API
+    between the reads of two clients (one reads after every change, the other only at
+    some): each client's merged listing and load report equal what a client without a
+    cursor reads."""
+    engine = Engine("h", flush_after=1e9)
+    served = ControlApi(engine, CollectorRegistry(), "t", on_change=lambda: None)
+    served.start("127.0.0.1", 0)
+    try:
+        address = f"127.0.0.1:{served.port}"
+        eager, lazy = HandlerClient(address, "t"), HandlerClient(address, "t")
+        for kind, i in operations:
+            name = f"m{i}"
+            if kind in ("put", "put-idle"):
+                signal = "a" if i % 2 else "b"
+                engine.put(
+                    compiled(f"always ({signal})", {signal: "bool"}, name=name),
+                    active=kind == "put",
+                )
+            elif kind == "remove":
+                engine.remove(name)
+            elif name in engine.slots:
+                engine.set_active(name, kind == "on")
+            readers = [eager, lazy] if kind == "read" else [eager]
+            for client in readers:
+                fresh = HandlerClient(address, "t")
+                key = lambda m: m["name"]  # noqa: E731
+                assert sorted(client.monitors(), key=key) == sorted(fresh.monitors(), key=key)
+                assert client.load()["monitors"] == fresh.load()["monitors"]
+    finally:
+        served.stop()
