@@ -30,9 +30,9 @@ What ``up`` does, in order (each step is skipped when already done):
    until a fleet test labels it); waits until every node is Ready.
 
 ``rejoin NODE`` restarts a node's kubelet, so that a Node a test deleted (`kubectl
-delete node`) registers again. ``down`` stops everything ``up`` started (recorded in ``.cluster/pids``),
-unmounts what the kubelets and containerds mounted, removes the namespaces and
-cgroups. Traffic stays on this machine: loopback, the veths and the link.
+delete node`) registers again. ``down`` stops everything ``up`` started (recorded in
+``.cluster/pids``), unmounts what the kubelets and containerds mounted, removes the
+namespaces and cgroups. Traffic stays on this machine: loopback, the veths and the link.
 """
 
 from __future__ import annotations
