@@ -99,7 +99,9 @@ def test_ten_robots_share_a_cloud_each_instance_moving_up_and_home_to_its_own_ro
     (tmp_path / "all.yaml").write_text("---\n".join(docs.values()))
 
     def edge(r: str) -> HandlerProcess:
-        deadline = f"{ros_namespace(r)}/cmd=100ms"
+        # every other robot's edge handler is given the chart's form, a relative topic:
+        # the robot's, from the instance it runs (/amr_0/cmd); the others the absolute one
+        deadline = "cmd=100ms" if ROBOTS.index(r) % 2 == 0 else f"{ros_namespace(r)}/cmd=100ms"
         return HandlerProcess(
             tmp_path, tmp_path / f"{r}.json", domain, "--deadline", deadline, name=f"edge-{r}"
         )
@@ -140,6 +142,19 @@ def test_ten_robots_share_a_cloud_each_instance_moving_up_and_home_to_its_own_ro
         assert wait_for(lambda: active(cloud) == up, timeout=90), (active(cloud), cloud.stderr)
         for r, h in edges.items():
             assert active(h) == (set() if r in LATE else {instance(r)}), r
+            # each edge measures its own robot's /NS/cmd, the relative ones too (once its
+            # graph shows the publisher: the subscription is made then)
+            reading = (
+                wait_for(
+                    lambda h=h: (
+                        (d := h.request("GET", "/v1/load")[1]["deadline"])["messagesTotal"] and d
+                    ),
+                    timeout=30,
+                )
+                or h.request("GET", "/v1/load")[1]["deadline"]
+            )
+            assert reading["topic"] == f"{ros_namespace(r)}/cmd", (r, reading, h.stderr)
+            assert reading["messagesTotal"] > 0, (r, reading, h.stderr)
         robot.send_signal(signal.SIGUSR1)  # on time again: each comes home
         home = wait_for(
             lambda: not active(cloud) and all(active(h) == {instance(r)} for r, h in edges.items()),

@@ -12,9 +12,12 @@ from prometheus_client import generate_latest
 from edgerv.core.cdr import header_stamp_ns
 from edgerv.core.deadline import DeadlineOption, MakespanWindow, parse_deadline, percentile
 from edgerv.core.diagnostics import InputError
+from edgerv.core.documents import load_monitors_text
+from edgerv.core.monitor import CompiledMonitor, compile_monitor
 from edgerv.core.msgtypes import starts_with_header, typestore
 from edgerv.handler.engine import Engine
 from edgerv.handler.metrics import build_registry
+from edgerv_operator.documents import document_text, instance_document
 
 MS = 1_000_000
 S = 1_000_000_000
@@ -22,7 +25,8 @@ S = 1_000_000_000
 
 def test_the_option_reads_a_topic_and_a_duration_of_the_assertion_language() -> None:
     assert parse_deadline("/cmd_vel=125ms") == DeadlineOption("/cmd_vel", 125 * MS)
-    assert parse_deadline("cmd_vel = 0.1s") == DeadlineOption("/cmd_vel", 100 * MS)
+    # a relative name: the robot's (a handler running no robot's monitors: the root's)
+    assert parse_deadline("cmd_vel = 0.1s") == DeadlineOption("/cmd_vel", 100 * MS, True)
     assert parse_deadline("/a/b=1500us") == DeadlineOption("/a/b", 1_500_000)
 
 
@@ -193,3 +197,41 @@ def test_the_load_report_and_the_metrics_carry_the_reading() -> None:
     assert 'edgerv_deadline_misses_total{topic="/cmd_vel"} 5.0' in text
     assert 'edgerv_deadline_messages_total{topic="/cmd_vel"} 10.0' in text
     assert 'edgerv_deadline_budget_seconds{topic="/cmd_vel"} 0.125' in text
+
+
+def instance(robot: str) -> CompiledMonitor:
+    """An instance of a Monitor for ``robot``, as the operator writes it."""
+    signal = {"topic": "/a", "type": "std_msgs/msg/Bool"}
+    spec = {"assertion": "always (data)", "signals": {"data": signal}}
+    text = document_text(instance_document("lab", "m", spec, robot))
+    return compile_monitor(load_monitors_text("instance.json", text)[0])
+
+
+def test_a_relative_topic_is_measured_in_the_namespace_of_the_robot_whose_monitors_run(
+) -> None:  # fmt: skip
+    """``--deadline cmd_vel=125ms`` on a fleet's edge handler: the robot's /amr_7/cmd_vel,
+    the robot being the one whose instances the handler runs (a handler running no robot's
+    monitors, or several robots': the root's /cmd_vel). An absolute name is as given."""
+    option = parse_deadline("cmd_vel=125ms")
+    assert option.relative and not parse_deadline("/cmd_vel=125ms").relative
+    window = MakespanWindow(option.topic, option.budget_ns, relative=True)
+    assert (window.resolved(None), window.resolved("/amr_7")) == ("/cmd_vel", "/amr_7/cmd_vel")
+    assert MakespanWindow("/cmd_vel", 125 * MS).resolved("/amr_7") == "/cmd_vel"
+    engine = Engine("edge", flush_after=1e9)
+    assert engine.robot_namespace() is None
+    engine.put(instance("amr-7"), active=False)
+    assert engine.robot_namespace() == "/amr_7"
+    engine.put(instance("amr-8"), active=True)
+    assert engine.robot_namespace() is None  # several robots': a shared handler's
+    engine.remove("lab.m.amr-8")
+    assert engine.robot_namespace() == "/amr_7"
+
+
+def test_a_window_moved_to_another_topic_starts_empty_and_keeps_its_totals() -> None:
+    window = MakespanWindow("/cmd_vel", 100 * MS, relative=True)
+    now = time.monotonic_ns()
+    window.add(10 * S, 10 * S - 150 * MS, now)
+    window.retarget("/amr_7/cmd_vel")
+    report = window.report(now)
+    assert (report["topic"], report["count"], report["missesTotal"]) == ("/amr_7/cmd_vel", 0, 1)
+    assert window.name == "/cmd_vel"  # as --deadline named it

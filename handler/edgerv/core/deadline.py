@@ -37,6 +37,9 @@ class DeadlineOption:
 
     topic: str
     budget_ns: int
+    # written without a leading "/" (``cmd_vel=125ms``): in the namespace of the robot
+    # whose monitors the handler runs, as a ROS node resolves a relative name in its own
+    relative: bool = False
 
 
 def parse_deadline(text: str, flag: str = "--deadline") -> DeadlineOption:
@@ -57,7 +60,7 @@ def parse_deadline(text: str, flag: str = "--deadline") -> DeadlineOption:
         )
     if budget <= 0:
         raise _bad(flag, f"the deadline of {name} must be longer than 0, not {duration}")
-    return DeadlineOption(name, budget)
+    return DeadlineOption(name, budget, relative=not topic.startswith(("/", "~")))
 
 
 def _bad(flag: str, message: str, hint: str | None = None) -> InputError:
@@ -118,10 +121,13 @@ class MakespanWindow:
         budget_ns: int,
         window_ns: int = WINDOW_NS,
         max_entries: int = MAX_ENTRIES,
+        relative: bool = False,
     ) -> None:
         if budget_ns <= 0 or window_ns <= 0:
             raise ValueError("the budget and the window must be longer than 0")
-        self.topic = topic
+        self.topic = topic  # the topic measured now
+        self.name = topic  # as --deadline named it (absolute)
+        self.relative = relative  # (DeadlineOption.relative)
         self.budget_ns = budget_ns
         self.window_ns = window_ns
         self._entries: deque[tuple[int, int]] = deque(maxlen=max_entries)  # (published, span)
@@ -152,6 +158,20 @@ class MakespanWindow:
         if missed and self.on_miss is not None:
             self.on_miss()
         return True
+
+    def retarget(self, topic: str) -> None:
+        """Measure ``topic`` from now on: the makespans read so far leave the window (they
+        were another topic's); the totals since the handler started stay."""
+        with self._lock:
+            self.topic = topic
+            self._entries.clear()
+            self._newest = None
+
+    def resolved(self, namespace: str | None) -> str:
+        """The topic to measure for a handler running the monitors of the robot of
+        ``namespace`` (None: no robot's, or several robots'): a relative name is
+        resolved in it, an absolute one is as given."""
+        return f"{namespace}{self.name}" if self.relative and namespace else self.name
 
     def _evict(self, now_ns: int) -> None:
         if self._newest is None:

@@ -39,6 +39,7 @@ from edgerv.core.handoff import HandoffError
 from edgerv.core.monitor import CompiledMonitor, compile_monitor
 from edgerv.core.pipeline import MonitorRuntime, Router, TopicRoute, Verdict
 from edgerv.core.reactions import Reaction
+from edgerv.core.robots import ros_namespace
 from edgerv.handler.budget import MemoryBudget, monitor_cost
 from edgerv.handler.clock import Clock, SystemClock
 from edgerv.handler.handoff_state import HandoffState
@@ -160,6 +161,7 @@ class Engine(HandoffSteps):
         self._definitions: dict[str, tuple[CompiledMonitor, PlacementJson, list[str]]] = {}
         self.router = Router()
         self.routes_version = 0  # bumped whenever topics or their fields change
+        self._robots: tuple[int, frozenset[str]] | None = None  # (routes_version, robots)
         self.messages: dict[str, int] = {}  # topic -> messages ingested
         self.lost: dict[str, int] = {}  # topic -> messages the middleware lost (ROS layer's)
         # topic -> CPU ns the ROS layer spent taking and decoding its messages (the load
@@ -270,6 +272,22 @@ class Engine(HandoffSteps):
                 self._activate(slot)
             self.routes_version += 1
             return old is None
+
+    def robot_namespace(self) -> str | None:
+        """The ROS namespace of the one robot whose monitors this handler runs (their
+        documents' robot label, as the operator writes it: a fleet's edge handler runs
+        its own robot's); None when it runs no robot's, or several robots' (a shared
+        handler). A relative ``--deadline`` topic is resolved in it."""
+        with self.lock:
+            if self._robots is None or self._robots[0] != self.routes_version:
+                robots = frozenset(
+                    r
+                    for s in self.slots.values()
+                    if (r := s.compiled.spec.placement.robot) is not None
+                )
+                self._robots = (self.routes_version, robots)
+            robots = self._robots[1]
+        return ros_namespace(next(iter(robots))) if len(robots) == 1 else None
 
     def remove(self, name: str) -> bool:
         with self.lock:

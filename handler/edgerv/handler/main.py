@@ -222,7 +222,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="TOPIC=DURATION",
         help="the robot's real-time task publishes its outputs on TOPIC, each stamped "
         "(header.stamp) with the capture of its input; measure its makespan (publication "
-        "minus stamp) against DURATION (e.g. /cmd_vel=125ms) and report it in /v1/load",
+        "minus stamp) against DURATION (e.g. /cmd_vel=125ms) and report it in /v1/load; "
+        "a relative TOPIC (cmd_vel=125ms) is the robot's: in the ROS namespace of the "
+        "robot whose monitors this handler runs (a fleet's edge handler)",
     )
     add_budget_argument(p)
     p.add_argument(
@@ -478,7 +480,11 @@ def run(args: argparse.Namespace) -> int:
         flush_after=args.flush_after,
         type_check=type_problem,
         reorder_window=window,
-        deadline=MakespanWindow(deadline.topic, deadline.budget_ns) if deadline else None,
+        deadline=(
+            MakespanWindow(deadline.topic, deadline.budget_ns, relative=deadline.relative)
+            if deadline
+            else None
+        ),
         clock=clock,
     )
     lines = None

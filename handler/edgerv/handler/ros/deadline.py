@@ -42,6 +42,13 @@ class DeadlineTopic:
         self.msg_type: str | None = None  # from the ROS graph, once a publisher shows it
         self.subscription: Any = None  # made in the take loop's thread once the type is known
         self.given_up = False  # a type without a header, or several: no deadline data
+        self.target: str | None = None  # another topic to measure (the take loop moves to it)
+        # (a relative --deadline: the robot whose monitors it runs says which topic)
+        self.namespace: Callable[[], str | None] = lambda: None
+
+    @property
+    def moving(self) -> bool:
+        return self.target is not None
 
     @property
     def pending(self) -> bool:
@@ -51,7 +58,13 @@ class DeadlineTopic:
         """In the graph thread, each second until a publisher shows it: the deadline topic's
         type. One that does not start with a std_msgs/msg/Header is an error, logged once:
         the handler goes on without deadline data."""
-        if self.msg_type is not None or self.given_up:
+        if self.window.relative and self.target is None:
+            wanted = self.window.resolved(self.namespace())
+            if wanted != self.window.topic:  # the take loop moves to it, then it is learnt
+                self.target = wanted
+                self.wake()
+                return
+        if self.msg_type is not None or self.given_up or self.target is not None:
             return
         topic = self.window.topic
         types = sorted({p.topic_type for p in self.node.get_publishers_info_by_topic(topic)})
@@ -73,6 +86,21 @@ class DeadlineTopic:
             return
         self.msg_type = types[0]
         self.wake()  # the take loop subscribes
+
+    def move(self) -> None:
+        """In the take loop's thread: measure the topic :meth:`learn_type` resolved (the
+        relative --deadline's, in the namespace of the robot whose monitors now run
+        here): the old subscription goes, the new topic's type is learnt afresh."""
+        target = self.target
+        if target is None:
+            return
+        if self.subscription is not None:  # (the wait set holds its handle until rebuilt)
+            self.node.destroy_subscription(self.subscription)
+            self.subscription = None
+        log.info("deadline: --deadline %s is %s here", self.window.name.lstrip("/"), target)
+        self.window.retarget(target)
+        self.msg_type, self.given_up = None, False
+        self.target = None  # (last: the graph thread resolves again only from here on)
 
     def subscribe(self) -> None:
         """In the take loop's thread: the deadline topic's own raw subscription."""

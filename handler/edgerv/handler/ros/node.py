@@ -96,6 +96,8 @@ class HandlerNode:
             if engine.deadline is not None
             else None
         )
+        if self.deadline is not None:
+            self.deadline.namespace = engine.robot_namespace
         self.take = TakeLoop(
             self.node,
             engine,

@@ -237,6 +237,9 @@ class TakeLoop:
             while not self._stop.is_set():
                 if subscriptions.resubscribing and subscriptions.resubscribe():
                     version = None  # a subscription was re-created: rebuild the wait set
+                if deadline is not None and deadline.moving:
+                    deadline.move()  # (its subscription goes: the wait set is rebuilt)
+                    version = None
                 if deadline is not None and deadline.pending:
                     deadline.subscribe()
                     version = None
