@@ -8,7 +8,10 @@ published on robot B is B's (its status entry, an Event naming it), A stays clea
 placement policy moves B's instance (under pressure) to the cloud while A's stays; a tier
 edit moves both up and each back to its own robot's edge, never the other's, while each
 robot's counter publishes, and each instance's verdicts equal ``edgerv check`` on its
-robot's messages; robot B's node deleted removes B's instance from the status and from
+robot's messages; robot B's real-time task late past its edge handler's deadline (the
+chart's relative `--deadline cmd=100ms`, its robot's /amr_b/cmd) moves B's instance up by
+the policy and home once on time, A's staying, with B's verdicts exact; robot B's node
+deleted removes B's instance from the status and from
 every handler and leaves A's as it was. (The project's cluster only: it has the node
 edge-b, and `tests/cluster/cluster.py rejoin` registers it again.)
 """
@@ -39,11 +42,14 @@ from kit.chart import (
     running_operator,
     status,
     talker_pod,
+    task_pod,
     until,
 )
 from kit.kube import Cluster
 
 ROBOTS = {"amr-a": "edge", "amr-b": "edge-b"}  # robot -> its node
+DEADLINE = "cmd=100ms"  # each edge handler's --deadline: its own robot's /NS/cmd
+TRIP = 6000  # messages of B's counter while its instance goes up and home: 120 s
 ROBOT = "edgerv.io/robot"
 TIER = "edgerv.io/tier"
 
@@ -63,7 +69,12 @@ def fleet(cluster: Cluster) -> Iterator[str]:
     _label(cluster, "edge", f"{ROBOT}=amr-a")
     _label(cluster, "edge-b", f"{ROBOT}=amr-b", f"{TIER}=edge")
     try:
-        with installed(cluster) as ns:
+        # every robot's edge handler measures its own robot's task, given the relative form
+        deadline = (
+            "handler.tiers.edge.extraArgs[0]=--deadline",
+            f"handler.tiers.edge.extraArgs[1]={DEADLINE}",
+        )
+        with installed(cluster, *deadline) as ns:
             for robot, node in ROBOTS.items():
                 fast = robot == "amr-b"
                 apply(
@@ -218,6 +229,55 @@ def test_a_tier_edit_moves_every_instance_up_and_each_back_with_exact_verdicts(
     for robot in ROBOTS:
         cluster.run("delete", "pod", f"counter-{robot}", "-n", ns, "--wait=false")
     cluster.run("delete", "monitor", "counted", "-n", ns, "--timeout=60s")
+
+
+def test_a_late_robots_instance_goes_up_by_its_deadline_and_home_with_exact_verdicts(
+    cluster: Cluster, fleet: str, tmp_path: Path
+) -> None:
+    """Robot B's real-time task runs late (its outputs /amr_b/cmd 140 ms after their
+    inputs, past B's edge handler's 100 ms deadline) for 30 s, then on time: the
+    placement policy moves B's instance to the cloud by the deadline and brings it home
+    to B's edge once calm, while A's stays where it was; B's counter publishes all the
+    while, and B's verdicts equal ``edgerv check`` on what it published."""
+    ns = fleet
+    apply(cluster, ns, counting_monitor("tripped"))
+    on(cluster, ns, "tripped", ROBOTS)
+    b = {"kubernetes.io/hostname": ROBOTS["amr-b"]}
+    apply(cluster, ns, counter_pod(cluster, "trip-counter", "/amr_b/e2e/count", b, TRIP))
+    apply(cluster, ns, task_pod(cluster, "task-amr-b", "/amr_b/cmd", b, late=30))
+    try:
+        up = on(cluster, ns, "tripped", {"amr-a": "edge", "amr-b": "cloud"})
+        assert up["robots"]["amr-b"]["migrations"]["last"]["reason"] == "deadline", up
+        until(
+            "B's instance moved home",
+            lambda: (
+                (robots_of(cluster, ns, "tripped")["amr-b"].get("migrations") or {}).get("count")
+                == 2
+            ),
+            timeout=240,
+        )
+        home = on(cluster, ns, "tripped", ROBOTS)
+        assert home["robots"]["amr-b"]["migrations"]["last"]["reason"] == "calm below", home
+        assert "migrations" not in home["robots"]["amr-a"], home  # A stayed
+        violations, last_step = expected_verdicts(tmp_path, TRIP)
+        got = until(
+            "every message of B evaluated",
+            lambda: (
+                (e := robots_of(cluster, ns, "tripped")["amr-b"])
+                .get("lastVerdict", {})
+                .get("step", 0)
+                >= last_step
+                and e
+            ),
+            timeout=180,
+        )
+        assert got["verdicts"]["violated"] == violations, got  # none lost, none twice
+        assert got["lastVerdict"]["step"] == last_step, got
+    finally:
+        for pod in ("trip-counter", "task-amr-b"):
+            cluster.run("delete", "pod", pod, "-n", ns, "--wait=false")
+        cluster.run("delete", "monitor", "tripped", "-n", ns, "--timeout=60s")
+    on(cluster, ns, "limits", ROBOTS)  # B's other instances home too
 
 
 def test_a_robot_whose_node_is_removed_loses_its_instance_and_the_others_stay(

@@ -165,13 +165,41 @@ COUNT = 2500  # 50 s at 50 messages/s: the moves happen meanwhile
 
 
 def counter_pod(
-    cluster: Cluster, name: str, topic: str = "/e2e/count", node: dict[str, str] | None = None
+    cluster: Cluster,
+    name: str,
+    topic: str = "/e2e/count",
+    node: dict[str, str] | None = None,
+    count: int = COUNT,
 ) -> dict[str, Any]:
     """A pod publishing ``topic`` reliably once a handler subscribes: 0, 1, ... 99, 0, ...
-    COUNT messages every 20 ms, then 0s (on the node ``node`` selects; default: the edge
-    tier's)."""
+    ``count`` messages every 20 ms, then 0s (on the node ``node`` selects; default: the
+    edge tier's)."""
     pod = talker_pod(cluster, name=name, node=node)
-    pod["spec"]["containers"][0]["command"] = ["python3", "-c", COUNTER, topic, str(COUNT)]
+    pod["spec"]["containers"][0]["command"] = ["python3", "-c", COUNTER, topic, str(count)]
+    return pod
+
+
+TASK = """
+import sys, time, rclpy
+from geometry_msgs.msg import TwistStamped
+topic, late = sys.argv[1], float(sys.argv[2])
+rclpy.init(); node = rclpy.create_node("e2e_task")
+pub = node.create_publisher(TwistStamped, topic, 10)
+start = time.monotonic()
+while True:  # each output stamped with its input's capture: 140 ms old while late
+    age = 0.140 if time.monotonic() - start < late else 0.050
+    m = TwistStamped(); m.header.frame_id = "camera"
+    m.header.stamp.sec, m.header.stamp.nanosec = divmod(time.time_ns() - int(age * 1e9), 10**9)
+    pub.publish(m); time.sleep(0.05)
+"""
+
+
+def task_pod(cluster: Cluster, name: str, topic: str, node: dict[str, str], late: float) -> Any:
+    """A robot's real-time task: its outputs on ``topic`` (geometry_msgs/TwistStamped,
+    every 50 ms), each published 140 ms after the capture its stamp says for ``late``
+    seconds (past a 100 ms deadline), then 50 ms after (on time)."""
+    pod = talker_pod(cluster, name=name, node=node)
+    pod["spec"]["containers"][0]["command"] = ["python3", "-c", TASK, topic, str(late)]
     return pod
 
 
@@ -189,15 +217,15 @@ def counting_monitor(name: str) -> dict[str, Any]:
     return doc
 
 
-def expected_verdicts(tmp: Path) -> tuple[int, int]:
-    """``edgerv check`` on the messages the counter publishes first: (violations, the
-    last one's step)."""
+def expected_verdicts(tmp: Path, count: int = COUNT) -> tuple[int, int]:
+    """``edgerv check`` on the ``count`` messages the counter publishes first:
+    (violations, the last one's step)."""
     trace = tmp / "count.jsonl"
     trace.write_text(
         "".join(
             json.dumps({"topic": "/e2e/count", "stamp": i * 20_000_000, "msg": {"data": i % 100}})
             + "\n"
-            for i in range(COUNT)
+            for i in range(count)
         )
     )
     spec = counting_monitor("offline")["spec"]
