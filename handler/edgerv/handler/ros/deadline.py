@@ -55,9 +55,11 @@ class DeadlineTopic:
         return self.msg_type is not None and self.subscription is None and not self.given_up
 
     def learn_type(self) -> None:
-        """In the graph thread, each second until a publisher shows it: the deadline topic's
-        type. One that does not start with a std_msgs/msg/Header is an error, logged once:
-        the handler goes on without deadline data."""
+        """In the graph thread, each second: a relative topic resolved again (another
+        robot's monitors here: the take loop moves to its topic, :meth:`move`); until a
+        publisher shows it, the topic's type. One that does not start with a
+        std_msgs/msg/Header is an error, logged once: the handler goes on without
+        deadline data."""
         if self.window.relative and self.target is None:
             wanted = self.window.resolved(self.namespace())
             if wanted != self.window.topic:  # the take loop moves to it, then it is learnt
