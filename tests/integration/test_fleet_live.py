@@ -40,7 +40,7 @@ SPEC: dict[str, Any] = {
 # task's output /NS/cmd, stamped 140 ms before it is published while late (the deadline
 # is 100 ms), 50 ms after SIGUSR1; every 50 ms. The speeds are recorded as a trace.
 ROBOT = r"""
-import json, signal, sys, time, rclpy
+import json, signal, sys, time, rclpy, rclpy.signals
 from geometry_msgs.msg import TwistStamped
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64
@@ -48,7 +48,9 @@ robots, late, out = sys.argv[1].split(","), set(sys.argv[2].split(",")), sys.arg
 state = {"late": True, "stop": False}
 signal.signal(signal.SIGUSR1, lambda *_: state.update(late=False))
 signal.signal(signal.SIGTERM, lambda *_: state.update(stop=True))
-rclpy.init()
+# (rclpy's own SIGTERM handler would shut its context down: a publish after it raises,
+# and the recording below would never be written)
+rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
 node = rclpy.create_node("fleet")
 ns = {r: "/" + r.replace("-", "_") for r in robots}
 reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
@@ -186,6 +188,10 @@ def test_ten_robots_share_a_cloud_each_instance_moving_up_and_home_to_its_own_ro
             for end in (m["from"], m["to"]):
                 assert where.get(end.removeprefix("http://"), robot_of) == robot_of, m
     # every instance's verdicts, over its edge and the cloud, are edgerv check's
+    assert robot.returncode == 0 and (tmp_path / "rec").exists(), (
+        robot.returncode,
+        robot.stderr.read() if robot.stderr else "",
+    )
     for r, h in edges.items():
         trace = tmp_path / f"{r}.jsonl"
         lines = (tmp_path / "rec").read_text().splitlines()
