@@ -275,4 +275,6 @@ def test_events_up_to_the_cut_that_reach_h2_after_the_adoption_are_ignored() -> 
     h2 = MonitorRuntime.restored(m, decode(encode(h1.snapshot(cut=3, epoch=1))), [])
     assert [v.step for v in h2.evaluate()] == [2]  # x=9 while a: violated at step 2
     assert h2.offer(3, 9, update(m, "/x", 9.0)) is False  # stamped at the cut: H1's, not again
-    assert h2.offer(4, 10, update(m, "/x", 1.0)) is True
+    assert h2.step == 2 and not h2.letters
+    h2.offer(4, 10, update(m, "/x", 1.0))  # after it: taken (its letter walked at once)
+    assert h2.step + len(h2.letters) == 3

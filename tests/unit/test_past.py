@@ -147,6 +147,7 @@ def edgerv_steps(text: str, run_: list[tuple[str, int, bool]], end: int) -> list
     """(stamp, truth) of ``text`` at each step edgerv takes over the run (``always``
     reports each step where it is false)."""
     rt = MonitorRuntime(compiled(f"always {text}", BOOLS))
+    rt.plain = False  # every step's letter kept, to be read (a plain one walks its own)
     for seq, (topic, stamp, value) in enumerate(run_):
         rt.offer(stamp, seq, [(0 if topic == "/a" else 1, value)])
     rt.advance(end)

@@ -28,6 +28,7 @@ from edgerv.core.documents import QosSpec
 from edgerv.core.language.past import Derived, Past
 from edgerv.core.monitor import AGE_CMP, EDGES, AtomRead, CompiledMonitor, TimedAtom
 from edgerv.core.msgtypes import ABSENT, ValueKind, make_getter, optional_steps, path_keys
+from edgerv.core.plain_step import PlainPlan, TopicAtoms, plain_plan
 from edgerv.core.snapshot import HandoffError, Snapshot, deciding_steps, runs_of
 
 VerdictKind = Literal["violated", "satisfied"]
@@ -327,6 +328,14 @@ class MonitorRuntime:
     plain: bool = field(default=False, init=False)
     atom_funcs: Any = field(default=None, init=False)  # (the monitor's, for that step)
     atoms_of_signal: Any = field(default=None, init=False)
+    # its table's rows, letter width and first verdict state, for that step: a letter
+    # with none before it waiting is walked at once when it reaches no verdict
+    rows: Any = field(default=None, init=False)
+    table_bits: int = field(default=0, init=False)
+    live: int = field(default=0, init=False)
+    # events that step taken since it was made (its host counts the others as it admits
+    # them: MonitorSlot.events adds these; not in a snapshot)
+    taken: int = field(default=0, init=False, compare=False)
     # the CPU (ns) its host measured spending on it since it was made: taking its events
     # and evaluating them (a handler's estimate from sampled timings; not in a snapshot)
     cost_ns: float = field(default=0.0, init=False, compare=False, repr=False)
@@ -364,11 +373,49 @@ class MonitorRuntime:
             self.clock is None and self.past is None and self.derived is None and not self.held
         )
         self.atom_funcs, self.atoms_of_signal = m.atom_funcs, m.atoms_of_signal
+        self.rows, self.table_bits, self.live = m.table.table, m.table.bits, m.table.live
 
     @property
     def buffered(self) -> int:
         """Events held in the event buffer plus letters not yet evaluated."""
         return len(self.events) + len(self.letters)
+
+    @property
+    def walks(self) -> bool:
+        """It walks its letters as they are made, up to one that reaches a verdict (which
+        waits to be evaluated, and the letters after it): a plain monitor taking its
+        events as they come, running (Router.offer_values; after a long batch,
+        :meth:`walk_quiet`)."""
+        return self.plain and self.threshold == 1 and not self.holding and not self.halted
+
+    @property
+    def steps_at_once(self) -> bool:
+        """It :attr:`walks` and nothing waits: it takes each event, whatever its buffer's
+        capacity, until a letter reaches a verdict."""
+        return self.walks and not self.letters and not self.events
+
+    def walk_quiet(self) -> None:
+        """Walk the letters that wait, from the first, up to the first that reaches a
+        verdict (what :meth:`evaluate` does with them; they report nothing): what a
+        monitor that :attr:`steps_at_once` gives offered the same events one by one."""
+        letters = self.letters
+        rows, bits, live, state = self.rows, self.table_bits, self.live, self.state
+        i, n = 0, len(letters)
+        while i < n:
+            letter = letters[i]
+            new = rows[(state << bits) | letter]
+            if new >= live:
+                break
+            i += 1
+            if new == state:  # it stays: so does the rest of the run of this letter
+                while i < n and letters[i] == letter:
+                    i += 1
+            state = new
+        if i:
+            self.state = state
+            self.step += i
+            del letters[:i]
+            del self.stamps[:i]
 
     @property
     def status(self) -> MonitorState:
@@ -392,8 +439,14 @@ class MonitorRuntime:
                 self.late_events += 1
             self.last_released = stamp
             self._compress_one(stamp, updates, self.letters, self.stamps)
-            return not self.missing
+            return self._walked() if self.plain else not self.missing
         return self.offer_event((stamp, seq, updates))
+
+    def _walked(self) -> bool:
+        """(A plain monitor's letter just made: walked, with those before it, unless it
+        reaches a verdict; whether letters wait to be evaluated.)"""
+        self.walk_quiet()
+        return bool(self.letters)
 
     def _offer_held(self, stamp: int, seq: int, updates: Sequence[Update]) -> bool:
         """:meth:`offer` of a monitor with a signal read through an optional: an update
@@ -412,7 +465,7 @@ class MonitorRuntime:
                 self.late_events += 1
             self.last_released = stamp
             self._compress_one(stamp, updates, self.letters, self.stamps)
-            return not self.missing
+            return self._walked() if self.plain else not self.missing
         events = self.events
         if not events or stamp >= events[-1][0]:
             events.append(event)
@@ -443,6 +496,28 @@ class MonitorRuntime:
             return False
         self.take_arrivals(arrivals)
         return len(self.letters) > 0
+
+    def take_walking(self, arrivals: Arrivals, capacity: int) -> tuple[int, bool]:
+        """:meth:`take_arrivals` for a monitor that :attr:`walks`, as offering the events
+        one at a time does: its letters walked as they are made, up to one that reaches
+        a verdict. While no letter waits it takes every event its buffer has room for (a
+        walked letter leaves none): the events a chunk at a time, as many a chunk as the
+        buffer has room for with no letter, each chunk's letters walked; from a letter
+        that reaches a verdict on, the buffer fills as take_arrivals fills it. Returns
+        the events taken, and whether letters wait to be evaluated."""
+        if self.letters:
+            self.walk_quiet()  # (what one at a time does before the first event)
+        taken, rest = 0, arrivals
+        while self.walks and not self.letters:
+            room = capacity - len(self.events)
+            if room <= 0 or len(rest.stamps) <= room:
+                break
+            head, rest = (rest if rest.columnar else rest.as_arrays()).split(room)
+            taken += self.take_arrivals(head, capacity)[0]
+            self.walk_quiet()
+        taken += self.take_arrivals(rest, capacity)[0]
+        self.walk_quiet()
+        return taken, bool(self.letters)
 
     def take_arrivals(self, arrivals: Arrivals, capacity: int | None = None) -> tuple[int, bool]:
         """:meth:`offer_arrivals` into a buffer that holds at most ``capacity`` events
@@ -1291,6 +1366,24 @@ class TopicRoute:
     # share one get one event tuple per message
     bindings: list[tuple[tuple[int, int], ...]] = field(default_factory=list)
     readers: list[tuple[MonitorRuntime, int]] = field(default_factory=list)  # (rt, binding)
+    # each reader's plan when it is plain and takes its events as they come (else None),
+    # over the topic's distinct atoms: Router.offer_values's step of such a monitor
+    plans: list[PlainPlan | None] = field(default_factory=list)
+    atoms: TopicAtoms = field(default_factory=TopicAtoms)
+
+    def add_reader(self, runtime: MonitorRuntime, binding: int) -> None:
+        self.readers.append((runtime, binding))
+        plain = runtime.plain and runtime.threshold == 1
+        pairs = self.bindings[binding]
+        self.plans.append(plain_plan(self.atoms, runtime.monitor, pairs) if plain else None)
+
+    def keep_readers(self, keep: Callable[[MonitorRuntime], bool]) -> None:
+        """Only the readers ``keep`` keeps, their atoms made anew (none of the others')."""
+        readers, self.readers, self.plans = self.readers, [], []
+        self.atoms = TopicAtoms()
+        for runtime, binding in readers:
+            if keep(runtime):
+                self.add_reader(runtime, binding)
 
     def field_index(self, path: str, kind: ValueKind) -> int:
         if path not in self.fields:
@@ -1359,7 +1452,7 @@ class Router:
             route, key = self.routes[topic], tuple(pairs)
             if key not in route.bindings:
                 route.bindings.append(key)
-            route.readers.append((runtime, route.bindings.index(key)))
+            route.add_reader(runtime, route.bindings.index(key))
 
     def remove(self, name: str) -> MonitorRuntime | None:
         return self.remove_many([name]).get(name)
@@ -1371,7 +1464,7 @@ class Router:
         topics = {t for rt in gone.values() for t in rt.monitor.spec.topics}
         for topic in topics & self.routes.keys():
             route = self.routes[topic]
-            route.readers = [(rt, b) for rt, b in route.readers if id(rt) not in ids]
+            route.keep_readers(lambda rt: id(rt) not in ids)
             if not route.readers:
                 del self.routes[topic]
         return gone
@@ -1389,16 +1482,72 @@ class Router:
         stamp: int,
         values: Sequence[Any],
         admit: Callable[[MonitorRuntime], bool] | None = None,
+        buffered: list[MonitorRuntime] | None = None,
     ) -> list[MonitorRuntime]:
         """Offer a message's field values (in ``route.fields`` order) to the route's monitors
         (those ``admit`` accepts); return the monitors with letters to evaluate. A field the
         message has no value for (ABSENT: inside an empty optional) is left out of the
-        event's updates."""
+        event's updates.
+
+        A plain monitor (:attr:`MonitorRuntime.plain`) taking its events as they come,
+        with nothing buffered, takes the event without ``admit`` (its buffer is empty;
+        counted in :attr:`MonitorRuntime.taken`), its letter made from the topic's atoms
+        computed once (:mod:`edgerv.core.plain_step`), and walks it at once when it
+        reaches no verdict (what :meth:`MonitorRuntime.evaluate` would do, one step): it
+        is then not returned. The monitors that took the event into a buffer without a
+        letter to evaluate (a sort buffer, a signal without a value yet) are appended to
+        ``buffered``."""
         self.seq += 1
         seq, bindings, held = self.seq, route.bindings, route.held
         events: list[Event | None] = [None] * len(bindings)  # built on first use
         ready = []
-        for runtime, b in route.readers:
+        truths: list[Any] | None = None  # the topic's atoms on this message, on first use
+        for (runtime, b), plan in zip(route.readers, route.plans, strict=True):
+            if plan is not None and not runtime.holding and not runtime.halted:  # it walks
+                if runtime.letters:
+                    runtime.walk_quiet()  # (a verdict's letter waits first: it stops at once)
+                if (
+                    not runtime.letters
+                    and not runtime.events
+                    and not runtime.missing
+                    and stamp > runtime.floor
+                ):
+                    # The common step, inlined (what offer_event, _compress_one and
+                    # evaluate do for a plain monitor taking its events as they come,
+                    # every signal valued, nothing waiting): its letter from the topic's
+                    # atoms computed once and its own, walked at once unless it reaches a
+                    # verdict. Its buffer is empty: the event is taken (counted here, as
+                    # the handler's admission would).
+                    runtime.taken += 1
+                    last = runtime.last_released
+                    if last is not None and stamp < last:
+                        runtime.late_events += 1
+                    runtime.last_released = stamp
+                    values_ = runtime.values
+                    for sig, f in plan.updates:
+                        values_[sig] = values[f]
+                    bits = runtime.valuation & plan.keep
+                    if plan.shared:
+                        if truths is None:
+                            truths = route.atoms.truths(values)
+                        for k, bit in plan.shared:
+                            if truths[k]:
+                                bits |= bit
+                    if plan.own:
+                        funcs = runtime.atom_funcs
+                        for atom in plan.own:
+                            if funcs[atom](values_):
+                                bits |= 1 << atom
+                    runtime.valuation = bits
+                    state = runtime.rows[(runtime.state << runtime.table_bits) | bits]
+                    if state < runtime.live:
+                        runtime.state = state
+                        runtime.step += 1
+                    else:  # a verdict: evaluated with the others
+                        runtime.letters.append(bits)
+                        runtime.stamps.append(stamp)
+                        ready.append(runtime)
+                    continue
             if admit is not None and not admit(runtime):
                 continue
             event = events[b]
@@ -1407,38 +1556,10 @@ class Router:
                 if held:
                     updates = [u for u in updates if u[1] is not ABSENT]
                 event = events[b] = (stamp, seq, tuple(updates))
-            if (
-                runtime.plain
-                and runtime.threshold == 1
-                and not runtime.missing
-                and not runtime.holding
-                and not runtime.halted
-                and stamp > runtime.floor
-            ):
-                # The common step, inlined (what offer_event and _compress_one do for a
-                # monitor with no clock, past operator, wide letter or optional, every
-                # signal valued, taking its events as they come): the atoms that read
-                # the updated signals evaluated anew, one letter.
-                last = runtime.last_released
-                if last is not None and stamp < last:
-                    runtime.late_events += 1
-                runtime.last_released = stamp
-                values_ = runtime.values
-                funcs, readers = runtime.atom_funcs, runtime.atoms_of_signal
-                bits = runtime.valuation
-                for sig, value in event[2]:
-                    values_[sig] = value
-                    for atom in readers[sig]:
-                        if funcs[atom](values_):
-                            bits |= 1 << atom
-                        else:
-                            bits &= ~(1 << atom)
-                runtime.valuation = bits
-                runtime.letters.append(bits)
-                runtime.stamps.append(stamp)
+            if runtime.offer_event(event):  # (a plain one's letters walked: what is left)
                 ready.append(runtime)
-            elif runtime.offer_event(event):
-                ready.append(runtime)
+            elif buffered is not None:
+                buffered.append(runtime)
         return ready
 
 

@@ -19,7 +19,6 @@ import random
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
-from functools import partial
 from typing import Any, Protocol
 
 import numpy as np
@@ -376,7 +375,7 @@ class Engine(HandoffSteps):
         with self.lock:
             if routes_version is not None and routes_version != self.routes_version:
                 return False
-            admit = partial(self._admit, now)
+            admit = self._admit
             if self.in_handoff:
                 self._note_firsts(batch)
             if len(batch) >= COLUMNS_FROM:
@@ -416,15 +415,14 @@ class Engine(HandoffSteps):
         reached, self.reached = self.reached, []
         return reached
 
-    def _admit(self, now: float, runtime: MonitorRuntime) -> bool:
-        """Whether ``runtime``'s buffer takes one more event (counted); else it is dropped."""
+    def _admit(self, runtime: MonitorRuntime) -> bool:
+        """Whether ``runtime``'s buffer takes one more event (counted); else it is dropped.
+        (Its ``pending_since`` is set by :meth:`_ingest_each`, for what it then holds.)"""
         slot = self.slots[runtime.name]
         if len(runtime.events) + len(runtime.letters) >= slot.capacity:
             self._dropped(slot, 1)
             return False
         slot.events += 1
-        if slot.pending_since is None:
-            slot.pending_since = now
         return True
 
     @staticmethod
@@ -453,6 +451,7 @@ class Engine(HandoffSteps):
         routes, slots, woke = self.router.routes, self.slots, False
         messages, newest, heard = self.messages, self.newest, self.heard
         offer, untimed = self.router.offer_values, self.untimed_messages
+        buffered: list[MonitorRuntime] = []  # took an event into a buffer, no letter yet
         for stamp, topic, values in batch:
             route = routes.get(topic)
             if route is None:
@@ -463,10 +462,10 @@ class Engine(HandoffSteps):
                 newest[topic] = stamp
             untimed -= 1
             if untimed:
-                ready = offer(route, stamp, values, admit)
+                ready = offer(route, stamp, values, admit, buffered)
             else:  # a timed message: its cost shared by its readers
                 start = time.thread_time_ns()
-                ready = offer(route, stamp, values, admit)
+                ready = offer(route, stamp, values, admit, buffered)
                 share = (time.thread_time_ns() - start) * self.cost_every / len(route.readers)
                 for reader, _ in route.readers:
                     reader.cost_ns += share
@@ -475,6 +474,12 @@ class Engine(HandoffSteps):
                 slots[runtime.name].pending_since = now if runtime.events else None
                 self.waiting[runtime.name] = runtime
                 woke = woke or len(runtime.letters) >= WAKE_LETTERS
+            if buffered:
+                for runtime in buffered:
+                    slot = slots[runtime.name]
+                    if runtime.events and slot.pending_since is None:
+                        slot.pending_since = now
+                buffered.clear()
         self.untimed_messages = untimed
         return woke
 
@@ -533,13 +538,15 @@ class Engine(HandoffSteps):
                 arrived = batches.arrivals(stamps_, columns, len(runtime.values))
             n = len(arrived.stamps)
             # the events its buffer takes, as _admit would one at a time; the rest dropped
-            taken, ready = runtime.take_arrivals(arrived, slot.capacity)
-            if taken:
-                slot.events += taken
-                if slot.pending_since is None:
-                    slot.pending_since = now
+            if runtime.walks:  # its letters walked as they come, up to its first verdict
+                taken, ready = runtime.take_walking(arrived, slot.capacity)
+            else:
+                taken, ready = runtime.take_arrivals(arrived, slot.capacity)
+            slot.events += taken
             if taken < n:
                 self._dropped(slot, n - taken)
+            if runtime.events and slot.pending_since is None:
+                slot.pending_since = now
             if ready:
                 slot.pending_since = now if runtime.events else None
                 self.waiting[name] = runtime

@@ -19,8 +19,8 @@ class MonitorSlot:
     """One monitor of this handler: its definition and, when active, its runtime."""
 
     compiled: CompiledMonitor
-    runtime: MonitorRuntime | None = None
-    events: int = 0
+    _runtime: MonitorRuntime | None = field(default=None, repr=False)
+    _admitted: int = 0  # events taken: those admitted, and those of the runtimes it had
     dropped: int = 0
     verdicts: dict[str, int] = field(default_factory=lambda: {"violated": 0, "satisfied": 0})
     last_verdict: Verdict | None = None  # the newest this handler reached
@@ -57,6 +57,30 @@ class MonitorSlot:
     @property
     def name(self) -> str:
         return self.compiled.name
+
+    @property
+    def runtime(self) -> MonitorRuntime | None:
+        return self._runtime
+
+    @runtime.setter
+    def runtime(self, runtime: MonitorRuntime | None) -> None:
+        old = self._runtime
+        if old is not None:  # the events it took, kept in the count
+            self._admitted += old.taken
+            old.taken = 0
+        self._runtime = runtime
+
+    @property
+    def events(self) -> int:
+        """The events this handler took for it since it was defined here: those the engine
+        admitted and those its runtime's plain step took (MonitorRuntime.taken)."""
+        rt = self._runtime
+        return self._admitted + (rt.taken if rt is not None else 0)
+
+    @events.setter
+    def events(self, count: int) -> None:
+        rt = self._runtime
+        self._admitted = count - (rt.taken if rt is not None else 0)
 
     def __post_init__(self) -> None:
         self.capacity = self.compiled.spec.buffer_capacity
