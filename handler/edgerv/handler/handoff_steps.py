@@ -61,6 +61,7 @@ class HandoffSteps:
     newest: dict[str, int]
     heard: dict[str, float]
     settle_ns: int
+    flush_after: float
     stamp_lag: dict[str, int]
     matched: Callable[[str], bool] | None
     drained_at: int | None
@@ -253,17 +254,25 @@ class HandoffSteps:
     def _all_in(self, cut: int, topic: str, vouched: bool) -> bool:
         """Nothing of ``topic`` stamped up to ``cut`` is still on its way to this handler:
         its ROS layer has taken everything that reached it until a reorder window plus
-        the most the topic's messages reached it after their stamps past the cut (wall
-        time; stalled, it has not), or, for a topic the receiver ``vouched`` for (it
-        brought nothing there), the handler's stream (the newest stamp it took, on any
-        topic) ran that far. Stream time alone does not let go of a topic that brings
-        messages: a round takes at most TAKE_PER_WAKE of each, so a busy topic's
-        backlog can lag a slow one's stamps; the drained instant accounts for that. A
-        topic that brought H2 a message and never one here waits for it."""
+        ``flushAfter`` past the cut (wall time; stalled, it has not), or, for a topic the
+        receiver ``vouched`` for (it brought nothing there), the handler's stream (the
+        newest stamp it took, on any topic) ran that far. ``flushAfter`` is how late an
+        event may come and still be taken in time here (every clock steps only up to
+        ``flushAfter`` before what was taken): the most the topic's messages reached it
+        after their stamps so far (:attr:`stamp_lag`, at most ``flushAfter``) is not a
+        bound, since the load that moves monitors grows a makespan (in `make demo` a
+        command came 284 ms after its stamp where the most before was 209 ms: let go at
+        that reach, it was neither side's). A topic that never brought this handler a
+        message waits a reorder window (docs/protocol.md, "Silent topics"). Stream time
+        alone does not let go of a topic that brings messages: a round takes at most
+        TAKE_PER_WAKE of each, so a busy topic's backlog can lag a slow one's stamps; the
+        drained instant accounts for that. A topic that brought H2 a message and never
+        one here waits for it."""
         reach = self.stamp_lag.get(topic)
         if reach is None and not vouched:
             return False
-        stamp = cut + self.settle_ns + (reach or 0)
+        horizon = 0 if reach is None else max(reach, int(self.flush_after * 1e9))
+        stamp = cut + self.settle_ns + horizon
         if self.drained_at is not None and self.drained_at >= stamp:
             return True
         return vouched and bool(self.newest) and max(self.newest.values()) >= stamp
