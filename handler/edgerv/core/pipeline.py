@@ -388,16 +388,10 @@ class MonitorRuntime:
         :meth:`walk_quiet`)."""
         return self.plain and self.threshold == 1 and not self.holding and not self.halted
 
-    @property
-    def steps_at_once(self) -> bool:
-        """It :attr:`walks` and nothing waits: it takes each event, whatever its buffer's
-        capacity, until a letter reaches a verdict."""
-        return self.walks and not self.letters and not self.events
-
     def walk_quiet(self) -> None:
         """Walk the letters that wait, from the first, up to the first that reaches a
         verdict (what :meth:`evaluate` does with them; they report nothing): what a
-        monitor that :attr:`steps_at_once` gives offered the same events one by one."""
+        monitor that :attr:`walks` gives, offered the same events one by one."""
         letters = self.letters
         rows, bits, live, state = self.rows, self.table_bits, self.live, self.state
         i, n = 0, len(letters)
