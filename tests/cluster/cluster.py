@@ -766,12 +766,7 @@ def up() -> None:
     for node in NODES:
         kubelet(node, bins)
     for node in NODES:
-        wait(
-            f"node {node} Ready",
-            lambda node=node: kubectl("get", "node", node, "-o", READY).stdout == "True",
-            180,
-            f"kubelet-{node}",
-        )  # fmt: skip
+        wait_ready(node)
     log(f"up in {time.monotonic() - started:.0f} s: KUBECONFIG={STATE / 'kubeconfig'}")
     print(kubectl("get", "nodes", "-L", "edgerv.io/tier", "-o", "wide").stdout)
 
@@ -817,13 +812,19 @@ def rejoin(node: str) -> None:
         raise RuntimeError(f"no node {node}: the nodes are {', '.join(NODES)}")
     stop(f"kubelet-{node}")
     kubelet(node, (STATE / "bin" / "kubectl").resolve().parent)
+    wait_ready(node)
+    log(f"{node} registered again")
+
+
+def wait_ready(node: str) -> None:
+    """Until the node's kubelet has registered it and it is Ready (3 min at most; its
+    kubelet's log on failure)."""
     wait(
         f"node {node} Ready",
         lambda: kubectl("get", "node", node, "-o", READY).stdout == "True",
         180,
         f"kubelet-{node}",
     )
-    log(f"{node} registered again")
 
 
 def down(quiet: bool = False) -> None:
