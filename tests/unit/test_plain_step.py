@@ -29,6 +29,7 @@ SIGNALS: dict[str, Any] = {
     "y": {"topic": "/p", "type": "geometry_msgs/msg/Point", "field": "y", "initial": 1.0},
     "z": {"topic": "/z", "type": "std_msgs/msg/Float64"},
 }
+FIELDS = {"/a": ["data"], "/p": ["x", "y"], "/z": ["data"]}  # each topic's fields, published
 POINT = {k: SIGNALS[k] for k in ("x", "y")}  # (every signal valued by /p's messages)
 # the same comparisons in several monitors (shared), constants equal in value of another
 # type (not shared), two fields of one message, signals of two topics (the monitor's own)
@@ -77,8 +78,7 @@ def reference(monitors: list[Any], msgs: list[tuple[int, str, list[Any]]]) -> di
             route = router.routes.get(topic)
             if route is None:
                 continue
-            fields = {"/a": ["data"], "/p": ["x", "y"], "/z": ["data"]}[topic]
-            mine = [values[fields.index(f)] for f in route.fields]
+            mine = [values[FIELDS[topic].index(f)] for f in route.fields]
             for runtime in router.offer_values(route, stamp, mine):
                 verdicts += [(v.verdict, v.stamp, v.step) for v in runtime.evaluate()]
         values = None if rt.halted else ([repr(v) for v in rt.values], rt.valuation)
@@ -96,12 +96,11 @@ def engine_of(monitors: list[Any], **kwargs: Any) -> tuple[Engine, Collect]:
 
 def routed(e: Engine, msgs: list[tuple[int, str, list[Any]]]) -> list[tuple[int, str, list[Any]]]:
     """The messages read for the engine's routes (each topic's fields, in its order)."""
-    fields = {"/a": ["data"], "/p": ["x", "y"], "/z": ["data"]}
     out = []
     for stamp, topic, values in msgs:
         route = e.router.routes.get(topic)
         if route is not None:
-            out.append((stamp, topic, [values[fields[topic].index(f)] for f in route.fields]))
+            out.append((stamp, topic, [values[FIELDS[topic].index(f)] for f in route.fields]))
     return out
 
 

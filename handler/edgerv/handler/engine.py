@@ -422,7 +422,7 @@ class Engine(HandoffSteps):
         if len(runtime.events) + len(runtime.letters) >= slot.capacity:
             self._dropped(slot, 1)
             return False
-        slot.events += 1
+        slot.admitted += 1
         return True
 
     @staticmethod
@@ -542,7 +542,7 @@ class Engine(HandoffSteps):
                 taken, ready = runtime.take_walking(arrived, slot.capacity)
             else:
                 taken, ready = runtime.take_arrivals(arrived, slot.capacity)
-            slot.events += taken
+            slot.admitted += taken
             if taken < n:
                 self._dropped(slot, n - taken)
             if runtime.events and slot.pending_since is None:

@@ -20,7 +20,7 @@ class MonitorSlot:
 
     compiled: CompiledMonitor
     _runtime: MonitorRuntime | None = field(default=None, repr=False)
-    _admitted: int = 0  # events taken: those admitted, and those of the runtimes it had
+    admitted: int = 0  # events taken: those the engine admitted, and its past runtimes'
     dropped: int = 0
     verdicts: dict[str, int] = field(default_factory=lambda: {"violated": 0, "satisfied": 0})
     last_verdict: Verdict | None = None  # the newest this handler reached
@@ -66,7 +66,7 @@ class MonitorSlot:
     def runtime(self, runtime: MonitorRuntime | None) -> None:
         old = self._runtime
         if old is not None:  # the events it took, kept in the count
-            self._admitted += old.taken
+            self.admitted += old.taken
             old.taken = 0
         self._runtime = runtime
 
@@ -75,12 +75,7 @@ class MonitorSlot:
         """The events this handler took for it since it was defined here: those the engine
         admitted and those its runtime's plain step took (MonitorRuntime.taken)."""
         rt = self._runtime
-        return self._admitted + (rt.taken if rt is not None else 0)
-
-    @events.setter
-    def events(self, count: int) -> None:
-        rt = self._runtime
-        self._admitted = count - (rt.taken if rt is not None else 0)
+        return self.admitted + (rt.taken if rt is not None else 0)
 
     def __post_init__(self) -> None:
         self.capacity = self.compiled.spec.buffer_capacity
