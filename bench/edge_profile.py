@@ -7,9 +7,12 @@ window, ingested (Engine.ingest) and evaluated by a scheduler round after each b
 Engine.tick runs every 50 ms of simulated time, as the scheduler does. The clock is
 simulated: ``SECONDS`` of robot time run as fast as the CPU allows.
 
-``python bench/edge_profile.py [--seconds 20] [--cprofile]``: the CPU seconds of each
-stage per second of robot time (i.e. the fraction of a core it would take live), and with
---cprofile the top functions.
+``python bench/edge_profile.py [--seconds 20] [--cprofile] [--monitors FILE] [--held]``:
+the CPU seconds of each stage per second of robot time (i.e. the fraction of a core it
+would take live), and with --cprofile the top functions. ``--monitors``: another set of
+monitors over the same topics (``make demo``'s 450: its ``demo-output/monitors.yaml``);
+``--held``: every monitor held by a handoff's sender from the start (what the edge pays
+while it moves them away; run it for about 1.5 s of robot time, the buffers' capacity).
 """
 
 from __future__ import annotations
@@ -98,7 +101,12 @@ def messages(seconds: float) -> list[tuple[int, str, bytes]]:
     return out
 
 
-def run(seconds: float, profiler: cProfile.Profile | None) -> dict[str, float]:
+def run(
+    seconds: float,
+    profiler: cProfile.Profile | None,
+    monitors: Path = CASE_STUDY,
+    held: bool = False,
+) -> dict[str, float]:
     from edgerv.core.cdr import compile_reader
     from edgerv.core.documents import load_monitors
     from edgerv.handler.engine import Engine
@@ -106,8 +114,10 @@ def run(seconds: float, profiler: cProfile.Profile | None) -> dict[str, float]:
 
     clock = SimulatedClock()
     engine = Engine("edge", flush_after=0.5, clock=clock)
-    for spec in load_monitors(CASE_STUDY):
+    for spec in load_monitors(monitors):
         engine.put(engine.compile(spec), active=True)
+        if held:
+            engine.hold(spec.name, 1)
     routes = engine.routes()
     readers = {t: compile_reader(r.msg_type, r.fields) for t, r in routes.items()}
     msgs = messages(seconds)
@@ -148,13 +158,46 @@ def run(seconds: float, profiler: cProfile.Profile | None) -> dict[str, float]:
     return out
 
 
+def commit_cost(monitors: Path) -> dict[str, float]:
+    """ms to let go of every monitor after a handoff released them all: committed one
+    at a time (each commit its own call) and as a batch (Engine.settle, one call)."""
+    from edgerv.core.documents import load_monitors
+    from edgerv.handler.engine import Engine
+
+    specs = load_monitors(monitors)
+    out = {}
+    for way in ("one at a time", "at once"):
+        engine = Engine("edge", flush_after=0.5, clock=SimulatedClock())
+        for spec in specs:
+            engine.put(engine.compile(spec), active=True)
+            engine.hold(spec.name, 1)
+        for spec in specs:
+            assert engine.release(spec.name, 1, cut=0, grace=0.0) is not None
+        names = [spec.name for spec in specs]
+        t = time.perf_counter()
+        if way == "at once":
+            engine.settle("commit", 1, names)
+        else:
+            for name in names:
+                engine.settle("commit", 1, [name])
+        out[way] = (time.perf_counter() - t) * 1e3
+    return out
+
+
 def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--cprofile", action="store_true")
+    ap.add_argument("--monitors", type=Path, default=CASE_STUDY)
+    ap.add_argument("--held", action="store_true")
+    ap.add_argument("--commit", action="store_true", help="time the commit of all instead")
     args = ap.parse_args(argv)
+    if args.commit:
+        took = commit_cost(args.monitors)
+        print("commit of all, ms: " + ", ".join(f"{k} {v:.1f}" for k, v in took.items()))
+        return
     profiler = cProfile.Profile() if args.cprofile else None
-    res = run(args.seconds, profiler)
+    res = run(args.seconds, profiler, args.monitors, args.held)
     total = sum(v for k, v in res.items() if k not in ("messages", "verdicts"))
     print(
         f"{res['messages']} messages, {res['verdicts']} verdicts in {args.seconds:g} s of robot "

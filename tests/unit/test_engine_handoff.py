@@ -264,6 +264,51 @@ def test_after_the_release_the_sender_keeps_what_it_needs_to_resume() -> None:
         e.commit("m", 1)
 
 
+def test_a_sender_compresses_nothing_ahead_while_it_holds() -> None:
+    """What a held monitor takes is mostly past the cut, never its to compress: it is
+    buffered raw (compressing it as it came, 450 monitors held took 14.0% of a core
+    where they take 6.3% now, bench/RESULTS.md). Aborted, the monitor compresses ahead
+    again and gives the verdicts of one never held."""
+    sink = Collect()
+    e = Engine("h", [sink], flush_after=1e9)
+    e.put(monitor(threshold=40), active=True)
+    rt = e.slots["m"].runtime
+    assert rt is not None and rt.speculate
+    e.ingest([(1, "/a", [True]), (2, "/x", [1.0]), (3, "/x", [7.0])])
+    ahead = rt.ahead
+    assert ahead == 3  # compressed as they came
+    e.hold("m", 1)
+    e.ingest([(s, "/x", [float(s)]) for s in range(4, 12)])
+    assert rt.ahead == ahead and len(rt.events) == 11 and not rt.speculate
+    assert e.abort("m", 1) == "resumed"
+    assert rt.speculate
+    e.ingest([(12, "/x", [1.0])])
+    assert rt.ahead == len(rt.events) == 12
+    e.drain()
+    # x >= 5 while a holds: x=7 at 3, then 5 to 11 (stamps 5..11)
+    assert [stamp for _, _, stamp in sink.got] == [3, 5, 6, 7, 8, 9, 10, 11]
+
+
+def test_a_handoffs_commit_lets_go_of_its_monitors_at_once() -> None:
+    """Engine.settle commits a batch under one lock, the routes made anew once: what
+    is left is routed as before, what went gets nothing more."""
+    e = Engine("h", flush_after=1e9)
+    names = [f"m{i}" for i in range(6)]
+    for name in names:
+        e.put(compiled("always (a -> x < 5)", {"a": "bool", "x": "float"}, name=name), True)
+    going = names[:4]
+    for name in going:
+        e.hold(name, 2)
+    e.ingest([(1, "/a", [True]), (2, "/x", [1.0])])
+    for name in going:
+        assert e.release(name, 2, cut=2, grace=0.0, now=0.0) is not None
+    assert e.settle("commit", 2, going) == dict.fromkeys(going, "committed")
+    assert {rt.name for rt, _ in e.router.routes["/x"].readers} == {"m4", "m5"}
+    assert all(e.slots[n].runtime is None and e.slots[n].handoff is None for n in going)
+    assert e.settle("commit", 2, going) == dict.fromkeys(going, "committed")  # repeated
+    assert e.settle("abort", 2, going) == dict.fromkeys(going, "gone")
+
+
 def test_a_batch_is_adopted_all_or_nothing() -> None:
     def two() -> Engine:
         e = Engine("h", flush_after=1e9)

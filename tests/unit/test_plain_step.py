@@ -166,6 +166,56 @@ def test_a_topics_atoms_are_computed_once_for_all_its_monitors() -> None:
     assert len(e.router.routes["/p"].atoms.reads) == 2
 
 
+def routing(router: Router) -> dict[str, Any]:
+    """What a router does with a topic's message: its readers in order, each one's
+    binding and plan (the atoms' places it reads), and the topic's atoms."""
+    return {
+        topic: (
+            [(rt.name, b) for rt, b in route.readers],
+            [None if p is None else (p.shared, p.own) for p in route.plans],
+            [(left, right, const) for left, right, _, const in route.atoms.reads],
+        )
+        for topic, route in sorted(router.routes.items())
+    }
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_monitors_removed_at_once_are_routed_as_removed_one_at_a_time(seed: int) -> None:
+    """Router.removing (a handoff's commit of many monitors) rebuilds each topic's
+    readers and atoms once, when it ends: the routes are then those of removing them one
+    at a time, a monitor redefined inside keeps its new runtime, and the monitors left
+    take the same steps. Inside it, what was removed is still routed to."""
+    rng = random.Random(seed)
+    monitors = [compiled(random_plain(rng), SIGNALS, name=f"m{i}") for i in range(8)]
+    names = [m.name for m in monitors]
+    gone, again = rng.sample(names, 5), rng.choice(names)
+    one, batch = (Router([MonitorRuntime(m) for m in monitors]) for _ in range(2))
+    for n in [*gone, again]:
+        one.remove(n)
+    one.add(MonitorRuntime(monitors[names.index(again)]))
+    with batch.removing():
+        for n in [*gone, again]:
+            batch.remove(n)
+        batch.add(MonitorRuntime(monitors[names.index(again)]))
+        routed_to = {rt.name for route in batch.routes.values() for rt, _ in route.readers}
+        assert routed_to == set(names)  # the removed ones too, until it ends
+    assert routing(batch) == routing(one)
+    assert set(batch.runtimes) == (set(names) - set(gone)) | {again}
+    msgs = random_messages(rng, 200)
+    steps = []
+    for router in (batch, one):
+        seen = []
+        for stamp, topic, values in msgs:
+            route = router.routes.get(topic)
+            if route is not None:
+                mine = [values[FIELDS[topic].index(f)] for f in route.fields]
+                for runtime in router.offer_values(route, stamp, mine):
+                    seen += [(runtime.name, v.verdict, v.step) for v in runtime.evaluate()]
+        seen += sorted((n, rt.step, rt.state) for n, rt in router.runtimes.items())
+        steps.append(seen)
+    assert steps[0] == steps[1]
+
+
 def test_not_plain_monitors_get_no_plan() -> None:
     monitors = [
         compiled("always (x < 2 | once a)", SIGNALS, name="past"),

@@ -18,7 +18,8 @@ from __future__ import annotations
 import math
 from array import array
 from bisect import bisect_left, bisect_right
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from itertools import accumulate, chain, compress, islice, repeat
 from operator import add, and_, is_not, itemgetter, lt, ne, sub
@@ -1431,6 +1432,8 @@ class Router:
         self.routes: dict[str, TopicRoute] = {}
         self.runtimes: dict[str, MonitorRuntime] = {}
         self.seq = 0
+        # inside :meth:`removing`: the runtimes removed, their routes not yet rebuilt
+        self._removed: list[MonitorRuntime] | None = None
         for rt in runtimes:
             self.add(rt)
 
@@ -1452,16 +1455,42 @@ class Router:
         return self.remove_many([name]).get(name)
 
     def remove_many(self, names: Iterable[str]) -> dict[str, MonitorRuntime]:
-        """Stop routing to these monitors (one pass over each of their topics)."""
+        """Stop routing to these monitors (one pass over each of their topics; inside
+        :meth:`removing`, one pass when it ends)."""
         gone = {n: rt for n in names if (rt := self.runtimes.pop(n, None)) is not None}
-        ids = {id(rt) for rt in gone.values()}
-        topics = {t for rt in gone.values() for t in rt.monitor.spec.topics}
+        if self._removed is not None:
+            self._removed += gone.values()
+        else:
+            self._unroute(gone.values())
+        return gone
+
+    @contextmanager
+    def removing(self) -> Iterator[None]:
+        """Removals inside are routed away from at once when it ends: a topic's readers
+        and atoms are made anew once, not once a monitor (a handoff's commit of 450
+        monitors took 308 ms one at a time, 1.3 ms at once). Until then a removed
+        runtime still gets its topics' messages: use it under the lock that keeps
+        messages out (the engine's)."""
+        if self._removed is not None:  # nested: the outer one does it
+            yield
+            return
+        self._removed = []
+        try:
+            yield
+        finally:
+            removed, self._removed = self._removed, None
+            self._unroute(removed)
+
+    def _unroute(self, removed: Collection[MonitorRuntime]) -> None:
+        ids = {id(rt) for rt in removed}
+        if not ids:
+            return
+        topics = {t for rt in removed for t in rt.monitor.spec.topics}
         for topic in topics & self.routes.keys():
             route = self.routes[topic]
             route.keep_readers(lambda rt: id(rt) not in ids)
             if not route.readers:
                 del self.routes[topic]
-        return gone
 
     def dispatch(self, topic: str, stamp: int, msg: Any) -> list[MonitorRuntime]:
         """Offer one message to its monitors; return those with letters to evaluate."""

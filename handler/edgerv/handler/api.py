@@ -747,7 +747,8 @@ class ControlApi:
                 return web.json_response(CutAnswer(cuts=cuts, quiet=quiet))
             if step == "release":
                 return await self._release(body)
-            outcomes = await self._locked(self._settle, step, epoch, names)
+            settle = "commit" if step == "commit" else "abort"
+            outcomes = await self._locked(self.engine.settle, settle, epoch, names)
             self.on_routes()
             for outcome in sorted(set(outcomes.values())):
                 said = outcome if step == "commit" else f"aborted ({outcome})"
@@ -787,13 +788,6 @@ class ControlApi:
             cuts = {n: e.cut(n, epoch) for n in names}
             quiet = {n: list(e.slots[n].quiet) for n in names if cuts[n] is not None}
         return cuts, quiet
-
-    def _settle(self, step: str, epoch: int, names: list[str]) -> dict[str, str]:
-        """``commit`` or ``abort``."""
-        e = self.engine
-        act = e.commit if step == "commit" else e.abort
-        with e.lock:
-            return {n: act(n, epoch) for n in names}
 
     async def _release(self, body: HandoffRequest) -> web.Response:
         epoch, names = body["epoch"], body["monitors"]

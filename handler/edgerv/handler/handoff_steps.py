@@ -14,8 +14,8 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable, Collection, Sequence
-from typing import Any
+from collections.abc import Callable, Collection, Iterable, Sequence
+from typing import Any, Literal
 
 from edgerv.control.wire import HANDOFF_EXPIRES
 from edgerv.core.handoff import HandoffError, Snapshot, cut_point
@@ -104,6 +104,11 @@ class HandoffSteps:
             self._set_handoff(slot, SENDING)
             slot.cut_known, slot.held_at, slot.peer = None, now, peer
             slot.runtime.holding = True
+            # Nothing compressed ahead as it comes while it holds: most of what it takes
+            # now is past the cut, never to be compressed here, and the release compresses
+            # what is not (make demo's 450 held: 14.0% of a core compressing ahead, 6.3%
+            # not, where running them takes 5.2 to 5.7%; bench/RESULTS.md)
+            slot.runtime.speculate = False
             # What the sort buffer holds now is all at or before any cut H2 can report
             # (H2 subscribes after this, and each topic is delivered in order): the
             # scheduler compresses it while the handoff goes on (a partial batch, as
@@ -277,6 +282,15 @@ class HandoffSteps:
             return True
         return vouched and bool(self.newest) and max(self.newest.values()) >= stamp
 
+    def settle(
+        self, step: Literal["commit", "abort"], epoch: int, names: Iterable[str]
+    ) -> dict[str, str]:
+        """:meth:`commit` or :meth:`abort` each of these monitors' handoff, their routes
+        made anew once for all of them (Router.removing); each one's answer."""
+        act = self.commit if step == "commit" else self.abort
+        with self.lock, self.router.removing():
+            return {n: act(n, epoch) for n in names}
+
     def commit(self, name: str, epoch: int) -> str:
         """H1, after H2 adopted: let go of the snapshot and the held events."""
         with self.lock:
@@ -369,7 +383,7 @@ class HandoffSteps:
             rt = slot.runtime
             assert rt is not None
             if slot.handoff == SENDING:
-                rt.holding = False
+                rt.holding, rt.speculate = False, not rt.monitor.stateful
                 if len(rt.events) >= rt.threshold and rt.flush():
                     self.waiting[name] = rt
                     self.ready.notify()
@@ -405,10 +419,13 @@ class HandoffSteps:
         """Undo handoffs no driver finished: a sender that released nothing resumes, a
         receiver that adopted nothing lets go (both safe: a late step is fenced). A
         released one waits to be settled: the receiver may have adopted it."""
-        for slot in list(self.in_handoff.values()):
-            if slot.handoff in (SENDING, RECEIVING) and now - slot.handoff_since > (
-                HANDOFF_EXPIRES
-            ):
+        expired = [
+            slot
+            for slot in self.in_handoff.values()
+            if slot.handoff in (SENDING, RECEIVING) and now - slot.handoff_since > HANDOFF_EXPIRES
+        ]
+        with self.router.removing():
+            for slot in expired:
                 log.warning(
                     "monitor %s: handoff %d %s for %.0f s with no next step: %s",
                     slot.name,
