@@ -96,7 +96,7 @@ def test_once_the_robot_parks_the_policy_brings_monitors_back_down(
     assert "calm below" in summary["migrationReasons"], text
     parked = summary["phases"]["orchestrated"]["parked"]
     assert summary["monitorsMovedBack"] == parked["monitorsBack"] > 0, text
-    # The policy's hysteresis (--calm 8, --cooldown 20) is its own, tested in
+    # The policy's hysteresis (--calm 8, --cooldown 10) is its own, tested in
     # test_placement.py. Not asserted here: that the first move back comes 8 s after the
     # arrival. The loop, once shed, can be calm (p95 under 0.95 of its deadline) in the
     # robot's last seconds to its goal, and then the first move back comes with the
