@@ -61,6 +61,11 @@ STOP_SECONDS = 6.0
 STOP_WATCHDOG = 14.0
 LANES = 5  # verdict log, violation lines, ROS topics, /diagnostics, reactions
 VERDICT_BYTES = 160  # a verdict queued: its tuple, its strings shared with the monitor
+GC_YOUNG = 10_000  # allocations (less frees) a young collection (settle_memory)
+# How long a thread that wants the GIL waits for one that holds it (Python's default 5 ms):
+# the take loop gives the GIL up at every call into rcl, and a busy /diagnostics update of
+# 10,000 monitors made each of those waits 5 ms (bench/scale.py's publish-to-verdict p99)
+SWITCH_SECONDS = 0.0005
 
 
 def settle_memory() -> None:
@@ -70,10 +75,18 @@ def settle_memory() -> None:
     handler for ~130 ms: a latency spike. Monitors live as long as the handler, so
     they are frozen out of the scans; after a change through the API the previous
     generation is collected first, so removed monitors are still reclaimed.
+
+    And the collector runs less often (GC_YOUNG allocations a young collection, not
+    Python's 700): a /diagnostics update of 10,000 monitors makes some 200,000 objects
+    that live until the next (none in a cycle: freed by their counts), and each one
+    set off two full collections of about 30 ms, which stall every thread (the GIL):
+    publish-to-verdict's p99 at 10,000 monitors (bench/scale.py).
     """
     gc.unfreeze()
     gc.collect()
     gc.freeze()
+    young, *older = gc.get_threshold()
+    gc.set_threshold(max(young, GC_YOUNG), *older)
 
 
 def parse_listen(value: str) -> tuple[str, int]:
@@ -538,6 +551,7 @@ def run(args: argparse.Namespace) -> int:
         )
 
     settle_memory()
+    sys.setswitchinterval(SWITCH_SECONDS)
     stop = threading.Event()
 
     def on_change() -> None:  # the API added, replaced or removed monitors
