@@ -312,3 +312,39 @@ def test_bad_deadline_settings_are_refused() -> None:
         PolicyConfig(tiers=("edge",), deadline_shed=0.0)
     with pytest.raises(PolicyConfigError, match="deadline_wait >= 0"):
         PolicyConfig(tiers=("edge",), deadline_wait=-1)
+
+
+def test_an_ingest_that_lags_with_cpu_to_spare_sheds_half_then_lets_its_backlog_drain() -> None:
+    """Under a CPU budget it cannot keep up with, a handler's CPU reads below the target
+    while its ingest lags (docs/protocol.md, "The budget lever"): the lag moves monitors,
+    busiest first, at least deadline_shed of the movable load, and is not acted on again
+    until deadline_wait has passed (its backlog drains meanwhile)."""
+    memory = PolicyMemory()
+    mon = {"m100": busy(100), "m400": busy(400), "m200": busy(200), "m300": busy(300)}
+
+    def lagging(lag: float, **monitors: MonitorLoad) -> list[HandlerReport]:
+        return [HandlerReport("edge-1", "edge", 0.1, lag, monitors), idle("fog", "fog-1")]
+
+    assert moved(plan(lagging(1.0, **mon), {}, CONFIG, memory, now=0)) == [
+        ("m400", "fog-1", "pressure"),
+        ("m300", "fog-1", "pressure"),
+    ]
+    left = {"m100": busy(100), "m200": busy(200)}
+    for now in (0.5, 1.99):  # the backlog of before the move still drains
+        assert plan(lagging(0.8, **left), {}, CONFIG, memory, now) == []
+    assert moved(plan(lagging(0.8, **left), {}, CONFIG, memory, now=2.0)) == [
+        ("m200", "fog-1", "pressure")
+    ]
+    assert plan(lagging(0.4, **left), {}, CONFIG, PolicyMemory(), now=0) == []  # under lag_high
+
+
+def test_a_monitor_in_a_handoff_is_neither_shed_nor_brought_home_by_the_rule() -> None:
+    moving = MonitorLoad(active=True, events_per_second=600, in_handoff=True)
+    hot = [edge(0.95, a=moving, b=busy(300)), idle("fog", "fog-1")]
+    assert [m.monitor for m in plan(hot, {}, CONFIG, PolicyMemory(), now=0)] == ["b"]
+    away = {"a": MonitorLoad(active=True, events_per_second=10, in_handoff=True), "b": busy(10)}
+    below = [edge(0.2), idle("cloud", "cloud-1", **away)]
+    config = PolicyConfig(
+        tiers=("edge", "cloud"), calm_seconds=0, cooldown_seconds=0, max_moves_down=5
+    )
+    assert [m.monitor for m in plan(below, {}, config, PolicyMemory(), now=1)] == ["b"]

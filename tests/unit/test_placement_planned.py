@@ -252,3 +252,19 @@ def test_the_real_time_tasks_work_per_output_is_what_its_cpus_did_besides_the_ha
     assert math.isclose(second[0].task_work, (1.5 - 0.3) / 8)
     none, _, _ = build_reports({target: load(14.0, 6.0, {"a": 1.4}, 104, 408)}, previous)
     assert none[0].task_work is None  # no deadline measured
+
+
+def test_a_monitor_in_a_handoff_is_not_planned_home() -> None:
+    """The planner's batch home is made of monitors that run where they are: one that a
+    handoff is moving (another driver's, the operator's) stays out of it."""
+    memory = PolicyMemory(costs={f"m{i}": {"edge": 0.01} for i in range(4)})
+    away = {f"m{i}": costed(0.01) for i in range(4)}
+    away["m0"] = MonitorLoad(active=True, events_per_second=50.0, cpu=0.01, in_handoff=True)
+    config = PolicyConfig(
+        tiers=("edge", "cloud"), tier_latency_ms={"cloud": 40.0}, calm_seconds=0, cooldown_seconds=0
+    )
+    calm = edge(60.0, {}, cpu=0.1, headroom=0.9)
+    plan([calm, cloud(**away)], {}, config, memory, now=0)  # calm from now
+    moves = plan([calm, cloud(**away)], {}, config, memory, now=1)
+    assert sorted(m.monitor for m in moves) == ["m1", "m2", "m3"]
+    assert all(m.plan for m in moves)  # planned, not today's rule

@@ -196,6 +196,10 @@ class PolicyMemory:
     # orchestrator sets it again when the handoff ends. Its deadline counts again once its
     # window holds makespans measured since (deadline_wait): not the handoff's own.
     deadline_moved: dict[str, float] = field(default_factory=dict)
+    # handler -> when monitors were last shed from it for its ingest lag: the lag it
+    # reports drains only once the handler has caught up with its backlog, so it is not
+    # acted on again for deadline_wait (the rounds meanwhile would read the old backlog)
+    lag_moved: dict[str, float] = field(default_factory=dict)
     # monitor -> tier -> what it last cost there (cores): a monitor away from home is
     # planned home at the larger of what it cost there and what it costs where it runs
     # now (there it was last read overloaded, in long batches: cheaper a message)
@@ -366,6 +370,7 @@ class _Ask:
     reason: str
     why: str  # the plan's method and reason ("": today's rule)
     deadline: bool  # for its deadline: its window must refill after
+    lag: bool = False  # for its ingest lag: its backlog must drain after
 
 
 def _shared_fairly(
@@ -520,7 +525,9 @@ def plan(
             names, why = planned
             asks.append(_Ask(h, destination, list(names), "deadline", why, True))
             continue
-        candidates = [m for m in h.active() if movable(m, up, destination)]
+        candidates = [
+            m for m in h.active() if not h.monitors[m].in_handoff and movable(m, up, destination)
+        ]
         # those that want to migrate first; then what frees most per millisecond added
         added = c.tier_latency_ms.get(up, 0.0) - c.tier_latency_ms.get(h.tier, 0.0)
         candidates.sort(
@@ -532,9 +539,16 @@ def plan(
         )
         total = sum(load.events_per_second for load in h.monitors.values() if load.active)
         excess = max(0.0, (h.cpu - c.cpu_target) / h.cpu) if h.cpu > 0 else 0.0
+        # an ingest that lags with CPU to spare (a CPU budget it cannot keep up under, a
+        # core the real-time task takes) says nothing of how much to shed: at least
+        # deadline_shed of the movable load, as for the deadline, then its wait
+        lagging = (
+            h.ingest_lag >= c.lag_high
+            and now - memory.lag_moved.get(h.name, float("-inf")) >= c.deadline_wait
+        )
         # under deadline pressure, at least deadline_shed of the movable load (busiest first)
         movable_load = sum(h.monitors[m].events_per_second for m in candidates)
-        floor = c.deadline_shed * movable_load if deadline else None
+        floor = c.deadline_shed * movable_load if deadline or lagging else None
         shed = 0.0
         chosen: list[str] = []
         for m in candidates:
@@ -543,9 +557,8 @@ def plan(
                 break
             chosen.append(m)
             shed += load.events_per_second
-        asks.append(
-            _Ask(h, destination, chosen, "deadline" if deadline else "pressure", "", deadline)
-        )
+        reason = "deadline" if deadline else "pressure"
+        asks.append(_Ask(h, destination, chosen, reason, "", deadline, lagging))
     for ask in _shared_fairly(asks, placements, memory, c):
         for m in ask.names:
             moves.append(Move(m, ask.source.name, ask.destination.name, ask.reason, ask.why))
@@ -555,6 +568,8 @@ def plan(
                 memory.bounces[m] = memory.bounces.get(m, 0) + 1  # it came down too soon
         if ask.names and ask.deadline:
             memory.deadline_moved[ask.source.name] = now  # its window must refill first
+        if ask.names and ask.lag:
+            memory.lag_moved[ask.source.name] = now  # its backlog must drain first
 
     # monitors planned home this round, per destination: they count there for the next plan
     coming: dict[str, list[MonitorCost]] = {}
@@ -616,6 +631,8 @@ def plan(
         # robot's instance: its robot's own, or a shared one): one batch per destination
         homes: dict[str, tuple[HandlerReport, list[str]]] = {}
         for m in sorted(h.active()):
+            if h.monitors[m].in_handoff:  # being moved: by someone else, or an earlier round
+                continue
             p = placements.get(m, Placement())
             fit = [b for b in below if may_host(p.robot, b.robot)]
             if rank[h.tier] <= rank.get(p.tier or "", 0) or not fit:
