@@ -187,14 +187,22 @@ def test_no_room_above() -> None:
     assert alone.text.endswith("cloud, can take monitors: none answered this round")
 
 
-def test_pressure_the_rule_does_not_act_on() -> None:
-    """Ingest lag alone, the CPU below its target: the policy's shed rule frees nothing."""
-    idle = why([edge(cpu=0.4, lag=0.7, a=busy(600)), cloud()])
+def test_after_a_shed_for_its_lag_the_wait_is_hysteresis_too() -> None:
+    """Ingest lag alone, the CPU below its target (a CPU budget it cannot keep up under):
+    the policy sheds for the lag, then waits for the backlog to drain, and says so."""
+    memory = PolicyMemory()
+    mon = {"a": busy(600), "b": busy(300)}
+    assert len(plan([edge(cpu=0.4, lag=0.7, **mon), cloud()], {}, CONFIG, memory, 0)) == 1
+    idle = why([edge(cpu=0.4, lag=0.7, b=busy(300)), cloud(a=busy(600))], memory=memory, now=0.5)
     assert (idle.kind, idle.text) == (
-        "nothing to shed",
-        "edge-1 is under pressure (ingest lag 0.70 s, high mark 0.5 s), but the policy sheds "
-        "nothing: its CPU 40% is at or below the target 70%",
+        "hysteresis",
+        "hysteresis holds: edge-1's ingest lags (ingest lag 0.70 s, high mark 0.5 s), but "
+        "monitors were moved for that lag: it counts again in 1.5 s, once its backlog had "
+        "time to drain (--deadline-wait 2 s)",
     )
+
+
+def test_pressure_with_nothing_to_shed() -> None:
     empty = why([edge(cpu=0.95), cloud(a=busy(10))], {"a": Placement(tier="cloud")})
     assert empty.text == "edge-1 is under pressure (CPU 95%, high mark 85%) but runs no monitor"
     # what waits to come down to it is the reason, rather than its own pressure

@@ -235,7 +235,7 @@ IDLE_KINDS = (
     "placed",  # no pressure, and no monitor above its home tier: all where it would go
     "pinned",  # what would move is pinned (placement.migrate) or held by maxLatencyMs
     "no room",  # under pressure, but no handler of the tier above can take monitors
-    "nothing to shed",  # under pressure, but the policy's rule sheds nothing (CPU at target)
+    "nothing to shed",  # under pressure, but runs no monitor (or the rule sheds nothing)
 )
 
 
@@ -319,6 +319,18 @@ def _stuck(
             f"were moved for its deadline: it counts again in "
             f"{c.deadline_wait - (now - shed_at):.1f} s, once its window holds makespans "
             f"measured since the handoff (--deadline-wait {c.deadline_wait:g} s)",
+            ("hysteresis", *key),
+        )
+    lag_at = memory.lag_moved.get(h.name, -math.inf)
+    lag_only = h.cpu < c.cpu_high and not any(
+        m.active and m.migration_wanted for m in h.monitors.values()
+    )
+    if lag_only and h.ingest_lag >= c.lag_high and now - lag_at < c.deadline_wait:
+        return Idle(
+            "hysteresis",
+            f"hysteresis holds: {h.name}'s ingest lags ({pressure}), but monitors were "
+            f"moved for that lag: it counts again in {c.deadline_wait - (now - lag_at):.1f} "
+            f"s, once its backlog had time to drain (--deadline-wait {c.deadline_wait:g} s)",
             ("hysteresis", *key),
         )
     if rank[h.tier] + 1 >= len(c.tiers):
