@@ -476,6 +476,9 @@ def plan(
                 moved.add(m)
                 memory.last_move[m] = now
 
+    # being moved right now (by anyone: another driver, the operator, an earlier round)
+    in_handoff = {m for h in handlers for m, load in h.monitors.items() if load.in_handoff}
+
     def movable(name: str, tier: str, to: HandlerReport) -> bool:
         p = placements.get(name, Placement())
         return (
@@ -483,6 +486,7 @@ def plan(
             and tier_allowed(tier, p, c)
             and may_host(p.robot, to.robot)
             and name not in moved
+            and name not in in_handoff
         )
 
     def held(name: str) -> bool:
@@ -525,9 +529,7 @@ def plan(
             names, why = planned
             asks.append(_Ask(h, destination, list(names), "deadline", why, True))
             continue
-        candidates = [
-            m for m in h.active() if not h.monitors[m].in_handoff and movable(m, up, destination)
-        ]
+        candidates = [m for m in h.active() if movable(m, up, destination)]
         # those that want to migrate first; then what frees most per millisecond added
         added = c.tier_latency_ms.get(up, 0.0) - c.tier_latency_ms.get(h.tier, 0.0)
         candidates.sort(
@@ -631,8 +633,6 @@ def plan(
         # robot's instance: its robot's own, or a shared one): one batch per destination
         homes: dict[str, tuple[HandlerReport, list[str]]] = {}
         for m in sorted(h.active()):
-            if h.monitors[m].in_handoff:  # being moved: by someone else, or an earlier round
-                continue
             p = placements.get(m, Placement())
             fit = [b for b in below if may_host(p.robot, b.robot)]
             if rank[h.tier] <= rank.get(p.tier or "", 0) or not fit:
