@@ -14,7 +14,9 @@ from edgerv.core.deadline import MakespanWindow
 from edgerv.handler import engine as engine_module
 from edgerv.handler.engine import Engine
 from edgerv.handler.health import (
+    BREATH_SECONDS,
     CHECK_SECONDS,
+    Breather,
     DiagnosticsConfig,
     Health,
     Level,
@@ -552,6 +554,67 @@ def test_the_pacer_updates_every_period_checks_between_and_keeps_to_its_budget()
     p.worked(101.0, 0.2, updated=True)  # 200 ms of CPU: 3.8 s idle after it
     assert p.wait(101.0, 101.1) == pytest.approx(3.8)
     assert not p.update_due(104.0) and p.update_due(104.8)
+
+
+def test_the_pacer_does_not_make_a_check_wait_again_for_what_it_breathed() -> None:
+    p = Pacer(period=1.0, budget=0.05, start=100.0)
+    p.worked(101.0, 0.2, updated=True, paid=0.15)  # 150 ms followed by sleeps already
+    assert p.wait(101.0, 101.1) == pytest.approx(0.05 * 19)
+    p.worked(102.0, 0.2, updated=True, paid=0.2)
+    assert p.wait(102.0, 102.1) == pytest.approx(0.1)  # (a hold ends then)
+
+
+class Waits:
+    """A stop event that never stops: what a Breather asks it to wait, noted."""
+
+    def __init__(self) -> None:
+        self.asked: list[float] = []
+
+    def wait(self, seconds: float) -> bool:
+        self.asked.append(seconds)
+        return False
+
+
+def test_a_breather_keeps_a_long_piece_of_work_to_its_budget_as_it_goes() -> None:
+    cpu = [10.0]
+    stop = Waits()
+    b = Breather(stop, budget=0.05, cpu=lambda: cpu[0])  # type: ignore[arg-type]
+    b()
+    cpu[0] += BREATH_SECONDS / 2
+    b()  # less than a breath of CPU: no sleep
+    assert stop.asked == [] and b.paid == 0.0
+    cpu[0] += BREATH_SECONDS
+    b()  # 1.5 breaths since the start: 19 times that asleep (5% of the stretch)
+    assert stop.asked == [pytest.approx(1.5 * BREATH_SECONDS * 19)]
+    assert b.paid == pytest.approx(1.5 * BREATH_SECONDS)
+    cpu[0] += BREATH_SECONDS
+    b.begin()  # a new piece of work: nothing paid, the CPU counted from here
+    b()
+    assert b.paid == 0.0 and len(stop.asked) == 1
+
+
+def test_checks_and_statuses_breathe_as_they_go(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every BREATH_EVERY monitors (here 3) a check and the statuses of a reading call
+    the health's breather, and so does encoding them; with or without, the same."""
+    from edgerv.handler import health as health_module
+    from edgerv.handler.ros import cdr_out
+
+    monkeypatch.setattr(health_module, "BREATH_EVERY", 3)
+    monkeypatch.setattr(cdr_out, "BREATH_EVERY", 3)
+    rigs = [Rig(), Rig()]
+    breaths: list[int] = []
+    rigs[1].health.breathe = lambda: breaths.append(1)
+    for rig in rigs:
+        for i in range(10):
+            rig.put(name=f"m{i}")
+        rig.send(150.0, 5.0)
+    levels = [rig.check() for rig in rigs]
+    assert levels[0] == levels[1] and len(breaths) == 3  # 10 monitors: after 3, 6, 9
+    statuses = [rig.health.statuses() for rig in rigs]
+    assert statuses[0] == statuses[1] and len(breaths) == 6
+    encoded = [cdr_out.encode_diagnostic_array(s, 1) for s in statuses]
+    assert cdr_out.encode_diagnostic_array(statuses[1], 1, rigs[1].health.breathe) == encoded[0]
+    assert len(breaths) == 9  # 11 statuses (the handler's first): after 3, 6, 9
 
 
 def test_the_handlers_diagnostics_flags() -> None:

@@ -37,10 +37,15 @@ HANDLER_PREFIX = "edgerv handler: "
 # level is published at once (a violation wakes the check sooner: Health.write).
 CHECK_SECONDS = 0.25
 # Diagnostics use at most this share of one CPU on average: with thousands of monitors a
-# publication is made less often than the period asks (Pacer).
+# publication is made less often than the period asks (Pacer); and, within one, at most
+# this share of any stretch of BREATH_SECONDS of its CPU (Breather): a check and an update
+# of 10,000 monitors (~0.3 s of Python) are spread over seconds, not taken at once from
+# the take loop, which shares the interpreter's lock with them (bench/scale.py's p99).
 CPU_BUDGET = 0.05
+BREATH_SECONDS = 0.002
+BREATH_EVERY = 256  # monitors (or statuses) between two looks at the CPU spent
 READ_CHUNK = 256  # monitors read under one hold of the engine's lock
-READ_PAUSE = 0.0002  # seconds between two holds: the lock's waiters take it meanwhile
+READ_PAUSE = 0.003  # seconds between two holds: the lock's waiters take it meanwhile
 # A STALE monitor says "no event for over X", X the stale seconds, then each of these
 # (1 min, 10 min, 1 h, 1 d) it passes: an age that changes a status only at these
 # instants, so an idle handler's statuses stay as published between them (Health.due)
@@ -159,11 +164,14 @@ def read_engine(
     monitors: list[MonitorReading] = []
     for start in range(0, len(slots), READ_CHUNK):
         if start:
-            # Between two holds, a moment for the threads waiting for the lock: the
-            # take loop's, the scheduler's. Without it this thread, still holding the GIL,
-            # took the lock again before a waiter could, and 10,000 monitors were read
-            # in one hold (up to 70 ms of waiting for the take loop; bench/scale.py's
-            # publish-to-verdict p99).
+            # Between two holds, a pause for the threads waiting for the lock and the
+            # interpreter's: the take loop's, the scheduler's. Without one this thread,
+            # still holding the GIL, took the lock again before a waiter could, and 10,000
+            # monitors were read in one hold (up to 70 ms of waiting for the take loop);
+            # with 0.2 ms it shared the interpreter half and half with the take loop for
+            # the read's 70 ms, which fell behind by as much (bench/scale.py's p99: 31-33
+            # ms without /diagnostics, 42-53 with; with 3 ms, 34). Each monitor is read
+            # at about the same offset into every reading: its rate is not skewed by it.
             time.sleep(READ_PAUSE)
         with engine.lock:
             current = engine.slots
@@ -294,6 +302,9 @@ class Health:
         # Settled (:meth:`settled`): the fingerprint of the last check's reading, the
         # first check that saw it, and until when a check would give the last levels
         # again (None: not settled); whether the last levels were published
+        # called every BREATH_EVERY monitors by check and statuses, as the reading is
+        # turned into statuses (a Breather, the diagnostics thread's; else nothing)
+        self.breathe: Callable[[], None] = _hold_breath
         self._fingerprint: object = None
         self._fingerprint_since = 0.0
         self._quiet_until: float | None = None
@@ -459,12 +470,14 @@ class Health:
         """Take ``reading`` (made at ``now``) into account; return each status's level by
         its name. :meth:`statuses` then builds the statuses of this reading."""
         base = self._update(reading, now)
-        problems = {
-            MONITOR_PREFIX + m.name: self._monitor_problems(
-                m, self._tracks[m.name], base, reading, now
+        breathe, tracks = self.breathe, self._tracks
+        problems = {}
+        for i, m in enumerate(reading.monitors):
+            if i % BREATH_EVERY == BREATH_EVERY - 1:
+                breathe()
+            problems[MONITOR_PREFIX + m.name] = self._monitor_problems(
+                m, tracks[m.name], base, reading, now
             )
-            for m in reading.monitors
-        }
         problems[HANDLER_PREFIX + self.handler] = self._handler_problems(reading, base, now)
         self._last = (reading, base, now, problems)
         levels = {name: worst(level for level, _ in p) for name, p in problems.items()}
@@ -512,7 +525,10 @@ class Health:
         reading, base, now, problems = self._last
         out = [self._handler_status(reading, base, now, problems[HANDLER_PREFIX + self.handler])]
         self._statuses_now = {}
-        for m in sorted(reading.monitors, key=lambda m: m.name):
+        breathe = self.breathe
+        for i, m in enumerate(sorted(reading.monitors, key=lambda m: m.name)):
+            if i % BREATH_EVERY == BREATH_EVERY - 1:
+                breathe()
             name = MONITOR_PREFIX + m.name
             if names is None or name in names:
                 out.append(self._monitor_status(m, self._tracks[m.name], base, now, problems[name]))
@@ -710,6 +726,40 @@ class Health:
         return times[i] if i < len(times) else None
 
 
+def _hold_breath() -> None:
+    """(No Breather: the work is done at once.)"""
+
+
+class Breather:
+    """A long piece of work spread in time: called every so often as it goes, it sleeps
+    after each BREATH_SECONDS of the thread's CPU, long enough that the work takes
+    ``budget`` of one CPU meanwhile. :attr:`paid`: the CPU seconds its sleeps followed
+    (the Pacer does not make them wait again); ``stop``, set, ends a sleep at once."""
+
+    def __init__(
+        self,
+        stop: threading.Event,
+        budget: float = CPU_BUDGET,
+        cpu: Callable[[], float] = time.thread_time,
+    ) -> None:
+        self.stop = stop
+        self.budget = budget
+        self.cpu = cpu  # the thread's CPU seconds
+        self.paid = 0.0
+        self.mark = cpu()
+
+    def begin(self) -> None:
+        """A new piece of work: the CPU counts from here, nothing paid yet."""
+        self.paid, self.mark = 0.0, self.cpu()
+
+    def __call__(self) -> None:
+        spent = self.cpu() - self.mark
+        if spent >= BREATH_SECONDS:
+            self.stop.wait(spent * (1 / self.budget - 1))
+            self.paid += spent
+            self.mark = self.cpu()
+
+
 class Pacer:
     """When the diagnostics thread works next: a periodic update every ``period``, a
     check of the levels every CHECK_SECONDS and at the instants :meth:`Health.next_change`
@@ -732,8 +782,9 @@ class Pacer:
     def update_due(self, now: float) -> bool:
         return now >= self.next_update
 
-    def worked(self, now: float, cpu_seconds: float, updated: bool) -> None:
-        """A check (or, ``updated``, an update) ended at ``now`` and took ``cpu_seconds``."""
-        self.not_before = now + cpu_seconds * (1 / self.budget - 1)
+    def worked(self, now: float, cpu_seconds: float, updated: bool, paid: float = 0.0) -> None:
+        """A check (or, ``updated``, an update) ended at ``now`` and took ``cpu_seconds``,
+        ``paid`` of which were followed by a Breather's sleeps already."""
+        self.not_before = now + max(0.0, cpu_seconds - paid) * (1 / self.budget - 1)
         if updated:
             self.next_update = max(now + self.period, self.not_before)

@@ -9,9 +9,9 @@ its cost (rclpy builds a Python object per field, then converts each to C). Pure
 from __future__ import annotations
 
 import struct
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
-from edgerv.handler.health import Status
+from edgerv.handler.health import BREATH_EVERY, Status
 
 _U32 = struct.Struct("<I").pack
 _STAMP = struct.Struct("<iI").pack
@@ -26,14 +26,17 @@ def _cdr_string(text: str) -> bytes:
     return _U32(size) + data + _NULS[1 + -size % 4]
 
 
-def encode_diagnostic_array(statuses: Sequence[Status], stamp_ns: int) -> bytes:
+def encode_diagnostic_array(
+    statuses: Sequence[Status], stamp_ns: int, breathe: Callable[[], None] | None = None
+) -> bytes:
     """``diagnostic_msgs/msg/DiagnosticArray`` as CDR (little endian): the message rclpy's
     own serializer gives (tests/integration/test_ros_outputs.py), at a fraction of its
     cost (rclpy builds a Python object per KeyValue, then converts each to C).
 
     Strings and counts are 4-byte aligned; only a status's level (one byte) is not, so
     every string is written with the padding after it that the next one needs, except a
-    status's last, after which the next status's level follows at once."""
+    status's last, after which the next status's level follows at once. ``breathe``:
+    called every BREATH_EVERY statuses (health.Breather: the work spread in time)."""
     seconds, nanoseconds = divmod(stamp_ns, 1_000_000_000)
     parts = [
         b"\x00\x01\x00\x00",  # the encapsulation: CDR, little endian
@@ -44,7 +47,9 @@ def encode_diagnostic_array(statuses: Sequence[Status], stamp_ns: int) -> bytes:
     append = parts.append
     known: dict[str, bytes] = {}  # keys, and values such as "0", repeat across statuses
     end = 0  # the offset after the last part, modulo 4
-    for status in statuses:
+    for i, status in enumerate(statuses):
+        if breathe is not None and i % BREATH_EVERY == BREATH_EVERY - 1:
+            breathe()
         append(bytes((int(status.level),)) + _NULS[-(end + 1) % 4])
         for text in (status.name, status.message, status.hardware_id):
             append(known.get(text) or known.setdefault(text, _cdr_string(text)))

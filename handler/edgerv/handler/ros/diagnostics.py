@@ -12,7 +12,7 @@ from typing import Any
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from edgerv.handler.engine import Engine
-from edgerv.handler.health import Health, Pacer, Reading, Status, read_engine
+from edgerv.handler.health import Breather, Health, Pacer, Reading, Status, read_engine
 from edgerv.handler.outbox import Outbox
 from edgerv.handler.ros.cdr_out import encode_diagnostic_array, restamp_diagnostic_array
 from edgerv.handler.ros.messages import message_class
@@ -62,6 +62,9 @@ class Diagnostics:
         )
         self._failures = 0
         self._sent: tuple[list[Status], bytes] | None = None  # the statuses last sent, as sent
+        # the reading turned into statuses and bytes a little at a time (health.CPU_BUDGET)
+        self.breather = Breather(stop)
+        health.breathe = self.breather
         self._thread: threading.Thread | None = None
 
     def fingerprint(self) -> object:
@@ -114,7 +117,7 @@ class Diagnostics:
         if sent is not None and sent[0] is statuses:
             data = restamp_diagnostic_array(sent[1], stamp)
         else:
-            data = encode_diagnostic_array(statuses, stamp)
+            data = encode_diagnostic_array(statuses, stamp, self.breather)
         self.publisher.publish(data)
         self._sent = (statuses, data)
         health.published(statuses)
@@ -123,8 +126,9 @@ class Diagnostics:
     def _loop(self) -> None:
         """The diagnostics thread: an update every period, a check of the levels between
         (published at once when one changed; a violation wakes it), within its CPU budget
-        (health.Pacer). It takes the engine's lock only to copy a few hundred monitors at a
-        time, and never waits for the take loop."""
+        (health.Pacer), which a long one keeps to as it goes (health.Breather). It takes
+        the engine's lock only to copy a few hundred monitors at a time, and never waits
+        for the take loop."""
         health = self.health
         pacer = Pacer(health.config.period, start=health.clock.monotonic())
         while not self._stop.is_set():
@@ -139,6 +143,7 @@ class Diagnostics:
                 break
             health.changed.clear()
             started = time.thread_time()
+            self.breather.begin()
             update = pacer.update_due(health.clock.monotonic())
             try:
                 self.diagnose(update)
@@ -147,7 +152,8 @@ class Diagnostics:
                 n = self._failures
                 if n in (1, 10, 100) or n % 1000 == 0:
                     log.exception("publishing /diagnostics failed (%d times)", n)
-            pacer.worked(health.clock.monotonic(), time.thread_time() - started, update)
+            spent = time.thread_time() - started
+            pacer.worked(health.clock.monotonic(), spent, update, self.breather.paid)
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._loop, name="edgerv-diagnostics", daemon=True)
