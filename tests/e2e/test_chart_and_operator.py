@@ -192,6 +192,19 @@ print(json.dumps({
 """
 
 
+# A deadline plan in the operator's image (tests/unit/test_planner.py's instance where the
+# solver's answer is not the greedy rule's: two monitors are the fewest, c and d of them
+# the fewest events); "greedy" without SciPy.
+PLANS = """
+import json
+from edgerv.core.planner import EdgeState, MonitorCost, PlannerConfig, plan_moves
+costs = [("a", 0.20, 900), ("b", 0.20, 100), ("c", 0.15, 50), ("d", 0.10, 10), ("e", 0.05, 1)]
+ms = [MonitorCost(n, "edge", cost, rate, None, False, False) for n, cost, rate in costs]
+p = plan_moves(ms, EdgeState(0.5, 0.1, 0.12, 40.0, None, None, {}), PlannerConfig(time_budget=5.0))
+print(json.dumps({"up": list(p.up), "method": p.method}))
+"""
+
+
 def privileges(cluster: Cluster, ns: str, selector: str) -> list[dict[str, Any]]:
     """What the processes of each pod ``selector`` picks in ``ns`` may do."""
     pods = json.loads(cluster.run("get", "pods", "-n", ns, "-l", selector, "-o", "json"))["items"]
@@ -273,6 +286,13 @@ def test_helm_install_runs_the_operator_in_the_cluster(cluster: Cluster) -> None
         )
         for got in privileges(cluster, ns, operator):  # (its API token it needs: Kopf's)
             assert got == HARDENED | {"token": True}, got
+        for pod in json.loads(cluster.run("get", "pods", "-n", ns, "-l", operator, "-o", "json"))[
+            "items"
+        ]:  # its placement rounds plan with the exact solver, not only the greedy rule
+            planned = cluster.run(
+                "exec", "-n", ns, pod["metadata"]["name"], "--", "python3", "-c", PLANS
+            )
+            assert json.loads(planned) == {"up": ["c", "d"], "method": "milp"}, planned
         rights_when_namespaces_are_watched(cluster, ns)
         leader, worked, peers = acting()
         assert len(peers) == 2 and len(set(peers.values())) == 2, peers
