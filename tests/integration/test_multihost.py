@@ -302,6 +302,10 @@ def test_orchestrate_starts_monitors_and_moves_one_under_pressure(
             "wide-window": True,
             "pinned-here": False,
         }
+        # the cloud measures its tier's latency from the robot (the replay, on the edge's
+        # host): a lower bound only, the link never delivers early (placement.measured)
+        reach = wait_for(lambda: cloud.request("GET", "/v1/load")[1]["reachMs"], timeout=30)
+        assert reach is not None and reach >= DELAY_MS, reach
         replay.kill()
     finally:
         edge.stop()

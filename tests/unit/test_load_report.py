@@ -20,6 +20,7 @@ from edgerv.control.wire import parse_load
 from edgerv.core.deadline import MakespanWindow
 from edgerv.handler.api import ControlApi
 from edgerv.handler.engine import Engine
+from edgerv.handler.reach import Reach
 from kit.documents import compiled
 
 MS = 1_000_000
@@ -87,6 +88,7 @@ def test_what_a_handler_may_leave_out_reads_as_its_default() -> None:
         }
     )
     assert (report["ingestLag"], report["deadline"], report["monotonic"]) == (0.0, None, 1.0)
+    assert report["reachMs"] is None
     assert report["host"] is None and report["topics"] == {}
     assert report["monitors"]["m"] == {
         "active": False,
@@ -118,6 +120,7 @@ GOOD: dict[str, Any] = {
         ({"monotonic": "soon"}, "monotonic is not a number"),
         ({"cpuSeconds": None}, "cpuSeconds is not a number"),
         ({"ingestLag": True}, "ingestLag is not a number"),
+        ({"reachMs": "far"}, "reachMs is not a number"),
         ({"monitors": []}, "monitors is not an object"),
         ({"topics": []}, "topics is not an object"),
         ({"topics": {"/imu": 1}}, "topics./imu is not an object"),
@@ -168,3 +171,22 @@ def test_a_handler_that_answers_no_load_report_is_left_out_of_the_round() -> Non
     o.clients = {edge: Answers(GOOD), cloud: Answers({"handler": "c"})}
     assert list(o.poll()) == [edge]
     assert o.round() == [] and list(o.seen) == [edge]
+
+
+def test_how_long_messages_take_to_reach_the_handler() -> None:
+    """The load report's reachMs: the 95th percentile (nearest rank) of the newest
+    REACH_SAMPLES readings the take loop notes (the longest a topic's messages took in a
+    round, from publication to reception); a clock behind reads 0; none yet: null."""
+    engine = Engine("edge-1")
+    assert engine.load()["reachMs"] is None
+    for ms in range(1, 101):  # 1..100 ms: the 95th of 100 is 95
+        engine.reach.note(ms * 1_000_000)
+    assert engine.load()["reachMs"] == 95.0
+    reach = Reach(size=4)
+    for ns in (-5, 10, 20, 30, 40, 50):  # the newest four: 20, 30, 40, 50
+        reach.note(ns)
+    assert reach.p95_ms() == 50 / 1e6 and reach.count == 6
+    fresh = Reach(size=4)
+    fresh.note(-5)  # a publisher's clock ahead of this one's
+    assert fresh.p95_ms() == 0.0
+    assert parse_load({**GOOD, "reachMs": 12.5})["reachMs"] == 12.5

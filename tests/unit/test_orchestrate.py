@@ -77,6 +77,10 @@ def test_rates_come_from_two_polls() -> None:
     assert r.cpu == pytest.approx(0.75)
     m = r.monitors["m"]
     assert (m.events_per_second, m.in_handoff, m.migration_wanted) == (500.0, True, True)
+    assert r.reach_ms is None  # (no message reached it yet)
+    measured = {**load(13.0, 7.0, 1200), "reachMs": 21.5}
+    (r,) = build_reports({edge: measured}, previous)[0]
+    assert r.reach_ms == 21.5  # its tier's latency as measured (placement.measured)
 
 
 class Reports(HandlerClient):

@@ -348,3 +348,95 @@ def test_a_monitor_in_a_handoff_is_neither_shed_nor_brought_home_by_the_rule() -
         tiers=("edge", "cloud"), calm_seconds=0, cooldown_seconds=0, max_moves_down=5
     )
     assert [m.monitor for m in plan(below, {}, config, PolicyMemory(), now=1)] == ["b"]
+
+
+def test_a_tiers_measured_latency_holds_where_it_passes_what_is_said() -> None:
+    """The fog said 5 ms from the robot; its handler measures 12 (its reach): a monitor
+    of maxLatencyMs 10 may not go there, one of 20 may; measured below what is said, what
+    is said holds."""
+    placements = {"near": Placement(max_latency_ms=10.0), "far": Placement(max_latency_ms=20.0)}
+    hot = edge(0.95, near=busy(600), far=busy(500))
+    fog = HandlerReport("fog-1", "fog", 0.1, reach_ms=12.0)
+    moves = plan([hot, fog], placements, CONFIG, PolicyMemory(), now=0)
+    assert [m.monitor for m in moves] == ["far"]
+    quick = HandlerReport("fog-1", "fog", 0.1, reach_ms=1.0)  # 5 ms said: the near still fits
+    moves = plan([hot, quick], placements, CONFIG, PolicyMemory(), now=0)
+    assert [m.monitor for m in moves] == ["near"]
+
+
+def test_a_monitor_whose_tier_grew_too_far_comes_down_at_once() -> None:
+    """A monitor went up to the fog when it was 5 ms away; the fog now measures 30 ms,
+    past its maxLatencyMs of 10: it comes down where it would start now, in one move, with
+    no calm or cooldown to wait for (reason latency); one with no maxLatencyMs stays, and
+    nothing moves while no tier below may take it."""
+    placements = {"near": Placement(max_latency_ms=10.0)}
+    fog = HandlerReport(
+        "fog-1", "fog", 0.3, monitors={"near": busy(50), "any": busy(50)}, reach_ms=30.0
+    )
+    below = edge(0.8, near=MonitorLoad(active=False), any=MonitorLoad(active=False))
+    moves = plan([below, fog], placements, CONFIG, PolicyMemory(), now=0)
+    assert moves == [Move("near", "fog-1", "edge-1", "latency")]
+    alone = plan([fog], placements, CONFIG, PolicyMemory(), now=0)
+    assert alone == []
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_no_move_takes_a_monitor_where_the_tier_is_farther_than_its_max_latency(
+    seed: int,
+) -> None:
+    """Random handlers (loaded, calm, late, each tier's latency said and measured) and
+    monitors (some with maxLatencyMs, some pinned, some running nowhere): a few rounds of
+    the policy; no move goes to a tier whose latency (the larger of said and measured)
+    passes the monitor's maxLatencyMs."""
+    import random
+
+    rng = random.Random(seed)
+    config = PolicyConfig(
+        tiers=("edge", "fog", "cloud"),
+        tier_latency_ms={"fog": rng.choice([0.0, 5.0]), "cloud": rng.choice([0.0, 40.0])},
+        calm_seconds=0.0,
+        cooldown_seconds=0.0,
+    )
+    names = [f"m{i}" for i in range(8)]
+    placements = {
+        m: Placement(
+            tier=rng.choice([None, "edge", "fog"]),
+            migrate=rng.choice(["auto", "auto", "pinned"]),  # type: ignore[arg-type]
+            max_latency_ms=rng.choice([None, 3.0, 10.0, 30.0]),
+        )
+        for m in names
+    }
+    memory = PolicyMemory()
+    for round_ in range(4):
+        handlers = []
+        for tier, name in (("edge", "edge-1"), ("fog", "fog-1"), ("cloud", "cloud-1")):
+            monitors = {
+                m: MonitorLoad(
+                    active=rng.random() < 0.4,
+                    events_per_second=rng.choice([0.0, 10.0, 500.0]),
+                    migration_wanted=rng.random() < 0.2,
+                )
+                for m in names
+            }
+            deadline = None
+            if tier == "edge" and rng.random() < 0.5:
+                deadline = DeadlineReading(0.1, rng.choice([0.05, 0.2]), 10, 5)
+            handlers.append(
+                HandlerReport(
+                    name,
+                    tier,
+                    rng.choice([0.2, 0.6, 0.95]),
+                    monitors=monitors,
+                    deadline=deadline,
+                    reach_ms=rng.choice([None, 1.0, 8.0, 25.0, 60.0]),
+                )
+            )
+        latency = dict(config.tier_latency_ms)
+        for h in handlers:
+            if h.reach_ms is not None:
+                latency[h.tier] = max(latency.get(h.tier, 0.0), h.reach_ms)
+        tiers = {h.name: h.tier for h in handlers}
+        for move in plan(handlers, placements, config, memory, now=10.0 * round_):
+            most = placements[move.monitor].max_latency_ms
+            there = latency.get(tiers[move.destination], 0.0)
+            assert most is None or there <= most, (move, there, most)

@@ -177,6 +177,7 @@ def load(
         "cpuSeconds": cpu,
         "host": {"cores": 2, "busySeconds": busy, "totalSeconds": total},
         "ingestLag": 0.0,
+        "reachMs": None,
         "deadline": deadline,
         "topics": {t: {"messages": 0, "cpuSeconds": v} for t, v in (taking or {}).items()},
         "monitors": {

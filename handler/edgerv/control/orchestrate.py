@@ -46,6 +46,7 @@ from edgerv.control.placement import (
     edge_state,
     is_loaded,
     is_pressured,
+    measured,
     plan,
     tier_allowed,
 )
@@ -162,6 +163,7 @@ def build_reports(
                 tier=target.tier,
                 cpu=max(0.0, cpu),
                 ingest_lag=load["ingestLag"],
+                reach_ms=load["reachMs"],
                 deadline=deadline_reading(load["deadline"]),
                 monitors={
                     m: MonitorLoad(
@@ -502,8 +504,9 @@ def why_nothing_moves(
     In this order: nothing to decide on; moves held back; a handler under pressure that
     sheds nothing (why); a monitor above its home tier that may not come down yet (the
     hysteresis, and how long) or at all (pinned); else what the deadline reads (no signal
-    yet, or met with margin), else everything is where it would go."""
-    c = config
+    yet, or met with margin), else everything is where it would go. Tiers' latencies as
+    the policy saw them (placement.measured)."""
+    c = measured(config, reports)
     if not reports:
         return Idle("no answer", "no handler answered this round", ("no answer",))
     if not any(h.monitors for h in reports):

@@ -93,6 +93,9 @@ class HandlerReport:
     # cores each topic its monitors read takes to ingest there (measured), whatever
     # number of monitors read it: freed when the last leaves
     topics: Mapping[str, float] = field(default_factory=dict)
+    # ms the robot's messages take from their publication to it (the 95th percentile it
+    # measures: the load report's reachMs); None: none reached it yet
+    reach_ms: float | None = None
 
     def active(self) -> list[str]:
         return [m for m, load in self.monitors.items() if load.active]
@@ -258,6 +261,19 @@ def tier_allowed(tier: str, placement: Placement, c: PolicyConfig) -> bool:
     return budget is None or c.tier_latency_ms.get(tier, 0.0) <= budget
 
 
+def measured(c: PolicyConfig, handlers: Sequence[HandlerReport]) -> PolicyConfig:
+    """``c`` with each tier's latency from the robot as the larger of what ``c`` says
+    (``tier_latency_ms``, ``--tier-latency``) and what the tier's handlers measure (their
+    ``reach_ms``, the highest of them): ``placement.maxLatencyMs`` holds on the link as
+    it is, and what is said holds before anything is measured (a tier none of whose
+    handlers reads a topic yet)."""
+    merged = dict(c.tier_latency_ms)
+    for h in handlers:
+        if h.reach_ms is not None and h.reach_ms > merged.get(h.tier, 0.0):
+            merged[h.tier] = h.reach_ms
+    return c if merged == c.tier_latency_ms else dataclasses.replace(c, tier_latency_ms=merged)
+
+
 def _shed_enough(
     shed: float, total: float, excess: float, floor: float | None, loaded: bool
 ) -> bool:
@@ -290,8 +306,8 @@ def start_on(
     when it names none, or one not in the tiers), else of the nearest tier above that
     has one and that ``placement.maxLatencyMs`` allows. None: no such handler (never
     below its home tier). ``placement.migrate: pinned`` forbids moves once it runs, not
-    where it starts."""
-    c = config
+    where it starts. Tiers' latencies as measured (:func:`measured`)."""
+    c = measured(config, handlers)
     home = c.tiers.index(placement.tier) if placement.tier in c.tiers else 0
     for tier in c.tiers[home:]:
         fit = [h for h in handlers if h.tier == tier and may_host(placement.robot, h.robot)]
@@ -432,8 +448,9 @@ def plan(
     memory: PolicyMemory,
     now: float,
 ) -> list[Move]:
-    """The moves to make now. Updates ``memory`` as if they are all made."""
-    c = config
+    """The moves to make now. Updates ``memory`` as if they are all made. Tiers'
+    latencies as measured (:func:`measured`)."""
+    c = measured(config, handlers)
     rank = {t: i for i, t in enumerate(c.tiers)}
     for h in handlers:
         if h.tier not in rank:
@@ -462,17 +479,21 @@ def plan(
             moved.add(m)
             memory.last_move[m] = now
 
-    # Home: a pinned monitor that runs above its home tier (it started there: its home
-    # tier had no handler then) goes where it would start now, once that is lower, in
-    # one move; pinned, it is never moved otherwise.
+    # Home: a monitor that runs above where it would start now goes there, in one move,
+    # when it is pinned (it started above its home tier, which had no handler then;
+    # pinned, it is never moved otherwise) or its tier is now too far for its
+    # placement.maxLatencyMs (the tier's measured latency grew past it: reason latency).
     for h in sorted(handlers, key=lambda h: h.name):
         for m in sorted(h.active()):
             p = placements.get(m, Placement())
-            if p.migrate != "pinned" or m in moved or h.monitors[m].in_handoff:
+            pinned = p.migrate == "pinned"
+            if m in moved or h.monitors[m].in_handoff:
+                continue
+            if not pinned and tier_allowed(h.tier, p, c):
                 continue
             home = start_on(p, [b for b in handlers if b is not h and m in b.monitors], c)
             if home is not None and rank[home.tier] < rank[h.tier]:
-                moves.append(Move(m, h.name, home.name, "pinned home"))
+                moves.append(Move(m, h.name, home.name, "pinned home" if pinned else "latency"))
                 moved.add(m)
                 memory.last_move[m] = now
 

@@ -201,6 +201,9 @@ class LoadReport(TypedDict):
     cpuSeconds: float  # the handler's process CPU time
     host: HostLoad | None  # None: unreadable there (not Linux)
     ingestLag: float  # seconds
+    # how long the robot's messages take from their publication to this handler, the
+    # 95th percentile of its recent rounds (handler/reach.py); None: none came yet
+    reachMs: float | None
     deadline: DeadlineLoad | None  # None: the handler measures no deadline (--deadline)
     topics: dict[str, TopicLoadReport]  # the topics its monitors read
     monitors: dict[str, MonitorLoadReport]
@@ -325,8 +328,9 @@ def _topic_load(name: str, d: object) -> TopicLoadReport:
 def parse_load(value: object) -> LoadReport:
     """A load report as JSON decoded it, checked field by field: raises
     :class:`ValueError` saying what is not as the API promises. What a handler may leave
-    out reads as its default (``ingestLag`` 0, ``deadline`` and ``host`` null, ``topics``
-    empty, a monitor's ``epoch`` and ``cpuSeconds`` 0, ``handoff`` and ``peer`` null, the
+    out reads as its default (``ingestLag`` 0, ``reachMs``, ``deadline`` and ``host``
+    null, ``topics`` empty, a monitor's ``epoch`` and ``cpuSeconds`` 0, ``handoff`` and
+    ``peer`` null, the
     default placement, its ``topics`` empty; a topic's ``cpuSeconds`` 0; in a
     ``deadline``, all but ``budgetMs`` and ``count``)."""
     if not isinstance(value, Mapping):
@@ -342,6 +346,7 @@ def parse_load(value: object) -> LoadReport:
         "cpuSeconds": _number(value, "cpuSeconds", ""),
         "host": _host(value.get("host")),
         "ingestLag": _number(value, "ingestLag", "", 0.0),
+        "reachMs": _number_or_none(value, "reachMs", ""),
         "deadline": _deadline(value.get("deadline")),
         "topics": {str(name): _topic_load(str(name), d) for name, d in _object(value, "topics")},
         "monitors": {str(name): _monitor_load(str(name), d) for name, d in monitors.items()},

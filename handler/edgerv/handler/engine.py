@@ -44,6 +44,7 @@ from edgerv.handler.clock import Clock, SystemClock
 from edgerv.handler.handoff_state import HandoffState
 from edgerv.handler.handoff_steps import HandoffSteps
 from edgerv.handler.host import read_host_cpu
+from edgerv.handler.reach import Reach
 from edgerv.handler.slot import MonitorSlot
 
 log = logging.getLogger("edgerv.handler")
@@ -174,6 +175,7 @@ class Engine(HandoffSteps):
         # time), at most flush_after (the ROS layer's; a handoff's release waits for it)
         self.stamp_lag: dict[str, int] = {}
         self.ingest_lag = 0.0  # seconds between publication and ingestion, last batch
+        self.reach = Reach()  # how long messages take from publication to here (ROS layer's)
         self.waiting: dict[str, MonitorRuntime] = {}  # monitors with letters to evaluate
         self.in_handoff: dict[str, MonitorSlot] = {}  # so ingest need not scan every slot
         # The slots a tick looks at, so that it need not scan every slot (10,000 idle ones
@@ -862,6 +864,7 @@ class Engine(HandoffSteps):
                 "cpuSeconds": time.process_time(),
                 "host": None if host is None else host.json(),
                 "ingestLag": self.ingest_lag,
+                "reachMs": self.reach.p95_ms(),
                 "deadline": deadline,
                 "topics": {
                     topic: {

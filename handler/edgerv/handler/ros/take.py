@@ -91,6 +91,7 @@ class TakeLoop:
         lags, lag_cap = self.engine.stamp_lag, int(self.engine.flush_after * 1e9)
         published = None if self.sim is None else self.sim.published  # ROS time of a source
         taking = self.engine.taking_ns
+        note_reach = self.engine.reach.note
         # CPU (this thread's) since the last topic that delivered: a topic's share is what
         # its takes and reads cost, with the empty takes before it (one reading a round
         # and one a topic that delivers, where each topic's took two: ~0.75 us a reading)
@@ -107,6 +108,7 @@ class TakeLoop:
             first = got[1]["source_timestamp"]  # a subscription's first message is its oldest
             oldest_source = first if oldest_source is None else min(oldest_source, first)
             lag = 0  # the most a message here reached this handler after its stamp
+            way = 0  # and after its publication (reach.py)
             left = TAKE_PER_WAKE
             seqs: list[int] = []
             while got is not None:
@@ -122,6 +124,8 @@ class TakeLoop:
                     # published after its stamp (a header stamp), then on its way here
                     # (0: the middleware did not say when it came; taken now, at latest)
                     received = info["received_timestamp"] or time.time_ns()
+                    if received - source > way:
+                        way = received - source
                     reach = (at - stamp if stamp else 0) + received - source
                     if reach > lag:
                         lag = reach
@@ -134,6 +138,7 @@ class TakeLoop:
                 got = take(cls, True)
             if lag > lags.get(topic, -1):  # (a topic that reached it at all has one)
                 lags[topic] = min(lag, lag_cap)
+            note_reach(way)
             self._count_lost(sub, seqs)
             now = clock()
             taking[topic] = taking.get(topic, 0) + now - mark
