@@ -599,8 +599,7 @@ def test_checks_and_statuses_breathe_as_they_go(monkeypatch: pytest.MonkeyPatch)
     from edgerv.handler import health as health_module
     from edgerv.handler.ros import cdr_out
 
-    monkeypatch.setattr(health_module, "BREATH_EVERY", 3)
-    monkeypatch.setattr(cdr_out, "BREATH_EVERY", 3)
+    monkeypatch.setattr(health_module, "BREATH_EVERY", 3)  # (health.breathing's)
     rigs = [Rig(), Rig()]
     breaths: list[int] = []
     rigs[1].health.breathe = lambda: breaths.append(1)

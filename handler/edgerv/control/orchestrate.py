@@ -48,6 +48,7 @@ from edgerv.control.placement import (
     is_pressured,
     measured,
     plan,
+    still_waits,
     tier_allowed,
 )
 from edgerv.control.tls import ClientTls
@@ -313,26 +314,25 @@ def _stuck(
             f"{h.name} is under pressure ({pressure}) but runs no monitor",
             ("nothing to shed", *key),
         )
-    shed_at = memory.deadline_moved.get(h.name, -math.inf)
-    if not is_loaded(h, c) and now - shed_at < c.deadline_wait:
+    left = still_waits(memory.deadline_moved, h, c, now)
+    if not is_loaded(h, c) and left:
         return Idle(
             "hysteresis",
             f"hysteresis holds: {h.name}'s deadline is at risk ({pressure}), but monitors "
-            f"were moved for its deadline: it counts again in "
-            f"{c.deadline_wait - (now - shed_at):.1f} s, once its window holds makespans "
-            f"measured since the handoff (--deadline-wait {c.deadline_wait:g} s)",
+            f"were moved for its deadline: it counts again in {left:.1f} s, once its window "
+            f"holds makespans measured since the handoff (--deadline-wait {c.deadline_wait:g} s)",
             ("hysteresis", *key),
         )
-    lag_at = memory.lag_moved.get(h.name, -math.inf)
+    left = still_waits(memory.lag_moved, h, c, now)
     lag_only = h.cpu < c.cpu_high and not any(
         m.active and m.migration_wanted for m in h.monitors.values()
     )
-    if lag_only and h.ingest_lag >= c.lag_high and now - lag_at < c.deadline_wait:
+    if lag_only and h.ingest_lag >= c.lag_high and left:
         return Idle(
             "hysteresis",
             f"hysteresis holds: {h.name}'s ingest lags ({pressure}), but monitors were "
-            f"moved for that lag: it counts again in {c.deadline_wait - (now - lag_at):.1f} "
-            f"s, once its backlog had time to drain (--deadline-wait {c.deadline_wait:g} s)",
+            f"moved for that lag: it counts again in {left:.1f} s, once its backlog had "
+            f"time to drain (--deadline-wait {c.deadline_wait:g} s)",
             ("hysteresis", *key),
         )
     if rank[h.tier] + 1 >= len(c.tiers):

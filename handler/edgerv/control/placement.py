@@ -256,6 +256,13 @@ def is_calm(h: HandlerReport, c: PolicyConfig) -> bool:
     )
 
 
+def still_waits(moved: Mapping[str, float], h: HandlerReport, c: PolicyConfig, now: float) -> float:
+    """Seconds until ``h``'s deadline pressure (``moved``: PolicyMemory.deadline_moved)
+    or ingest lag (PolicyMemory.lag_moved) counts again after monitors were moved for
+    it: ``deadline_wait`` after that move; 0 once it has passed, or with none."""
+    return max(0.0, c.deadline_wait - (now - moved.get(h.name, -math.inf)))
+
+
 def tier_allowed(tier: str, placement: Placement, c: PolicyConfig) -> bool:
     budget = placement.max_latency_ms
     return budget is None or c.tier_latency_ms.get(tier, 0.0) <= budget
@@ -533,10 +540,7 @@ def plan(
     asks: list[_Ask] = []
     for h in sorted(handlers, key=lambda h: (rank[h.tier], h.name)):
         loaded = is_loaded(h, c)
-        deadline = (
-            deadline_at_risk(h, c)
-            and now - memory.deadline_moved.get(h.name, float("-inf")) >= c.deadline_wait
-        )
+        deadline = deadline_at_risk(h, c) and not still_waits(memory.deadline_moved, h, c, now)
         if not (loaded or deadline) or rank[h.tier] + 1 >= len(c.tiers):
             continue
         up = c.tiers[rank[h.tier] + 1]
@@ -565,10 +569,7 @@ def plan(
         # an ingest that lags with CPU to spare (a CPU budget it cannot keep up under, a
         # core the real-time task takes) says nothing of how much to shed: at least
         # deadline_shed of the movable load, as for the deadline, then its wait
-        lagging = (
-            h.ingest_lag >= c.lag_high
-            and now - memory.lag_moved.get(h.name, float("-inf")) >= c.deadline_wait
-        )
+        lagging = h.ingest_lag >= c.lag_high and not still_waits(memory.lag_moved, h, c, now)
         # under deadline pressure, at least deadline_shed of the movable load (busiest first)
         movable_load = sum(h.monitors[m].events_per_second for m in candidates)
         floor = c.deadline_shed * movable_load if deadline or lagging else None

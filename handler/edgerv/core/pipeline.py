@@ -850,6 +850,18 @@ class MonitorRuntime:
         missing = sum(v is _UNSET for v in values)
         return made, (values, self.ahead_letters[made - 1] if made else valuation, missing)
 
+    def hold(self) -> None:
+        """A handoff's hold (a sender's from its hold, a receiver's from its receive):
+        its events are buffered raw, nothing compressed ahead as they come (what a sender
+        takes then is mostly past the cut, never to be compressed here; a receiver's are
+        compressed after the sender's state, once adopted)."""
+        self.holding, self.speculate = True, False
+
+    def resume(self) -> None:
+        """A sender's hold undone: its events compressed ahead again as they come, as a
+        monitor's are when made (none of a stateful one's)."""
+        self.holding, self.speculate = False, not self.monitor.stateful
+
     def unspeculate(self) -> None:
         """Forget what was compressed ahead: back to the state before the sort buffer."""
         if self.ahead:

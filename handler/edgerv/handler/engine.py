@@ -181,8 +181,8 @@ class Engine(HandoffSteps):
         # The slots a tick looks at, so that it need not scan every slot (10,000 idle ones
         # took it 11 ms, under the lock, every period while messages come): those that took
         # events or letters from a message, a clock step or a handoff's step since, until a
-        # tick finds them idle (nothing buffered, no flush due, no pressure followed).
-        # Whatever else makes a runtime (a definition, an activation) makes it empty.
+        # tick finds them idle (nothing buffered, no flush due, no pressure followed); and
+        # each activated one once (its slot's flush or pressure from before settles).
         self.watched: dict[str, MonitorSlot] = {}
         self.clocked: dict[str, MonitorSlot] = {}  # the slots whose monitor has a clock
         # --deadline: the makespans of the robot's real-time task (the ROS layer measures)

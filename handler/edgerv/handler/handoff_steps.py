@@ -103,12 +103,11 @@ class HandoffSteps:
             slot.epoch = epoch
             self._set_handoff(slot, SENDING)
             slot.cut_known, slot.held_at, slot.peer = None, now, peer
-            slot.runtime.holding = True
             # Nothing compressed ahead as it comes while it holds: most of what it takes
             # now is past the cut, never to be compressed here, and the release compresses
             # what is not (make demo's 450 held: 14.0% of a core compressing ahead, 6.3%
             # not, where running them takes 5.2 to 5.7%; bench/RESULTS.md)
-            slot.runtime.speculate = False
+            slot.runtime.hold()
             # What the sort buffer holds now is all at or before any cut H2 can report
             # (H2 subscribes after this, and each topic is delivered in order): the
             # scheduler compresses it while the handoff goes on (a partial batch, as
@@ -129,7 +128,7 @@ class HandoffSteps:
             self._activate(slot)
             assert slot.runtime is not None
             # H2 holds its events raw: they are compressed after H1's, from H1's state
-            slot.runtime.holding, slot.runtime.speculate = True, False
+            slot.runtime.hold()
             self.routes_version += 1
 
     def cut(self, name: str, epoch: int, wall: int | None = None) -> int | None:
@@ -383,7 +382,7 @@ class HandoffSteps:
             rt = slot.runtime
             assert rt is not None
             if slot.handoff == SENDING:
-                rt.holding, rt.speculate = False, not rt.monitor.stateful
+                rt.resume()
                 if len(rt.events) >= rt.threshold and rt.flush():
                     self.waiting[name] = rt
                     self.ready.notify()

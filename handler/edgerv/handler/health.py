@@ -21,15 +21,17 @@ import math
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import NamedTuple
+from typing import NamedTuple, TypeVar
 
 from edgerv.core.deadline import DeadlineLoad
 from edgerv.core.pipeline import Verdict
 from edgerv.handler.clock import Clock, SystemClock
 from edgerv.handler.engine import HIGH_WATER, Engine
+
+T = TypeVar("T")
 
 MONITOR_PREFIX = "edgerv: "
 HANDLER_PREFIX = "edgerv handler: "
@@ -299,12 +301,12 @@ class Health:
         self._samples: deque[_Sample] = deque()
         self._published: dict[str, Level] = {}
         self._last: tuple[Reading, _Sample, float, dict[str, list[tuple[Level, str]]]] | None = None
-        # Settled (:meth:`settled`): the fingerprint of the last check's reading, the
-        # first check that saw it, and until when a check would give the last levels
-        # again (None: not settled); whether the last levels were published
         # called every BREATH_EVERY monitors by check and statuses, as the reading is
         # turned into statuses (a Breather, the diagnostics thread's; else nothing)
         self.breathe: Callable[[], None] = _hold_breath
+        # Settled (:meth:`settled`): the fingerprint of the last check's reading, the
+        # first check that saw it, and until when a check would give the last levels
+        # again (None: not settled); whether the last levels were published
         self._fingerprint: object = None
         self._fingerprint_since = 0.0
         self._quiet_until: float | None = None
@@ -470,11 +472,9 @@ class Health:
         """Take ``reading`` (made at ``now``) into account; return each status's level by
         its name. :meth:`statuses` then builds the statuses of this reading."""
         base = self._update(reading, now)
-        breathe, tracks = self.breathe, self._tracks
+        tracks = self._tracks
         problems = {}
-        for i, m in enumerate(reading.monitors):
-            if i % BREATH_EVERY == BREATH_EVERY - 1:
-                breathe()
+        for m in breathing(reading.monitors, self.breathe):
             problems[MONITOR_PREFIX + m.name] = self._monitor_problems(
                 m, tracks[m.name], base, reading, now
             )
@@ -525,10 +525,7 @@ class Health:
         reading, base, now, problems = self._last
         out = [self._handler_status(reading, base, now, problems[HANDLER_PREFIX + self.handler])]
         self._statuses_now = {}
-        breathe = self.breathe
-        for i, m in enumerate(sorted(reading.monitors, key=lambda m: m.name)):
-            if i % BREATH_EVERY == BREATH_EVERY - 1:
-                breathe()
+        for m in breathing(sorted(reading.monitors, key=lambda m: m.name), self.breathe):
             name = MONITOR_PREFIX + m.name
             if names is None or name in names:
                 out.append(self._monitor_status(m, self._tracks[m.name], base, now, problems[name]))
@@ -728,6 +725,18 @@ class Health:
 
 def _hold_breath() -> None:
     """(No Breather: the work is done at once.)"""
+
+
+def breathing(items: Iterable[T], breathe: Callable[[], None] | None) -> Iterator[T]:
+    """``items``, with ``breathe`` called after every BREATH_EVERY of them (a Breather:
+    the work on them spread in time; None: at once)."""
+    if breathe is None:
+        yield from items
+        return
+    for i, item in enumerate(items, 1):
+        if not i % BREATH_EVERY:
+            breathe()
+        yield item
 
 
 class Breather:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable, Sequence
 
-from edgerv.handler.health import BREATH_EVERY, Status
+from edgerv.handler.health import Status, breathing
 
 _U32 = struct.Struct("<I").pack
 _STAMP = struct.Struct("<iI").pack
@@ -47,9 +47,7 @@ def encode_diagnostic_array(
     append = parts.append
     known: dict[str, bytes] = {}  # keys, and values such as "0", repeat across statuses
     end = 0  # the offset after the last part, modulo 4
-    for i, status in enumerate(statuses):
-        if breathe is not None and i % BREATH_EVERY == BREATH_EVERY - 1:
-            breathe()
+    for status in breathing(statuses, breathe):
         append(bytes((int(status.level),)) + _NULS[-(end + 1) % 4])
         for text in (status.name, status.message, status.hardware_id):
             append(known.get(text) or known.setdefault(text, _cdr_string(text)))
