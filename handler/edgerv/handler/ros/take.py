@@ -124,9 +124,10 @@ class TakeLoop:
                     # published after its stamp (a header stamp), then on its way here
                     # (0: the middleware did not say when it came; taken now, at latest)
                     received = info["received_timestamp"] or time.time_ns()
-                    if received - source > way:
-                        way = received - source
-                    reach = (at - stamp if stamp else 0) + received - source
+                    travel = received - source
+                    if travel > way:
+                        way = travel
+                    reach = (at - stamp if stamp else 0) + travel
                     if reach > lag:
                         lag = reach
                     # unstamped: 0; the bytes and the routes' version: read again if they change
