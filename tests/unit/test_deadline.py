@@ -17,6 +17,7 @@ from edgerv.core.monitor import CompiledMonitor, compile_monitor
 from edgerv.core.msgtypes import starts_with_header, typestore
 from edgerv.handler.engine import Engine
 from edgerv.handler.metrics import build_registry
+from edgerv.handler.reading import load_report
 from edgerv_operator.documents import document_text, instance_document
 
 MS = 1_000_000
@@ -180,7 +181,7 @@ def test_the_window_is_bounded() -> None:
 
 def test_the_load_report_and_the_metrics_carry_the_reading() -> None:
     plain = Engine("h")
-    assert plain.load()["deadline"] is None
+    assert load_report(plain)["deadline"] is None
     assert b"edgerv_deadline" not in generate_latest(build_registry(plain, dict))
     window = MakespanWindow("/cmd_vel", 125 * MS)
     engine = Engine("h", deadline=window)
@@ -188,7 +189,7 @@ def test_the_load_report_and_the_metrics_carry_the_reading() -> None:
     for i in range(10):
         published = 50 * S + i * 50 * MS
         window.add(published, published - (140 if i % 2 else 100) * MS, now)
-    load = json.loads(json.dumps(engine.load()))
+    load = json.loads(json.dumps(load_report(engine)))
     assert load["deadline"]["topic"] == "/cmd_vel"
     assert (load["deadline"]["count"], load["deadline"]["misses"]) == (10, 5)
     assert load["deadline"]["p95Ms"] == 140.0

@@ -8,6 +8,7 @@ from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import Verdict
 from edgerv.handler import engine as engine_module
 from edgerv.handler.engine import Engine
+from edgerv.handler.reading import monitor_reports, read
 from kit.documents import compiled
 
 
@@ -35,7 +36,7 @@ def test_only_active_monitors_subscribe_and_evaluate() -> None:
     e.ingest([(2, "/speed", [150.0])])
     e.emit(e.tick())
     assert sink.got == [("m", "violated", 1)]
-    assert e.snapshot()[0]["verdicts"] == {"violated": 1, "satisfied": 0}
+    assert monitor_reports(e)[0]["verdicts"] == {"violated": 1, "satisfied": 0}
 
 
 def test_a_partial_sort_buffer_is_released_after_flush_after() -> None:
@@ -50,10 +51,10 @@ def test_a_full_buffer_drops_and_counts() -> None:
     e = Engine("edge")
     e.put(speed_monitor(sortThreshold=3, bufferCapacity=3), active=True)
     e.set_active("m", True)
-    slot = e.slots["m"]
     # events wait in the sort buffer; letters wait for the scheduler: 3 fit, then drops
     e.ingest([(i, "/speed", [1.0]) for i in range(5)])
-    assert (slot.events, slot.dropped, slot.buffered) == (3, 2, 3)
+    (m,) = read(e).monitors
+    assert (m.events, m.dropped, m.buffered) == (3, 2, 3)
 
 
 def test_migration_wanted_when_the_buffer_stays_full_with_hysteresis(monkeypatch) -> None:  # type: ignore[no-untyped-def]
@@ -67,7 +68,7 @@ def test_migration_wanted_when_the_buffer_stays_full_with_hysteresis(monkeypatch
     assert not slot.migration_wanted
     e.tick(now=0.1 + engine_module.PRESSURE_SECONDS)
     assert slot.migration_wanted
-    assert e.snapshot()[0]["migrationWanted"] is True
+    assert monitor_reports(e)[0]["migrationWanted"] is True
     # draining below the high water mark but above the low one keeps the flag (no flapping)
     slot.runtime.events[:] = slot.runtime.events[:30]
     e.tick(now=5.0)
@@ -92,9 +93,9 @@ def test_replacing_a_monitor_restarts_it_and_removing_unsubscribes() -> None:
     assert e.put(speed_monitor(), active=True) is True
     e.ingest([(1, "/speed", [1.0])])
     e.tick()
-    assert e.snapshot()[0]["step"] == 1
+    assert monitor_reports(e)[0]["step"] == 1
     assert e.put(speed_monitor(), active=True) is False
-    assert e.snapshot()[0]["step"] == 0
+    assert monitor_reports(e)[0]["step"] == 0
     version = e.routes_version
     assert e.remove("m") and not e.remove("m")
     assert e.routes() == {} and e.routes_version > version
@@ -133,11 +134,11 @@ def test_a_batch_read_for_routes_the_engine_no_longer_has_is_refused() -> None:
     assert e.ingest([(1, "/odom", [1.0])], routes_version=old) is True
     e.put(odom_monitor("w", "always (w < 1)", w="twist.twist.angular.z"), active=True)
     assert e.routes_version != old
-    before = {m["name"]: m["events"] for m in e.snapshot()}
+    before = {m["name"]: m["events"] for m in monitor_reports(e)}
     assert before == {"x": 1, "w": 0}
     # read for the old route: one value, where the route now has two fields
     assert e.ingest([(2, "/odom", [2.0]), (3, "/odom", [3.0])], routes_version=old) is False
-    assert {m["name"]: m["events"] for m in e.snapshot()} == before
+    assert {m["name"]: m["events"] for m in monitor_reports(e)} == before
     assert e.messages["/odom"] == 1
     # read again for the current route: offered to both monitors
     fields = list(e.routes()["/odom"].fields)
@@ -145,5 +146,5 @@ def test_a_batch_read_for_routes_the_engine_no_longer_has_is_refused() -> None:
     values = {"pose.pose.position.x": 2.0, "twist.twist.angular.z": 0.5}
     batch = [(2, "/odom", [values[f] for f in fields])]
     assert e.ingest(batch, routes_version=e.routes_version) is True
-    assert {m["name"]: m["events"] for m in e.snapshot()} == {"x": 2, "w": 1}
+    assert {m["name"]: m["events"] for m in monitor_reports(e)} == {"x": 2, "w": 1}
     assert e.messages["/odom"] == 2

@@ -14,6 +14,7 @@ from edgerv.core.pipeline import Verdict
 from edgerv.core.reactions import Reaction
 from edgerv.handler.engine import Engine
 from edgerv.handler.handoff_state import HandoffState, HandoffStateError, check_transition
+from edgerv.handler.reading import monitor_reports
 from kit.documents import compiled
 
 
@@ -244,7 +245,7 @@ def test_after_the_release_the_sender_keeps_what_it_needs_to_resume() -> None:
     e.hold("m", 1)
     e.ingest([(3, "/x", [7.0]), (4, "/a", [True]), (5, "/x", [8.0])])
     assert e.release("m", 1, cut=3, grace=0.0, now=0.0) is not None
-    assert not e.slots["m"].active and e.snapshot()[0]["state"] == "inactive"
+    assert not e.slots["m"].active and monitor_reports(e)[0]["state"] == "inactive"
     e.ingest([(6, "/x", [1.0]), (7, "/x", [9.0])])  # still held for a possible resume
     with pytest.raises(HandoffError, match="abort it first"):
         e.set_active("m", False)
@@ -503,22 +504,22 @@ def test_a_new_placement_alone_keeps_the_monitor_running_with_its_state() -> Non
     for b in batches(3)[:40]:
         e.ingest(b)
         e.emit(e.tick())
-    before = e.slots["m"].describe("one")
+    before = monitor_reports(e)[0]
     assert before["step"] > 0
     moved = compiled(
         "always (a -> x < 5)", {"a": "bool", "x": "float"}, sortThreshold=2,
         placement={"tier": "cloud"}, onViolation=STOP,
     )  # fmt: skip
     assert e.put(moved, active=True) is False
-    after = e.slots["m"].describe("one")
+    after = monitor_reports(e)[0]
     assert after["placement"]["tier"] == "cloud"
     assert (after["step"], after["events"]) == (before["step"], before["events"])
     e.put(moved, active=False)  # another activity: a new definition, afresh
-    assert e.slots["m"].describe("one")["step"] == 0
+    assert monitor_reports(e)[0]["step"] == 0
     e.put(moved, active=True)
     for b in batches(4)[:40]:
         e.ingest(b)
         e.emit(e.tick())
-    assert e.slots["m"].describe("one")["step"] > 0
+    assert monitor_reports(e)[0]["step"] > 0
     e.put(monitor(3), active=True)  # another sort threshold: afresh
-    assert e.slots["m"].describe("one")["step"] == 0
+    assert monitor_reports(e)[0]["step"] == 0

@@ -533,9 +533,9 @@ def test_a_redefined_monitor_starts_afresh() -> None:
 
 
 def test_read_engine_takes_active_monitors_in_chunks(monkeypatch: pytest.MonkeyPatch) -> None:
-    from edgerv.handler import health as health_module
+    from edgerv.handler import reading as reading_module
 
-    monkeypatch.setattr(health_module, "READ_CHUNK", 3)
+    monkeypatch.setattr(reading_module, "READ_CHUNK", 3)
     rig = Rig()
     for i in range(10):
         rig.put(name=f"m{i}", active=i != 4)

@@ -19,6 +19,7 @@ from prometheus_client import CollectorRegistry
 from edgerv.control.client import BadAnswer, HandlerClient
 from edgerv.handler.api import ControlApi
 from edgerv.handler.engine import Engine
+from edgerv.handler.reading import monitor_reports
 from edgerv.handler.revisions import Revisions
 from kit.documents import compiled
 
@@ -162,7 +163,7 @@ def test_a_handler_that_keeps_no_cursor_is_read_whole_each_time() -> None:
     served = ControlApi(engine, CollectorRegistry(), "t", on_change=lambda: None)
     served._listing = lambda since: {  # type: ignore[method-assign]
         "handler": "old",
-        "monitors": json.loads(json.dumps(engine.snapshot())),
+        "monitors": json.loads(json.dumps(monitor_reports(engine))),
     }
     served.start("127.0.0.1", 0)
     try:

@@ -1,5 +1,5 @@
 """The load report (``GET /v1/load``) is typed on both sides: what the handler's server
-sends (``Engine.load``, a ``LoadReport``) is what the client reads back through
+sends (``reading.load_report``, a ``LoadReport``) is what the client reads back through
 ``parse_load``, field by field; an answer that is not one is a ``BadAnswer``, and the
 orchestrator leaves that handler out of its round instead of failing on it."""
 
@@ -21,6 +21,7 @@ from edgerv.core.deadline import MakespanWindow
 from edgerv.handler.api import ControlApi
 from edgerv.handler.engine import Engine
 from edgerv.handler.reach import Reach
+from edgerv.handler.reading import Definitions, load_report
 from kit.documents import compiled
 
 MS = 1_000_000
@@ -42,7 +43,7 @@ def api() -> Iterator[ControlApi]:
 
 
 def test_what_the_handler_sends_reads_back_as_sent(api: ControlApi) -> None:
-    sent = api.engine.load()
+    sent = load_report(api.engine)
     assert parse_load(json.loads(json.dumps(sent))) == sent
     read = HandlerClient(f"127.0.0.1:{api.port}", "t").load()
     assert read["handler"] == "edge-1" and read["deadline"] is not None
@@ -60,22 +61,23 @@ def test_what_the_handler_sends_reads_back_as_sent(api: ControlApi) -> None:
 
 
 def test_a_monitor_redefined_or_removed_shows_in_the_next_report() -> None:
-    # each entry's definition part is made once per definition (Engine._monitor_load):
+    # each entry's definition part is made once per definition (reading.Definitions):
     # a new definition of the same name is read again, a removed one is gone
     engine = Engine("edge-1", flush_after=1e9)
     engine.put(compiled("always (a)", {"a": "bool"}), active=True)
-    first = engine.load()["monitors"]["m"]
+    kept = Definitions()
+    first = load_report(engine, kept)["monitors"]["m"]
     assert first["topics"] == ["/a"] and first["placement"]["tier"] is None
     engine.put(
         compiled("always (b)", {"b": "bool"}, placement={"tier": "cloud", "maxLatencyMs": 40}),
         active=True,
     )
-    again = engine.load()["monitors"]["m"]
+    again = load_report(engine, kept)["monitors"]["m"]
     assert again["topics"] == ["/b"]
     assert again["placement"] == {"tier": "cloud", "migrate": "auto", "maxLatencyMs": 40.0}
     assert first["topics"] == ["/a"]  # (a report once sent is not changed by a later one)
-    assert engine.remove("m") and engine.load()["monitors"] == {}
-    assert engine._definitions == {}  # nothing kept of a monitor no longer defined
+    assert engine.remove("m") and load_report(engine, kept)["monitors"] == {}
+    assert kept._kept == {}  # nothing kept of a monitor no longer defined
 
 
 def test_what_a_handler_may_leave_out_reads_as_its_default() -> None:
@@ -178,10 +180,10 @@ def test_how_long_messages_take_to_reach_the_handler() -> None:
     REACH_SAMPLES readings the take loop notes (the longest a topic's messages took in a
     round, from publication to reception); a clock behind reads 0; none yet: null."""
     engine = Engine("edge-1")
-    assert engine.load()["reachMs"] is None
+    assert load_report(engine)["reachMs"] is None
     for ms in range(1, 101):  # 1..100 ms: the 95th of 100 is 95
         engine.reach.note(ms * 1_000_000)
-    assert engine.load()["reachMs"] == 95.0
+    assert load_report(engine)["reachMs"] == 95.0
     reach = Reach(size=4)
     for ns in (-5, 10, 20, 30, 40, 50):  # the newest four: 20, 30, 40, 50
         reach.note(ns)

@@ -9,6 +9,7 @@ import os
 
 from edgerv.handler.engine import COLUMNS_FROM, Engine
 from edgerv.handler.host import HostCpu, parse_stat
+from edgerv.handler.reading import load_report
 from kit.documents import compiled
 
 
@@ -77,7 +78,7 @@ def test_the_load_report_carries_each_monitors_cost_in_seconds() -> None:
     e.put(compiled("always (c < 100)", {"c": "float"}, name="idle"), active=False)
     e.ingest([(1, "/a", [1.0]), (2, "/b", [2.0])])
     e.evaluate()
-    monitors = e.load()["monitors"]
+    monitors = load_report(e)["monitors"]
     for name in ("a1", "a2", "b"):
         assert monitors[name]["cpuSeconds"] == e.slots[name].runtime.cost_ns / 1e9 > 0  # type: ignore[union-attr]
     assert monitors["idle"]["cpuSeconds"] == 0.0  # not active here: nothing spent
@@ -96,7 +97,7 @@ def test_the_load_report_carries_the_cpu_counters_of_the_handlers_cpus() -> None
     assert parse_stat(stat, 100.0, {5}) is None
     assert parse_stat("intr 1\n", 100.0, {0}) is None
     assert parse_stat("cpu0 1 x 3 4 5\n", 100.0, {0}) is None
-    host = Engine("edge").load()["host"]
+    host = load_report(Engine("edge"))["host"]
     assert host is not None  # this is Linux
     assert host["cores"] == len(os.sched_getaffinity(0))
     assert 0 < host["busySeconds"] <= host["totalSeconds"]

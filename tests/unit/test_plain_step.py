@@ -20,6 +20,7 @@ import pytest
 
 from edgerv.core.pipeline import MonitorRuntime, Router
 from edgerv.handler.engine import COLUMNS_FROM, Engine
+from edgerv.handler.reading import monitor_reports
 from kit.documents import compiled
 from kit.sidebyside import Collect
 
@@ -234,7 +235,7 @@ def test_every_event_taken_is_counted_across_runtimes() -> None:
     for i in range(6, 9):
         e.ingest([(i, "/p", [1.0, 1.0])], now=0.0)
     slot = e.slots["m"]
-    assert slot.events == 8 and e.snapshot()[0]["events"] == 8
+    assert slot.events == 8 and monitor_reports(e)[0]["events"] == 8
     e.set_active("m", False)
     assert slot.events == 8
     e.set_active("m", True)

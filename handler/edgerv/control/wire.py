@@ -1,6 +1,6 @@
 """The control API on the wire: its JSON payloads, typed, and the protocol's constants.
-What the handler's server answers (:mod:`edgerv.handler.api`, :meth:`MonitorSlot.describe`,
-:meth:`Engine.load`) and what its callers read (:mod:`edgerv.control.client`: the
+What the handler's server answers (:mod:`edgerv.handler.api`, rendered by
+:mod:`edgerv.handler.reading`) and what its callers read (:mod:`edgerv.control.client`: the
 operator, ``edgerv migrate``, ``edgerv orchestrate``).
 
 docs/handler.md describes each field; these types are the one place both sides name them.

@@ -34,6 +34,19 @@ from edgerv.core.snapshot import HandoffError, Snapshot, deciding_steps, runs_of
 
 VerdictKind = Literal["violated", "satisfied"]
 MonitorState = Literal["pending", "violated", "satisfied", "halted"]
+
+
+def status_of(monitor: CompiledMonitor, halted: bool, step: int, state: int) -> MonitorState:
+    """A runtime's state in words, from its halt, its step and its automaton's state."""
+    if halted:
+        return "halted"
+    if step and state == monitor.table.violated:
+        return "violated"
+    if step and state == monitor.table.satisfied:
+        return "satisfied"
+    return "pending"
+
+
 Update = tuple[int, Any]  # (signal index in the monitor, new value)
 Event = tuple[int, int, Sequence[Update]]  # (stamp ns, arrival sequence, updates)
 # evaluate: fewer letters than this, or runs of equal letters shorter than MIN_MEAN_RUN on
@@ -414,13 +427,7 @@ class MonitorRuntime:
 
     @property
     def status(self) -> MonitorState:
-        if self.halted:
-            return "halted"
-        if self.step and self.state == self.monitor.table.violated:
-            return "violated"
-        if self.step and self.state == self.monitor.table.satisfied:
-            return "satisfied"
-        return "pending"
+        return status_of(self.monitor, self.halted, self.step, self.state)
 
     def offer(self, stamp: int, seq: int, updates: Sequence[Update]) -> bool:
         """Buffer one event; sort and compress the buffer once it holds sortThreshold events.

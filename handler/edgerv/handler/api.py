@@ -84,6 +84,7 @@ from edgerv.handler.admission import Connection, Pool
 from edgerv.handler.engine import Engine
 from edgerv.handler.handoff_state import HandoffState
 from edgerv.handler.limits import Limits
+from edgerv.handler.reading import Definitions, load_report, monitor_reports
 from edgerv.handler.revisions import Revisions
 
 log = logging.getLogger("edgerv.handler.api")
@@ -316,6 +317,7 @@ class ControlApi:
         # what each listing sent, for readers that ask only what changed (?since=)
         self._listed = Revisions()
         self._loaded = Revisions()
+        self._definitions = Definitions()  # the load report's parts made once a definition
 
     async def _locked(self, call: Callable[..., T], *args: Any) -> T:
         """``call(*args)`` on a worker thread (it takes the engine's lock)."""
@@ -555,7 +557,7 @@ class ControlApi:
     def _load(self, since: str | None) -> dict[str, Any]:
         """The load report; given a cursor, its monitors only those whose entry changed
         since, and those removed (docs/protocol.md, "Reading only what changed")."""
-        report = cast(dict[str, Any], self.engine.load())
+        report = cast(dict[str, Any], load_report(self.engine, self._definitions))
         monitors, removed, cursor = self._loaded.read(report["monitors"], since)
         report["monitors"], report["cursor"] = monitors, cursor
         if removed is not None:
@@ -596,7 +598,7 @@ class ControlApi:
     def _listing(self, since: str | None) -> dict[str, Any]:
         """Every monitor's report; given a cursor, only those whose report changed since,
         and the names of those removed (docs/protocol.md, "Reading only what changed")."""
-        reports = {m["name"]: m for m in self.engine.snapshot()}
+        reports = {m["name"]: m for m in monitor_reports(self.engine)}
         monitors, removed, cursor = self._listed.read(reports, since)
         listing: dict[str, Any] = {
             "handler": self.engine.name,
@@ -609,7 +611,7 @@ class ControlApi:
 
     async def get_monitor(self, request: web.Request) -> web.Response:
         name = request.match_info["name"]
-        for m in await self._locked(self.engine.snapshot):
+        for m in await self._locked(monitor_reports, self.engine):
             if m["name"] == name:
                 return web.json_response(m)
         return _message(404, f"no monitor '{name}'")

@@ -23,13 +23,6 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from edgerv.control.wire import (
-    LoadReport,
-    MonitorLoadReport,
-    MonitorReport,
-    PlacementJson,
-    placement_json,
-)
 from edgerv.core import arrivals as batches
 from edgerv.core.deadline import MakespanWindow
 from edgerv.core.diagnostics import Diagnostic, InputError
@@ -43,7 +36,6 @@ from edgerv.handler.budget import MemoryBudget, monitor_cost
 from edgerv.handler.clock import Clock, SystemClock
 from edgerv.handler.handoff_state import HandoffState
 from edgerv.handler.handoff_steps import HandoffSteps
-from edgerv.handler.host import read_host_cpu
 from edgerv.handler.reach import Reach
 from edgerv.handler.slot import MonitorSlot
 
@@ -156,9 +148,6 @@ class Engine(HandoffSteps):
         self.drained_said = 0.0  # (time.monotonic) when the take loop last said how far
         self.reached: list[Verdict] = []  # evaluated by ingest, for the scheduler to emit
         self.slots: dict[str, MonitorSlot] = {}
-        # name -> the definition its load report's entry was made from, and that entry's
-        # parts that only a new definition changes (Engine._monitor_load)
-        self._definitions: dict[str, tuple[CompiledMonitor, PlacementJson, list[str]]] = {}
         self.router = Router()
         self.routes_version = 0  # bumped whenever topics or their fields change
         self._robots: tuple[int, frozenset[str]] | None = None  # (routes_version, robots)
@@ -309,7 +298,6 @@ class Engine(HandoffSteps):
             self.in_handoff.pop(name, None)
             self.watched.pop(name, None)
             self.clocked.pop(name, None)
-            self._definitions.pop(name, None)
             if slot.runtime is not None:
                 self.router.remove(name)
             if self.budget is not None:
@@ -850,56 +838,6 @@ class Engine(HandoffSteps):
                     len(waiting),
                 )
                 return left
-
-    def load(self) -> LoadReport:
-        """The load report the orchestrator reads (``GET /v1/load``): counters, not rates;
-        ``deadline`` is the makespan window's reading (null without ``--deadline``)."""
-        now_ns = int(self.clock.monotonic() * 1e9)
-        deadline = self.deadline.report(now_ns) if self.deadline else None
-        host = read_host_cpu()
-        with self.lock:
-            return {
-                "handler": self.name,
-                "monotonic": self.clock.monotonic(),
-                "cpuSeconds": time.process_time(),
-                "host": None if host is None else host.json(),
-                "ingestLag": self.ingest_lag,
-                "reachMs": self.reach.p95_ms(),
-                "deadline": deadline,
-                "topics": {
-                    topic: {
-                        "messages": self.messages.get(topic, 0),
-                        "cpuSeconds": self.taking_ns.get(topic, 0) / 1e9,
-                    }
-                    for topic in self.router.routes
-                },
-                "monitors": {name: self._monitor_load(slot) for name, slot in self.slots.items()},
-            }
-
-    def _monitor_load(self, slot: MonitorSlot) -> MonitorLoadReport:
-        """One monitor's entry of the load report: its definition's part made once per
-        definition (a report is made every poll, for every monitor defined here)."""
-        kept = self._definitions.get(slot.name)
-        if kept is None or kept[0] is not slot.compiled:
-            spec = slot.compiled.spec
-            kept = (slot.compiled, placement_json(spec.placement), list(spec.topics))
-            self._definitions[slot.name] = kept
-        runtime = slot.runtime
-        return {
-            "active": slot.active,
-            "handoff": slot.handoff,
-            "epoch": slot.epoch,
-            "peer": slot.peer if slot.handoff else None,
-            "events": slot.events,
-            "cpuSeconds": runtime.cost_ns / 1e9 if runtime is not None else 0.0,
-            "migrationWanted": slot.migration_wanted,
-            "placement": kept[1],
-            "topics": kept[2],
-        }
-
-    def snapshot(self) -> list[MonitorReport]:
-        with self.lock:
-            return [slot.describe(self.name) for slot in self.slots.values()]
 
     def wake(self) -> None:
         with self.lock:

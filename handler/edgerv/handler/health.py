@@ -1,8 +1,9 @@
 """A handler's health as ROS 2 diagnostics report it, without ROS: one status per
 active monitor and one for the handler, built from the engine's state and the time.
 
-:func:`read_engine` copies what the statuses need from an :class:`Engine` (its lock
-taken a few hundred monitors at a time); :class:`Health` remembers what it saw before
+:func:`read_engine` takes what the statuses need from the engine's reading
+(:mod:`edgerv.handler.reading`, the one read path: its lock taken a few hundred monitors
+at a time); :class:`Health` remembers what it saw before
 (when a monitor was last violated, when its events last came, the counters a period
 ago) and turns a reading into :class:`Status` records: plain data that the ROS layer
 (:mod:`edgerv.handler.ros.diagnostics`) publishes on ``/diagnostics`` as
@@ -30,6 +31,7 @@ from edgerv.core.deadline import DeadlineLoad
 from edgerv.core.pipeline import Verdict
 from edgerv.handler.clock import Clock, SystemClock
 from edgerv.handler.engine import HIGH_WATER, Engine
+from edgerv.handler.reading import MonitorReading, read
 
 T = TypeVar("T")
 
@@ -46,8 +48,6 @@ CHECK_SECONDS = 0.25
 CPU_BUDGET = 0.05
 BREATH_SECONDS = 0.002
 BREATH_EVERY = 256  # monitors (or statuses) between two looks at the CPU spent
-READ_CHUNK = 256  # monitors read under one hold of the engine's lock
-READ_PAUSE = 0.003  # seconds between two holds: the lock's waiters take it meanwhile
 # A STALE monitor says "no event for over X", X the stale seconds, then each of these
 # (1 min, 10 min, 1 h, 1 d) it passes: an age that changes a status only at these
 # instants, so an idle handler's statuses stay as published between them (Health.due)
@@ -94,35 +94,6 @@ class Status:
     values: tuple[tuple[str, str], ...]
 
 
-class MonitorReading(NamedTuple):
-    """What one active monitor's status needs, copied under the engine's lock."""
-
-    name: str
-    instance: int  # its slot's identity: a redefined monitor is tracked afresh
-    state: str  # pending, violated, satisfied, halted
-    step: int
-    last_verdict: Verdict | None
-    violations: int
-    satisfactions: int
-    events: int
-    dropped: int
-    late: int
-    buffered: int
-    capacity: int
-    migration_wanted: bool
-    tier: str | None
-    migrate: str
-    epoch: int
-    handoff: str | None
-    topics: tuple[str, ...]
-    moved_in: int  # handoffs that moved it here, and away from here
-    moved_out: int
-    reacts: bool  # spec.onViolation is written
-    reactions: int  # done here
-    reaction_failures: int
-    reaction_problem: str | None  # why the newest failed; None: it was done
-
-
 @dataclass(frozen=True)
 class Reading:
     """The handler at one instant: its active monitors and its counters. The ROS
@@ -156,67 +127,16 @@ def read_engine(
     coalesced: Mapping[str, int] | None = None,
     fingerprint: object = None,
 ) -> Reading:
-    """A :class:`Reading` of ``engine``. The lock is held for at most READ_CHUNK monitors
-    at a time: the ingest and scheduler threads wait for it no longer than that."""
-    with engine.lock:
-        slots = list(engine.slots.values())
-        messages = sum(engine.messages.values())
-        lost = dict(engine.lost)
-        lag = engine.ingest_lag
-    monitors: list[MonitorReading] = []
-    for start in range(0, len(slots), READ_CHUNK):
-        if start:
-            # Between two holds, a pause for the threads waiting for the lock and the
-            # interpreter's: the take loop's, the scheduler's. Without one this thread,
-            # still holding the GIL, took the lock again before a waiter could, and 10,000
-            # monitors were read in one hold (up to 70 ms of waiting for the take loop);
-            # with 0.2 ms it shared the interpreter half and half with the take loop for
-            # the read's 70 ms, which fell behind by as much (bench/scale.py's p99: 31-33
-            # ms without /diagnostics, 42-53 with; with 3 ms, 34). Each monitor is read
-            # at about the same offset into every reading: its rate is not skewed by it.
-            time.sleep(READ_PAUSE)
-        with engine.lock:
-            current = engine.slots
-            for slot in slots[start : start + READ_CHUNK]:
-                rt = slot.runtime
-                if rt is None or not slot.active or current.get(slot.name) is not slot:
-                    continue  # idle here, or removed or redefined since the list was taken
-                placement = slot.compiled.spec.placement
-                monitors.append(
-                    MonitorReading(
-                        slot.name,
-                        id(slot),
-                        rt.status,
-                        rt.step,
-                        slot.last_verdict,
-                        slot.verdicts["violated"],
-                        slot.verdicts["satisfied"],
-                        slot.events,
-                        slot.dropped,
-                        rt.late_events,
-                        rt.buffered,
-                        slot.capacity,
-                        slot.migration_wanted,
-                        placement.tier,
-                        placement.migrate,
-                        slot.epoch,
-                        None if slot.handoff is None else str(slot.handoff),
-                        tuple(slot.compiled.spec.topics),
-                        slot.moved_in,
-                        slot.moved_out,
-                        slot.compiled.spec.on_violation is not None,
-                        slot.reactions,
-                        slot.reaction_failures,
-                        slot.reaction_problem,
-                    )
-                )
+    """A :class:`Reading` of ``engine``'s active monitors (:func:`edgerv.handler.reading.
+    read`: the lock held a few hundred monitors at a time), with the ROS layer's counts."""
+    engine_reading = read(engine)
     deadline = engine.deadline.report(time.monotonic_ns()) if engine.deadline else None
     return Reading(
-        tuple(monitors),
-        len(slots),
-        messages,
-        lost,
-        lag,
+        engine_reading.active(),
+        engine_reading.defined,
+        sum(engine_reading.messages.values()),
+        engine_reading.lost,
+        engine_reading.ingest_lag,
         deadline,
         dict(publishers or {}),
         dict(incompatible or {}),

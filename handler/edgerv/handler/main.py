@@ -46,6 +46,7 @@ from edgerv.handler.engine import Engine, VerdictSink
 from edgerv.handler.health import DiagnosticsConfig, Health
 from edgerv.handler.limits import Limits
 from edgerv.handler.outbox import ITEM_BYTES, QUEUED, Outbox, ReactionLane
+from edgerv.handler.reading import read
 from edgerv.handler.ros import types as ros_types
 from edgerv.handler.sinks import VerdictLog, ViolationLines
 
@@ -373,16 +374,21 @@ def load(engine: Engine, specs: list[MonitorSpec], active: set[str], most: int) 
 DRAIN_LINGER = 2.0  # seconds a drained handler stays up: its last answers are read
 
 
+def _busy(engine: Engine) -> list[str]:
+    """The monitors active here or in a handoff."""
+    return [m.name for m in read(engine).monitors if m.active or m.handoff]
+
+
 def drain(engine: Engine, seconds: float, hurry: threading.Event) -> None:
     """Run on until no monitor is active here or in a handoff (moved away by whoever
     drives the handoffs: the operator, for a pod going away), ``seconds`` at most."""
     until = time.monotonic() + seconds
-    busy = [m["name"] for m in engine.snapshot() if m["active"] or m["handoff"]]
+    busy = _busy(engine)
     if not busy:
         return
     log.info("draining: up to %gs for %d monitor(s) to move away", seconds, len(busy))
     while busy and not hurry.wait(0.2):
-        busy = [m["name"] for m in engine.snapshot() if m["active"] or m["handoff"]]
+        busy = _busy(engine)
         if time.monotonic() >= until:
             log.warning(
                 "drain: %d monitor(s) still here after %gs: %s (their state ends here)",
@@ -606,12 +612,12 @@ def run(args: argparse.Namespace) -> int:
     scheduler.start()
     ros.start(on_failure=stop.set)
     ros.take.ready.wait(timeout=10)
-    running = sum(1 for m in engine.snapshot() if m["active"])
+    reading = read(engine)
     log.info(
         "handler %s ready: %d of %d monitors active%s",
         args.name,
-        running,
-        len(engine.slots),
+        len(reading.active()),
+        len(reading.monitors),
         f", API on port {api.port}" if api else "",
     )
     while not stop.wait(0.5):

@@ -1,4 +1,5 @@
-"""Prometheus metrics of a handler, read from the engine at scrape time (no hot-path cost)."""
+"""Prometheus metrics of a handler, rendered from the engine's reading at scrape time
+(:mod:`edgerv.handler.reading`; no hot-path cost)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from prometheus_client.registry import Collector
 from edgerv.handler.budget import MemoryBudget
 from edgerv.handler.engine import Engine
 from edgerv.handler.outbox import Outbox
+from edgerv.handler.reading import read
 
 
 class EngineCollector(Collector):
@@ -28,7 +30,6 @@ class EngineCollector(Collector):
         self.budget = budget
 
     def collect(self) -> Iterator[Metric]:
-        e = self.engine
         events = CounterMetricFamily(
             "edgerv_events", "Events offered to a monitor", labels=["monitor"]
         )
@@ -61,25 +62,22 @@ class EngineCollector(Collector):
             "1 when a monitor's buffer stays full: move it up a tier",
             labels=["monitor"],
         )
-        with e.lock:
-            for slot in e.slots.values():
-                name = [slot.name]
-                events.add_metric(name, slot.events)
-                dropped.add_metric(name, slot.dropped)
-                late.add_metric(name, slot.runtime.late_events if slot.runtime else 0)
-                for kind, n in slot.verdicts.items():
-                    verdicts.add_metric([slot.name, kind], n)
-                buf.add_metric(name, slot.buffered)
-                cap.add_metric(name, slot.capacity)
-                active.add_metric(name, 1 if slot.active else 0)
-                wanted.add_metric(name, 1 if slot.migration_wanted else 0)
-            messages = dict(e.messages)
-            lost = dict(e.lost)
-            lag = e.ingest_lag
+        reading = read(self.engine)
+        for m in reading.monitors:
+            name = [m.name]
+            events.add_metric(name, m.events)
+            dropped.add_metric(name, m.dropped)
+            late.add_metric(name, m.late)
+            verdicts.add_metric([m.name, "violated"], m.violations)
+            verdicts.add_metric([m.name, "satisfied"], m.satisfactions)
+            buf.add_metric(name, m.buffered)
+            cap.add_metric(name, m.capacity)
+            active.add_metric(name, 1 if m.active else 0)
+            wanted.add_metric(name, 1 if m.migration_wanted else 0)
         msgs = CounterMetricFamily(
             "edgerv_messages", "Messages received per topic", labels=["topic"]
         )
-        for topic, n in messages.items():
+        for topic, n in reading.messages.items():
             msgs.add_metric([topic], n)
         gone = CounterMetricFamily(
             "edgerv_messages_lost",
@@ -87,7 +85,7 @@ class EngineCollector(Collector):
             "sequence numbers: a subscription queue that overflowed, best-effort delivery)",
             labels=["topic"],
         )
-        for topic, n in lost.items():
+        for topic, n in reading.lost.items():
             gone.add_metric([topic], n)
         qos = GaugeMetricFamily(
             "edgerv_qos_incompatible_publishers",
@@ -100,7 +98,7 @@ class EngineCollector(Collector):
         yield GaugeMetricFamily(
             "edgerv_ingest_lag_seconds",
             "Publication to ingestion delay of the last messages taken",
-            value=lag,
+            value=reading.ingest_lag,
         )
         yield from self.deadline()
         yield from self.sinks()

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from edgerv.control.wire import LastVerdict, MonitorReport, placement_json
 from edgerv.core.handoff import Snapshot
 from edgerv.core.monitor import CompiledMonitor
 from edgerv.core.pipeline import MonitorRuntime, Verdict
@@ -84,41 +83,3 @@ class MonitorSlot:
     def active(self) -> bool:
         """The monitor is this handler's: it runs here, or is paused here for a handoff."""
         return self.runtime is not None and self.handoff not in (RECEIVING, RELEASED)
-
-    @property
-    def buffered(self) -> int:
-        return self.runtime.buffered if self.runtime else 0
-
-    def _last_verdict(self) -> LastVerdict | None:
-        v = self.last_verdict
-        return None if v is None else {"verdict": v.verdict, "stamp": v.stamp, "step": v.step}
-
-    def describe(self, handler: str) -> MonitorReport:
-        rt = self.runtime
-        spec = self.compiled.spec
-        return {
-            "name": self.name,
-            "handler": handler,
-            "active": self.active,
-            "state": rt.status if rt and self.active else "inactive",
-            "assertion": spec.assertion,
-            "topics": spec.topics,
-            "automatonState": rt.state if rt else None,
-            "step": rt.step if rt else 0,
-            "buffer": {
-                "events": len(rt.events) if rt else 0,
-                "letters": len(rt.letters) if rt else 0,
-                "capacity": self.capacity,
-                "fill": round(self.buffered / self.capacity, 4),
-            },
-            "events": self.events,
-            "droppedEvents": self.dropped,
-            "lateEvents": rt.late_events if rt else 0,
-            "verdicts": dict(self.verdicts),
-            "lastVerdict": self._last_verdict(),
-            "migrationWanted": self.migration_wanted,
-            "handoff": self.handoff,
-            "epoch": self.epoch,
-            "peer": self.peer if self.handoff else None,
-            "placement": placement_json(spec.placement),
-        }
