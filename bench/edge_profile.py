@@ -117,7 +117,7 @@ def run(
     for spec in load_monitors(monitors):
         engine.put(engine.compile(spec), active=True)
         if held:
-            engine.hold(spec.name, 1)
+            engine.handoffs.hold(spec.name, 1)
     routes = engine.routes()
     readers = {t: compile_reader(r.msg_type, r.fields) for t, r in routes.items()}
     msgs = messages(seconds)
@@ -160,7 +160,7 @@ def run(
 
 def commit_cost(monitors: Path) -> dict[str, float]:
     """ms to let go of every monitor after a handoff released them all: committed one
-    at a time (each commit its own call) and as a batch (Engine.settle, one call)."""
+    at a time (each commit its own call) and as a batch (Engine.handoffs.settle, one call)."""
     from edgerv.core.documents import load_monitors
     from edgerv.handler.engine import Engine
 
@@ -170,16 +170,16 @@ def commit_cost(monitors: Path) -> dict[str, float]:
         engine = Engine("edge", flush_after=0.5, clock=SimulatedClock())
         for spec in specs:
             engine.put(engine.compile(spec), active=True)
-            engine.hold(spec.name, 1)
+            engine.handoffs.hold(spec.name, 1)
         for spec in specs:
-            assert engine.release(spec.name, 1, cut=0, grace=0.0) is not None
+            assert engine.handoffs.release(spec.name, 1, cut=0, grace=0.0) is not None
         names = [spec.name for spec in specs]
         t = time.perf_counter()
         if way == "at once":
-            engine.settle("commit", 1, names)
+            engine.handoffs.settle("commit", 1, names)
         else:
             for name in names:
-                engine.settle("commit", 1, [name])
+                engine.handoffs.settle("commit", 1, [name])
         out[way] = (time.perf_counter() - t) * 1e3
     return out
 

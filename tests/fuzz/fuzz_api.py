@@ -166,7 +166,7 @@ def fresh_engine() -> Any:
     engine = _state["Engine"]("fuzz", flush_after=1e9)
     engine.put(_state["monitors"]["m"], active=True)
     engine.put(_state["monitors"]["n"], active=False)
-    engine.receive("n", EPOCH)
+    engine.handoffs.receive("n", EPOCH)
     return engine
 
 

@@ -223,7 +223,7 @@ def test_bodies_held_at_once_are_bounded_by_their_budget() -> None:
 
 
 def receiving(api: ControlApi, name: str, epoch: int) -> None:
-    api.engine.receive(name, epoch)
+    api.engine.handoffs.receive(name, epoch)
 
 
 # -- snapshot bundles: checked before they are inflated and decoded ----------------------------

@@ -107,42 +107,42 @@ def test_handoff_between_engines(seed: int, threshold: int, most: int) -> None:
             # hold and receive are sent at once: either may come first, by a few batches
             hold_at, receive_at = i + rng.randint(0, 3), i + rng.randint(0, 3)
         if phase is not None and not held and i >= hold_at:
-            src.hold("m", epoch)
+            src.handoffs.hold("m", epoch)
             held = True
         if phase is not None and not received and i >= receive_at:
-            dst.receive("m", epoch)
+            dst.handoffs.receive("m", epoch)
             received = True
         src.ingest(b)
         if received:
             dst.ingest(b)
         if received and cut is None:
-            cut = dst.cut("m", epoch)
+            cut = dst.handoffs.cut("m", epoch)
         if held and cut is not None:
-            snap = src.release("m", epoch, cut, grace=1e9)
+            snap = src.handoffs.release("m", epoch, cut, grace=1e9)
             if snap is not None:
                 (data,) = decode_frames(unbundle(bundle([encode(snap)])))  # over the wire
                 assert not src.slots["m"].active and not dst.slots["m"].active
                 fate = rng.random()
                 if fate < 0.25:  # H2 fails before adopting: undo on both sides
-                    assert dst.abort("m", epoch) == "dropped"
-                    assert src.abort("m", epoch) == "resumed"
+                    assert dst.handoffs.abort("m", epoch) == "dropped"
+                    assert src.handoffs.abort("m", epoch) == "resumed"
                     with pytest.raises(HandoffError):
-                        dst.adopt("m", epoch, data)  # a late adopt is fenced
+                        dst.handoffs.adopt("m", epoch, data)  # a late adopt is fenced
                 else:
                     if fate < 0.5:  # the answers were lost: both calls come again
-                        assert src.release("m", epoch, cut, grace=1e9) is snap
-                        dst.adopt("m", epoch, data)
-                    dst.adopt("m", epoch, data)
-                    assert dst.abort("m", epoch) == "active"  # too late to undo there
-                    assert src.commit("m", epoch) == "committed"
-                    assert src.commit("m", epoch) == "committed"
+                        assert src.handoffs.release("m", epoch, cut, grace=1e9) is snap
+                        dst.handoffs.adopt("m", epoch, data)
+                    dst.handoffs.adopt("m", epoch, data)
+                    assert dst.handoffs.abort("m", epoch) == "active"  # too late to undo there
+                    assert src.handoffs.commit("m", epoch) == "committed"
+                    assert src.handoffs.commit("m", epoch) == "committed"
                     owner = 1 - owner
                 phase, cut, held, received = None, None, False, False
         for e in engines:
             e.emit(e.tick())
     if phase is not None:  # unfinished at the end: the sender resumes
-        engines[owner].abort("m", epoch)
-        engines[1 - owner].abort("m", epoch)
+        engines[owner].handoffs.abort("m", epoch)
+        engines[1 - owner].handoffs.abort("m", epoch)
     for e in engines:
         e.drain()
     got = sorted(sinks[0].got + sinks[1].got, key=lambda v: v[1])
@@ -163,62 +163,66 @@ def test_epochs_fence_stale_and_duplicate_calls() -> None:
     e.put(monitor(), active=True)
     wakes: list[int] = []
     e.wake_ingest = lambda: wakes.append(1)  # (its take loop waits no longer while it holds)
-    e.hold("m", 5)
+    e.handoffs.hold("m", 5)
     assert wakes == [1]
     with pytest.raises(HandoffError, match="not newer"):
-        e.hold("m", 5)
+        e.handoffs.hold("m", 5)
     with pytest.raises(HandoffError, match="no sending handoff of 'm' with epoch 4"):
-        e.release("m", 4, cut=0, grace=0)
-    assert e.abort("m", 4) == "nothing to undo"
-    assert e.abort("m", 5) == "resumed"
+        e.handoffs.release("m", 4, cut=0, grace=0)
+    assert e.handoffs.abort("m", 4) == "nothing to undo"
+    assert e.handoffs.abort("m", 5) == "resumed"
     other = Engine("h2")
     other.put(monitor(), active=False)
-    other.receive("m", 7)
+    other.handoffs.receive("m", 7)
     with pytest.raises(HandoffError, match="snapshot 1 of 1: too short for a snapshot"):
         decode_frames([b"garbage"])  # the API decodes, before the engine sees anything
-    assert other.abort("m", 7) == "dropped"
+    assert other.handoffs.abort("m", 7) == "dropped"
     assert other.slots["m"].runtime is None
 
 
 def test_the_sender_waits_for_every_topic_past_the_cut_or_the_grace() -> None:
     e = Engine("h", flush_after=1e9)
     e.put(monitor(), active=True)
-    e.hold("m", 1)
+    e.handoffs.hold("m", 1)
     e.ingest([(10, "/a", [True]), (11, "/x", [1.0]), (20, "/x", [2.0])])
-    assert e.release("m", 1, cut=15, grace=5.0, now=100.0) is None  # /a not past 15 yet
+    assert e.handoffs.release("m", 1, cut=15, grace=5.0, now=100.0) is None  # /a not past 15 yet
     e.ingest([(14, "/a", [False])])  # a late event before the cut: it must be covered
-    assert e.release("m", 1, cut=15, grace=5.0, now=101.0) is None
+    assert e.handoffs.release("m", 1, cut=15, grace=5.0, now=101.0) is None
     e.ingest([(16, "/a", [True])])
-    snap = e.release("m", 1, cut=15, grace=5.0, now=102.0)
+    snap = e.handoffs.release("m", 1, cut=15, grace=5.0, now=102.0)
     assert snap is not None and not e.slots["m"].active
     assert len(snap.letters) == 2  # 11 and 14 (10 made none: x had no value yet)
     assert snap.step == 0 and snap.cut == 15
     quiet = Engine("q", flush_after=1e9)
     quiet.put(monitor(), active=True)
-    quiet.hold("m", 1, now=90.0)
+    quiet.handoffs.hold("m", 1, now=90.0)
     quiet.ingest([(20, "/x", [2.0])], now=95.0)  # /a stays quiet
-    assert quiet.release("m", 1, cut=15, grace=5.0, now=100.0) is None
+    assert quiet.handoffs.release("m", 1, cut=15, grace=5.0, now=100.0) is None
     quiet.ingest([(21, "/x", [2.0])], now=103.0)  # events come: a lagging sender waits
-    assert quiet.release("m", 1, cut=15, grace=5.0, now=105.0) is None
-    assert quiet.release("m", 1, cut=15, grace=5.0, now=108.0) is not None  # nothing for 5 s
+    assert quiet.handoffs.release("m", 1, cut=15, grace=5.0, now=105.0) is None
+    assert (
+        quiet.handoffs.release("m", 1, cut=15, grace=5.0, now=108.0) is not None
+    )  # nothing for 5 s
     # a quiet topic is let go once another one ran grace seconds of stamps past the cut;
     # one the receiver vouched for (it brought nothing there either) once the stream ran
     # a reorder window past it
     for window, grace, vouched in ((5.0, 1.0, ()), (1.0, 5.0, ("/a",))):
         stream = Engine("s", flush_after=1e9, reorder_window=window)
         stream.put(monitor(), active=True)
-        stream.hold("m", 1, now=0.0)
+        stream.handoffs.hold("m", 1, now=0.0)
         stream.ingest([(20, "/x", [2.0]), (10**9 + 14, "/x", [2.0])], now=0.0)
-        assert stream.release("m", 1, cut=15, grace=grace, now=0.0, quiet=vouched) is None
+        assert stream.handoffs.release("m", 1, cut=15, grace=grace, now=0.0, quiet=vouched) is None
         stream.ingest([(10**9 + 15, "/x", [2.0])], now=0.0)
-        assert stream.release("m", 1, cut=15, grace=grace, now=0.0, quiet=vouched) is not None
+        assert (
+            stream.handoffs.release("m", 1, cut=15, grace=grace, now=0.0, quiet=vouched) is not None
+        )
     # a topic that is not quiet waits for its own event past the cut, however far the
     # stream ran: an overloaded sender may still hold it in its queues
     busy = Engine("b", flush_after=1e9, reorder_window=0.02)
     busy.put(monitor(), active=True)
-    busy.hold("m", 1, now=0.0)
+    busy.handoffs.hold("m", 1, now=0.0)
     busy.ingest([(20, "/x", [2.0]), (10**8, "/x", [2.0])], now=0.0)
-    assert busy.release("m", 1, cut=15, grace=5.0, now=0.0) is None
+    assert busy.handoffs.release("m", 1, cut=15, grace=5.0, now=0.0) is None
 
 
 def test_the_cut_is_never_below_what_the_sender_already_evaluated() -> None:
@@ -226,9 +230,9 @@ def test_the_cut_is_never_below_what_the_sender_already_evaluated() -> None:
     e.put(monitor(), active=True)
     # sortThreshold 2: 10 and 11 are released into the pipeline, 12 waits in the sort buffer
     e.ingest([(10, "/a", [True]), (11, "/x", [1.0]), (12, "/x", [2.0])])
-    e.hold("m", 1)
+    e.handoffs.hold("m", 1)
     e.ingest([(30, "/a", [True]), (31, "/x", [3.0])])
-    snap = e.release("m", 1, cut=5, grace=0.0, now=0.0)
+    snap = e.handoffs.release("m", 1, cut=5, grace=0.0, now=0.0)
     assert snap is not None
     # with H2's cut of 5, H2 would evaluate 10 and 11 a second time; and 12, which was in
     # the sort buffer at the hold: the sender compresses that buffer (no scheduler round
@@ -242,16 +246,16 @@ def test_after_the_release_the_sender_keeps_what_it_needs_to_resume() -> None:
     e = Engine("h", [sink], flush_after=1e9)
     e.put(monitor(), active=True)
     e.ingest([(1, "/a", [True]), (2, "/x", [1.0])])
-    e.hold("m", 1)
+    e.handoffs.hold("m", 1)
     e.ingest([(3, "/x", [7.0]), (4, "/a", [True]), (5, "/x", [8.0])])
-    assert e.release("m", 1, cut=3, grace=0.0, now=0.0) is not None
+    assert e.handoffs.release("m", 1, cut=3, grace=0.0, now=0.0) is not None
     assert not e.slots["m"].active and monitor_reports(e)[0]["state"] == "inactive"
     e.ingest([(6, "/x", [1.0]), (7, "/x", [9.0])])  # still held for a possible resume
     with pytest.raises(HandoffError, match="abort it first"):
         e.set_active("m", False)
     e.drain()  # a shutdown now must not evaluate what H2 may own
     assert sink.got == []
-    assert e.abort("m", 1) == "resumed"
+    assert e.handoffs.abort("m", 1) == "resumed"
     e.drain()
     # x=7 at 3 (step 2), x=8 at 5 (step 4), x=9 at 7 (step 6) violate while a holds
     assert [(v, step, stamp) for v, step, stamp in sink.got] == [
@@ -260,9 +264,9 @@ def test_after_the_release_the_sender_keeps_what_it_needs_to_resume() -> None:
         ("violated", 4, 5),
         ("violated", 6, 7),
     ]
-    assert e.abort("m", 1) == "active"
+    assert e.handoffs.abort("m", 1) == "active"
     with pytest.raises(HandoffError, match="is over"):
-        e.commit("m", 1)
+        e.handoffs.commit("m", 1)
 
 
 def test_a_sender_compresses_nothing_ahead_while_it_holds() -> None:
@@ -278,10 +282,10 @@ def test_a_sender_compresses_nothing_ahead_while_it_holds() -> None:
     e.ingest([(1, "/a", [True]), (2, "/x", [1.0]), (3, "/x", [7.0])])
     ahead = rt.ahead
     assert ahead == 3  # compressed as they came
-    e.hold("m", 1)
+    e.handoffs.hold("m", 1)
     e.ingest([(s, "/x", [float(s)]) for s in range(4, 12)])
     assert rt.ahead == ahead and len(rt.events) == 11 and not rt.speculate
-    assert e.abort("m", 1) == "resumed"
+    assert e.handoffs.abort("m", 1) == "resumed"
     assert rt.speculate
     e.ingest([(12, "/x", [1.0])])
     assert rt.ahead == len(rt.events) == 12
@@ -291,7 +295,7 @@ def test_a_sender_compresses_nothing_ahead_while_it_holds() -> None:
 
 
 def test_a_handoffs_commit_lets_go_of_its_monitors_at_once() -> None:
-    """Engine.settle commits a batch under one lock, the routes made anew once: what
+    """Engine.handoffs.settle commits a batch under one lock, the routes made anew once: what
     is left is routed as before, what went gets nothing more."""
     e = Engine("h", flush_after=1e9)
     names = [f"m{i}" for i in range(6)]
@@ -299,15 +303,15 @@ def test_a_handoffs_commit_lets_go_of_its_monitors_at_once() -> None:
         e.put(compiled("always (a -> x < 5)", {"a": "bool", "x": "float"}, name=name), True)
     going = names[:4]
     for name in going:
-        e.hold(name, 2)
+        e.handoffs.hold(name, 2)
     e.ingest([(1, "/a", [True]), (2, "/x", [1.0])])
     for name in going:
-        assert e.release(name, 2, cut=2, grace=0.0, now=0.0) is not None
-    assert e.settle("commit", 2, going) == dict.fromkeys(going, "committed")
+        assert e.handoffs.release(name, 2, cut=2, grace=0.0, now=0.0) is not None
+    assert e.handoffs.settle("commit", 2, going) == dict.fromkeys(going, "committed")
     assert {rt.name for rt, _ in e.router.routes["/x"].readers} == {"m4", "m5"}
     assert all(e.slots[n].runtime is None and e.slots[n].handoff is None for n in going)
-    assert e.settle("commit", 2, going) == dict.fromkeys(going, "committed")  # repeated
-    assert e.settle("abort", 2, going) == dict.fromkeys(going, "gone")
+    assert e.handoffs.settle("commit", 2, going) == dict.fromkeys(going, "committed")  # repeated
+    assert e.handoffs.settle("abort", 2, going) == dict.fromkeys(going, "gone")
 
 
 def test_a_batch_is_adopted_all_or_nothing() -> None:
@@ -320,28 +324,28 @@ def test_a_batch_is_adopted_all_or_nothing() -> None:
     h1, h2 = two(), two()
     for name in ("a", "b"):
         h2.set_active(name, False)
-        h1.hold(name, 3)
-        h2.receive(name, 3)
+        h1.handoffs.hold(name, 3)
+        h2.handoffs.receive(name, 3)
     h1.ingest([(1, "/a", [True]), (2, "/x", [1.0])])
     h2.ingest([(1, "/a", [True]), (2, "/x", [1.0])])
-    good = h1.release("a", 3, cut=2, grace=0.0, now=0.0)
+    good = h1.handoffs.release("a", 3, cut=2, grace=0.0, now=0.0)
     assert good is not None
     stale = replace(good, monitor="b", epoch=2)  # b's, of an earlier handoff
     with pytest.raises(HandoffError, match="b: the snapshot belongs to another handoff"):
-        h2.adopt_many(3, [good, stale])
+        h2.handoffs.adopt_many(3, [good, stale])
     assert [h2.slots[n].handoff for n in ("a", "b")] == ["receiving", "receiving"]
     assert not h2.slots["a"].active  # nothing of the batch was adopted
-    good_b = h1.release("b", 3, cut=2, grace=0.0, now=0.0)
+    good_b = h1.handoffs.release("b", 3, cut=2, grace=0.0, now=0.0)
     assert good_b is not None
-    assert h2.abort("b", 3) == "dropped"  # b's adoption will fail after a's restore
+    assert h2.handoffs.abort("b", 3) == "dropped"  # b's adoption will fail after a's restore
     with pytest.raises(HandoffError, match="no receiving handoff of 'b' with epoch 3"):
-        h2.adopt_many(3, [good, good_b])
+        h2.handoffs.adopt_many(3, [good, good_b])
     assert not h2.slots["a"].active and h2.slots["a"].handoff == "receiving"
-    assert h2.adopt_many(3, [good]) == ["a"]
-    h2.adopt_many(3, [good])  # a repeated adoption is a no-op
-    assert h2.slots["a"].active and h2.abort("a", 3) == "active"
+    assert h2.handoffs.adopt_many(3, [good]) == ["a"]
+    h2.handoffs.adopt_many(3, [good])  # a repeated adoption is a no-op
+    assert h2.slots["a"].active and h2.handoffs.abort("a", 3) == "active"
     with pytest.raises(HandoffError, match="a: the snapshot is of 'b'"):
-        h2.adopt("a", 3, good_b)
+        h2.handoffs.adopt("a", 3, good_b)
 
 
 def test_a_receiver_takes_its_first_stamps_from_what_it_took() -> None:
@@ -350,13 +354,13 @@ def test_a_receiver_takes_its_first_stamps_from_what_it_took() -> None:
     e = Engine("h2", flush_after=1e9)
     e.put(monitor(), active=False)
     e.taken([(5, "/a", [True])])  # not receiving yet: nothing noted
-    e.receive("m", 1)
+    e.handoffs.receive("m", 1)
     e.taken([(6, "/a", [True])])
-    assert e.cut("m", 1) is None  # /x not heard yet
+    assert e.handoffs.cut("m", 1) is None  # /x not heard yet
     e.taken([(7, "/x", [1.0]), (9, "/a", [False])])
-    assert e.cut("m", 1) == 7
+    assert e.handoffs.cut("m", 1) == 7
     e.ingest([(6, "/a", [True]), (7, "/x", [1.0]), (9, "/a", [False])])  # the same, later
-    assert e.cut("m", 1) == 7 and len(e.slots["m"].runtime.events) == 3  # type: ignore[union-attr]
+    assert e.handoffs.cut("m", 1) == 7 and len(e.slots["m"].runtime.events) == 3  # type: ignore[union-attr]
 
 
 def test_a_parked_robot_lets_the_sender_go_a_reorder_window_past_the_cut() -> None:
@@ -367,17 +371,17 @@ def test_a_parked_robot_lets_the_sender_go_a_reorder_window_past_the_cut() -> No
     e = Engine("h", flush_after=0.2, reorder_window=0.02)
     e.put(monitor(), active=True)
     e.ingest([(1 * ms, "/a", [True]), (2 * ms, "/x", [1.0])], now=10.0)
-    e.hold("m", 1, now=10.0)
+    e.handoffs.hold("m", 1, now=10.0)
     cut, quiet = 100 * ms, ("/a", "/x")
     e.drained_at = cut + 19 * ms
-    assert e.release("m", 1, cut=cut, grace=5.0, now=10.5, quiet=quiet) is None
+    assert e.handoffs.release("m", 1, cut=cut, grace=5.0, now=10.5, quiet=quiet) is None
     e.drained_at = cut + 20 * ms
     e.stamp_lag["/x"] = 30 * ms  # /x's messages reached H1 up to 30 ms after their stamps
-    assert e.release("m", 1, cut=cut, grace=5.0, now=10.5, quiet=quiet) is None
+    assert e.handoffs.release("m", 1, cut=cut, grace=5.0, now=10.5, quiet=quiet) is None
     e.drained_at = cut + 50 * ms  # a window and /x's 30 ms: a later one may come later
-    assert e.release("m", 1, cut=cut, grace=5.0, now=10.5, quiet=quiet) is None
+    assert e.handoffs.release("m", 1, cut=cut, grace=5.0, now=10.5, quiet=quiet) is None
     e.drained_at = cut + 220 * ms  # a window and flushAfter past the cut
-    assert e.release("m", 1, cut=cut, grace=5.0, now=10.5, quiet=quiet) is not None
+    assert e.handoffs.release("m", 1, cut=cut, grace=5.0, now=10.5, quiet=quiet) is not None
 
 
 def test_a_slow_topic_the_receiver_heard_goes_once_the_sender_took_all_past_the_cut(
@@ -393,20 +397,22 @@ def test_a_slow_topic_the_receiver_heard_goes_once_the_sender_took_all_past_the_
     e = Engine("h", flush_after=0.2, reorder_window=0.02)
     e.put(monitor(), active=True)
     e.ingest([(1 * ms, "/a", [True]), (2 * ms, "/x", [1.0])], now=10.0)
-    e.hold("m", 1, now=10.0)
+    e.handoffs.hold("m", 1, now=10.0)
     cut = 100 * ms
     e.ingest([(130 * ms, "/x", [2.0]), (900 * ms, "/x", [2.0])], now=10.1)
-    assert e.release("m", 1, cut=cut, grace=5.0, now=10.1) is None  # no drained instant
+    assert e.handoffs.release("m", 1, cut=cut, grace=5.0, now=10.1) is None  # no drained instant
     e.drained_at = cut + 24 * ms  # a window past the cut, but no message of /a ever
-    assert e.release("m", 1, cut=cut, grace=5.0, now=10.1) is None  # reached it here
+    assert e.handoffs.release("m", 1, cut=cut, grace=5.0, now=10.1) is None  # reached it here
     e.stamp_lag["/a"] = 5 * ms  # /a's messages reached H1 up to 5 ms after their stamps
-    assert e.release("m", 1, cut=cut, grace=5.0, now=10.1) is None  # under a window + 5 ms
+    assert e.handoffs.release("m", 1, cut=cut, grace=5.0, now=10.1) is None  # under a window + 5 ms
     e.drained_at = cut + 219 * ms
-    assert e.release("m", 1, cut=cut, grace=5.0, now=10.1) is None  # under a window + 0.2 s
+    assert (
+        e.handoffs.release("m", 1, cut=cut, grace=5.0, now=10.1) is None
+    )  # under a window + 0.2 s
     e.ingest([(99 * ms, "/a", [False])], now=10.2)  # stamped before the cut, come late
     e.drained_at = cut + 220 * ms
     with caplog.at_level(logging.INFO, logger="edgerv.handler"):
-        snap = e.release("m", 1, cut=cut, grace=5.0, now=10.2)
+        snap = e.handoffs.release("m", 1, cut=cut, grace=5.0, now=10.2)
     assert snap is not None and False in snap.values  # H1 took it: H2 leaves it to H1
     # its log line says what it waited for, and how long since it learned the cut
     assert "released at cut 100000000 (epoch 1) after 100 ms waiting for /a (reach 5 ms)" in (
@@ -419,20 +425,20 @@ def test_a_release_says_when_grace_let_a_topic_go(caplog: pytest.LogCaptureFixtu
     e = Engine("h", flush_after=1e9, reorder_window=0.02)
     e.put(monitor(), active=True)
     e.ingest([(1 * ms, "/a", [True]), (2 * ms, "/x", [1.0])], now=10.0)
-    e.hold("m", 1, now=10.0)
-    assert e.release("m", 1, cut=100 * ms, grace=0.5, now=10.0) is None
+    e.handoffs.hold("m", 1, now=10.0)
+    assert e.handoffs.release("m", 1, cut=100 * ms, grace=0.5, now=10.0) is None
     with caplog.at_level(logging.INFO, logger="edgerv.handler"):
-        assert e.release("m", 1, cut=100 * ms, grace=0.5, now=10.5) is not None
+        assert e.handoffs.release("m", 1, cut=100 * ms, grace=0.5, now=10.5) is not None
     assert "after 500 ms waiting for /a, /x; grace let go of /a, /x" in caplog.text
     # at its first look: /x ran grace past the cut, so /a goes; the line says so
     e = Engine("h", flush_after=1e9, reorder_window=0.02)
     e.put(monitor(), active=True)
     e.ingest([(1 * ms, "/a", [True]), (2 * ms, "/x", [1.0])], now=10.0)
-    e.hold("m", 2, now=10.0)
+    e.handoffs.hold("m", 2, now=10.0)
     e.ingest([(700 * ms, "/x", [2.0])], now=10.0)
     caplog.clear()
     with caplog.at_level(logging.INFO, logger="edgerv.handler"):
-        assert e.release("m", 2, cut=100 * ms, grace=0.5, now=10.0) is not None
+        assert e.handoffs.release("m", 2, cut=100 * ms, grace=0.5, now=10.0) is not None
     assert "(epoch 2) after 0 ms waiting for /a; grace let go of /a" in caplog.text
 
 
@@ -449,15 +455,15 @@ def test_a_topic_published_after_its_stamps_is_let_go_that_much_later() -> None:
     e.put(monitor(), active=True)
     e.ingest([(1 * ms, "/a", [True]), (2 * ms, "/x", [1.0])], now=10.0)
     e.stamp_lag["/a"] = 150 * ms  # /a's messages came up to 150 ms after their stamps
-    e.hold("m", 1, now=10.0)
+    e.handoffs.hold("m", 1, now=10.0)
     cut, quiet = 100 * ms, ("/a",)
     e.ingest([(130 * ms, "/x", [2.0])], now=10.1)  # /x ran a window past the cut
-    assert e.release("m", 1, cut=cut, grace=5.0, now=10.1, quiet=quiet) is None
+    assert e.handoffs.release("m", 1, cut=cut, grace=5.0, now=10.1, quiet=quiet) is None
     e.ingest([(270 * ms, "/x", [3.0])], now=10.3)  # the window and the lag so far past it
-    assert e.release("m", 1, cut=cut, grace=5.0, now=10.3, quiet=quiet) is None
+    assert e.handoffs.release("m", 1, cut=cut, grace=5.0, now=10.3, quiet=quiet) is None
     e.ingest([(90 * ms, "/a", [False])], now=10.3)  # stamped before the cut, 190 ms late
     e.ingest([(320 * ms, "/x", [4.0])], now=10.4)  # the window and flushAfter past the cut
-    snap = e.release("m", 1, cut=cut, grace=5.0, now=10.4, quiet=quiet)
+    snap = e.handoffs.release("m", 1, cut=cut, grace=5.0, now=10.4, quiet=quiet)
     assert snap is not None and False in snap.values  # /a as the late command left it: H1 took it
 
 
@@ -468,22 +474,22 @@ def test_a_receiver_vouches_for_a_silent_topic_once_matched_a_window_long() -> N
     matched = {"/a": False}
     e = Engine("h2", flush_after=1e9, reorder_window=0.02, matched=lambda t: matched[t])
     e.put(monitor(), active=False)
-    e.receive("m", 1)
+    e.handoffs.receive("m", 1)
     e.ingest([(5 * ms, "/x", [1.0])], now=0.0)
     e.taken([(5 * ms, "/x", [1.0])])
-    assert e.cut("m", 1, wall=10 * ms) is None  # not matched yet
+    assert e.handoffs.cut("m", 1, wall=10 * ms) is None  # not matched yet
     matched["/a"] = True
-    assert e.cut("m", 1, wall=11 * ms) is None  # matched since 11 ms: not a window yet
-    assert e.cut("m", 1, wall=30 * ms) is None
-    assert e.cut("m", 1, wall=31 * ms) == 31 * ms  # the later of 11 + 20 ms and /x's 5 ms
+    assert e.handoffs.cut("m", 1, wall=11 * ms) is None  # matched since 11 ms: not a window yet
+    assert e.handoffs.cut("m", 1, wall=30 * ms) is None
+    assert e.handoffs.cut("m", 1, wall=31 * ms) == 31 * ms  # the later of 11 + 20 ms and /x's 5 ms
     assert e.slots["m"].quiet == ("/a",)  # the sender is told: /a may be let go sooner
     matched["/a"] = False  # a new publisher of /a appears: matching starts over
-    assert e.cut("m", 1, wall=40 * ms) is None
+    assert e.handoffs.cut("m", 1, wall=40 * ms) is None
     matched["/a"] = True
-    assert e.cut("m", 1, wall=41 * ms) is None
-    assert e.cut("m", 1, wall=61 * ms) == 61 * ms
+    assert e.handoffs.cut("m", 1, wall=41 * ms) is None
+    assert e.handoffs.cut("m", 1, wall=61 * ms) == 61 * ms
     e.taken([(50 * ms, "/a", [True])])  # a message came: its stamp is exact
-    assert e.cut("m", 1, wall=62 * ms) == 50 * ms
+    assert e.handoffs.cut("m", 1, wall=62 * ms) == 50 * ms
     assert Engine("no-ros").matched is None  # without a ROS layer a silent topic waits
 
 

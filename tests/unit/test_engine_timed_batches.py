@@ -328,17 +328,17 @@ def test_handoffs_of_timed_monitors_in_long_batches(seed: int) -> None:
             epoch += 1
             phase = "started"
             for engines, _ in worlds:
-                engines[owner].hold("m", epoch, now=now)
-                engines[1 - owner].receive("m", epoch)
+                engines[owner].handoffs.hold("m", epoch, now=now)
+                engines[1 - owner].handoffs.receive("m", epoch)
         cuts, snaps = [], []
         for (engines, _), feed in zip(worlds, feeds, strict=True):
             src, dst = engines[owner], engines[1 - owner]
             feed(src, part, now)
             if phase is not None:
                 feed(dst, part, now)
-                cuts.append(dst.cut("m", epoch) if cut is None else cut)
+                cuts.append(dst.handoffs.cut("m", epoch) if cut is None else cut)
                 if cuts[-1] is not None:
-                    snaps.append(src.release("m", epoch, cuts[-1], grace=1e9, now=now))
+                    snaps.append(src.handoffs.release("m", epoch, cuts[-1], grace=1e9, now=now))
         assert len(set(cuts)) <= 1, cuts
         cut = cuts[0] if cuts else None
         if snaps:
@@ -348,8 +348,8 @@ def test_handoffs_of_timed_monitors_in_long_batches(seed: int) -> None:
                 assert encode(a) == encode(b)
                 for (engines, _), snap in zip(worlds, (a, b), strict=True):
                     (data,) = decode_frames([encode(snap)])  # as the wire gives it
-                    engines[1 - owner].adopt("m", epoch, data)
-                    assert engines[owner].commit("m", epoch) == "committed"
+                    engines[1 - owner].handoffs.adopt("m", epoch, data)
+                    assert engines[owner].handoffs.commit("m", epoch) == "committed"
                 owner, phase, cut, moves = 1 - owner, None, None, moves + 1
         for engines, _ in worlds:
             for e in engines:
@@ -357,8 +357,8 @@ def test_handoffs_of_timed_monitors_in_long_batches(seed: int) -> None:
         assert [observe(e) for e in worlds[0][0]] == [observe(e) for e in worlds[1][0]], i
     if phase is not None:
         for engines, _ in worlds:
-            engines[owner].abort("m", epoch)
-            engines[1 - owner].abort("m", epoch)
+            engines[owner].handoffs.abort("m", epoch)
+            engines[1 - owner].handoffs.abort("m", epoch)
     for engines, _ in worlds:
         for e in engines:
             e.drain()

@@ -92,8 +92,8 @@ def test_every_slot_a_tick_passes_over_is_idle(seed: int) -> None:
                 continue
             dst = engines[1 - engines.index(src)]
             epoch += 1
-            src.hold(name, epoch)
-            dst.receive(name, epoch)
+            src.handoffs.hold(name, epoch)
+            dst.handoffs.receive(name, epoch)
             for _ in range(rng.randint(0, 6)):  # messages while it holds, before the cut
                 stamp += rng.choice([1, 100_000])
                 message = (stamp, "/x", [rng.uniform(0, 10)])
@@ -103,16 +103,16 @@ def test_every_slot_a_tick_passes_over_is_idle(seed: int) -> None:
                     one.ingest([message])
                 if rng.random() < 0.3:  # (the receiver's buffer found idle meanwhile)
                     dst.emit(dst.tick())
-            cut = dst.cut(name, epoch)
-            snap = src.release(name, epoch, cut, grace=0.0) if cut is not None else None
+            cut = dst.handoffs.cut(name, epoch)
+            snap = src.handoffs.release(name, epoch, cut, grace=0.0) if cut is not None else None
             if rng.random() < 0.3:  # (the sender's slot found idle meanwhile)
                 src.emit(src.tick())
             if snap is not None and rng.random() < 0.6:
-                dst.adopt(name, epoch, snap)
-                src.commit(name, epoch)
+                dst.handoffs.adopt(name, epoch, snap)
+                src.handoffs.commit(name, epoch)
             else:
-                src.abort(name, epoch)
-                dst.abort(name, epoch)
+                src.handoffs.abort(name, epoch)
+                dst.handoffs.abort(name, epoch)
         elif op < 0.95:  # deactivated, or activated where no other engine runs it
             i = rng.randrange(len(KINDS))
             slot = e.slots[f"m{i}"]

@@ -738,14 +738,14 @@ def test_an_abort_that_overtook_its_hold_or_receive_fences_them() -> None:
     edge.put(mon, active=True)
     cloud.put(mon, active=False)
     for e in (edge, cloud):
-        assert e.abort("m", 5) == "nothing to undo"
+        assert e.handoffs.abort("m", 5) == "nothing to undo"
     with pytest.raises(HandoffError, match="not newer"):
-        edge.hold("m", 5)
+        edge.handoffs.hold("m", 5)
     with pytest.raises(HandoffError, match="not newer"):
-        cloud.receive("m", 5)
-    edge.hold("m", 6)  # a later handoff goes on
-    assert edge.abort("m", 7) == "nothing to undo"  # (in a handoff: nothing fenced)
-    assert edge.slots["m"].epoch == 6 and edge.abort("m", 6) == "resumed"
+        cloud.handoffs.receive("m", 5)
+    edge.handoffs.hold("m", 6)  # a later handoff goes on
+    assert edge.handoffs.abort("m", 7) == "nothing to undo"  # (in a handoff: nothing fenced)
+    assert edge.slots["m"].epoch == 6 and edge.handoffs.abort("m", 6) == "resumed"
 
 
 def test_a_receiver_answers_for_an_older_handoff_from_its_record_of_adoptions(
@@ -768,34 +768,38 @@ def test_a_receiver_answers_for_an_older_handoff_from_its_record_of_adoptions(
                 e.ingest([(stamp, "/a", [True]), (stamp + 1, "/x", [1.0])])
 
     def handoff(src: Engine, dst: Engine, epoch: int) -> None:
-        src.hold("m", epoch)
-        dst.receive("m", epoch)
+        src.handoffs.hold("m", epoch)
+        dst.handoffs.receive("m", epoch)
         feed()
-        cut = dst.cut("m", epoch)
+        cut = dst.handoffs.cut("m", epoch)
         assert cut is not None
         feed()
-        snap = src.release("m", epoch, cut, grace=0.0, now=0.0)
+        snap = src.handoffs.release("m", epoch, cut, grace=0.0, now=0.0)
         assert snap is not None
-        dst.adopt("m", epoch, snap)
-        src.commit("m", epoch)
+        dst.handoffs.adopt("m", epoch, snap)
+        src.handoffs.commit("m", epoch)
 
-    cloud.receive("m", 1)  # a handoff it never adopted (dropped)
-    assert cloud.abort("m", 1) == "dropped"
+    cloud.handoffs.receive("m", 1)  # a handoff it never adopted (dropped)
+    assert cloud.handoffs.abort("m", 1) == "dropped"
     handoff(edge, cloud, 2)
-    assert cloud.abort("m", 1) == "nothing to undo"
-    cloud.hold("m", 3)  # a newer handoff from the cloud, then undone: it runs there again
-    assert cloud.abort("m", 2) == "adopted"
-    assert cloud.abort("m", 3) == "resumed"
-    assert cloud.abort("m", 2) == "active"  # adopted then, runs here now
-    assert cloud.abort("m", 1) == "nothing to undo"  # never adopted: never will (fenced)
+    assert cloud.handoffs.abort("m", 1) == "nothing to undo"
+    cloud.handoffs.hold("m", 3)  # a newer handoff from the cloud, then undone: it runs there again
+    assert cloud.handoffs.abort("m", 2) == "adopted"
+    assert cloud.handoffs.abort("m", 3) == "resumed"
+    assert cloud.handoffs.abort("m", 2) == "active"  # adopted then, runs here now
+    assert cloud.handoffs.abort("m", 1) == "nothing to undo"  # never adopted: never will (fenced)
     handoff(cloud, edge, 4)
-    assert cloud.abort("m", 2) == "adopted"  # and moved on since
+    assert cloud.handoffs.abort("m", 2) == "adopted"  # and moved on since
     handoff(edge, cloud, 5)
     handoff(cloud, edge, 6)
     handoff(edge, cloud, 7)  # the cloud adopted 2, 5, 7 and keeps the last two
-    assert cloud.abort("m", 5) == "active" and cloud.abort("m", 7) == "active"
-    assert cloud.abort("m", 2) == "unknown"  # forgotten: the driver keeps the sender holding
-    assert cloud.abort("m", 4) == "nothing to undo"  # its record since 2 is whole: not adopted
+    assert cloud.handoffs.abort("m", 5) == "active" and cloud.handoffs.abort("m", 7) == "active"
+    assert (
+        cloud.handoffs.abort("m", 2) == "unknown"
+    )  # forgotten: the driver keeps the sender holding
+    assert (
+        cloud.handoffs.abort("m", 4) == "nothing to undo"
+    )  # its record since 2 is whole: not adopted
 
 
 class Cut(Net):
@@ -892,20 +896,20 @@ def test_a_refused_hold_or_receive_says_what_the_monitor_does_there() -> None:
     edge.put(mon, active=True)
     cloud.put(mon, active=False)
     with pytest.raises(HandoffError, match="'m' does not run here"):
-        cloud.hold("m", 1)
+        cloud.handoffs.hold("m", 1)
     with pytest.raises(HandoffError, match="'m' already runs here"):
-        edge.receive("m", 1)
-    edge.hold("m", 2, peer="http://cloud")
-    cloud.receive("m", 2)
+        edge.handoffs.receive("m", 1)
+    edge.handoffs.hold("m", 2, peer="http://cloud")
+    cloud.handoffs.receive("m", 2)
     with pytest.raises(HandoffError, match=r"held here for a handoff to http://cloud \(epoch 2\)"):
-        edge.receive("m", 3)
+        edge.handoffs.receive("m", 3)
     with pytest.raises(HandoffError, match=r"being received here in another handoff \(epoch 2\)"):
-        cloud.receive("m", 3)
+        cloud.handoffs.receive("m", 3)
     with pytest.raises(HandoffError, match="being received here"):
-        cloud.hold("m", 3)
+        cloud.handoffs.hold("m", 3)
     edge.ingest([(1, "/a", [True]), (2, "/x", [1.0])])
-    assert edge.release("m", 2, cut=0, grace=0.0, now=0.0) is not None
+    assert edge.handoffs.release("m", 2, cut=0, grace=0.0, now=0.0) is not None
     with pytest.raises(HandoffError, match="released to http://cloud in a handoff not yet settled"):
-        edge.receive("m", 4)
+        edge.handoffs.receive("m", 4)
     with pytest.raises(HandoffError, match=r"to http://cloud .*\(epoch 2\), not evaluated"):
-        edge.hold("m", 4)
+        edge.handoffs.hold("m", 4)

@@ -697,7 +697,7 @@ class Api:
             if name not in ("m", "n"):
                 e.remove(name)
             elif slot.handoff is not None:
-                e.abort(name, slot.epoch)
+                e.handoffs.abort(name, slot.epoch)
         if e.slots["n"].runtime is not None:  # adopted: a receiver's side again
             e.set_active("n", False)
         if e.slots["m"].runtime is None:
@@ -742,9 +742,9 @@ def _prepare(api: Api, step: str, epoch: Any) -> bool:
     e = api.engine
     with contextlib.suppress(HandoffError):
         if step in ("release", "commit"):
-            e.hold("m", epoch - 1)
+            e.handoffs.hold("m", epoch - 1)
         elif step in ("cut", "adopt"):
-            e.receive("n", epoch)
+            e.handoffs.receive("n", epoch)
     return True
 
 
@@ -947,7 +947,7 @@ def test_the_apis_requests_as_bytes_answer_json_never_500(
     epoch, calls = call
     try:
         with contextlib.suppress(HandoffError):
-            wire_api.engine.receive("n", epoch)  # an adopt finds a handoff receiving
+            wire_api.engine.handoffs.receive("n", epoch)  # an adopt finds a handoff receiving
         real = adoptable(wire_api, epoch)
         bundles = {  # the huge one: valid, and past the budget once decoded
             b"<bundle>": real,

@@ -101,8 +101,8 @@ def test_a_handoff_no_driver_finishes_is_undone_where_that_is_safe() -> None:
     monitor = compiled("always (a -> x < 5)", {"a": "bool", "x": "float"})
     edge.put(monitor, active=True)
     cloud.put(monitor, active=False)
-    edge.hold("m", 1)
-    cloud.receive("m", 1)
+    edge.handoffs.hold("m", 1)
+    cloud.handoffs.receive("m", 1)
     clock.advance(HANDOFF_EXPIRES - 1)
     for e in (edge, cloud):
         e.tick()
@@ -112,10 +112,10 @@ def test_a_handoff_no_driver_finishes_is_undone_where_that_is_safe() -> None:
         e.tick()
     assert edge.slots["m"].active and edge.slots["m"].handoff is None  # resumed
     assert cloud.slots["m"].runtime is None and cloud.slots["m"].handoff is None  # dropped
-    edge.hold("m", 2)
-    cloud.receive("m", 2)
+    edge.handoffs.hold("m", 2)
+    cloud.handoffs.receive("m", 2)
     edge.ingest([(1, "/a", [True]), (2, "/x", [1.0])])
-    assert edge.release("m", 2, cut=0, grace=0.0, now=0.0) is not None
+    assert edge.handoffs.release("m", 2, cut=0, grace=0.0, now=0.0) is not None
     clock.advance(HANDOFF_EXPIRES + 1)
     edge.tick()
     assert edge.slots["m"].handoff == "released"  # the cloud may have adopted: not undone

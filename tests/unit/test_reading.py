@@ -67,7 +67,7 @@ def _run(seed: int) -> Engine:
             slot = e.slots.get(name)
             if slot is not None and slot.runtime is not None and slot.handoff is None:
                 epoch += 1
-                e.hold(name, epoch, peer="cloud")
+                e.handoffs.hold(name, epoch, peer="cloud")
         elif op < 0.93:
             e.remove(rng.choice(names))
         else:

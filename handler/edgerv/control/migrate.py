@@ -73,7 +73,7 @@ class Held(Unsettled):
 
 T = TypeVar("T")
 
-# A receiver's answers to ``abort`` after a release (Engine.abort): it adopted the monitor
+# A receiver's answers to ``abort`` after a release (Engine.handoffs.abort): it adopted the monitor
 # (runs it now, or moved it on since), or it never will; any other leaves it held.
 ADOPTED = ("active", "adopted")
 NOT_ADOPTED = ("dropped", "nothing to undo", "gone")
@@ -307,7 +307,7 @@ def _commit(source: HandlerClient, epoch: int, names: Sequence[str], until: floa
 
 def _abort(side: HandlerClient, epoch: int, names: Sequence[str], until: float) -> dict[str, str]:
     """``abort`` on one side, retried until ``until`` while it does not answer: its
-    answer per monitor (Engine.abort), UNDEFINED for one it does not define, or
+    answer per monitor (Engine.handoffs.abort), UNDEFINED for one it does not define, or
     UNAUTHORIZED for each when it refuses the token.
 
     Raises MigrationFailed when it gave no usable answer (Refused: it is down)."""

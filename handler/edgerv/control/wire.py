@@ -154,7 +154,8 @@ class AdoptAnswer(TypedDict):
 
 
 class OutcomesAnswer(TypedDict):
-    """``commit`` and ``abort``: what each monitor's step did (Engine.commit, Engine.abort)."""
+    """``commit`` and ``abort``: what each monitor's step did (``Engine.handoffs``'
+    commit and abort)."""
 
     outcomes: dict[str, str]
 

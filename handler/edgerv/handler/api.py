@@ -750,7 +750,7 @@ class ControlApi:
             if step == "release":
                 return await self._release(body)
             settle = "commit" if step == "commit" else "abort"
-            outcomes = await self._locked(self.engine.settle, settle, epoch, names)
+            outcomes = await self._locked(self.engine.handoffs.settle, settle, epoch, names)
             self.on_routes()
             for outcome in sorted(set(outcomes.values())):
                 said = outcome if step == "commit" else f"aborted ({outcome})"
@@ -772,13 +772,13 @@ class ControlApi:
             try:
                 for name in names:
                     if step == "hold":
-                        e.hold(name, epoch, peer=peer)
+                        e.handoffs.hold(name, epoch, peer=peer)
                     else:
-                        e.receive(name, epoch)
+                        e.handoffs.receive(name, epoch)
                     done.append(name)
             except HandoffError as exc:
                 for name in done:
-                    e.abort(name, epoch)
+                    e.handoffs.abort(name, epoch)
                 raise HandoffError(f"{name}: {exc}") from None
         return done
 
@@ -787,7 +787,7 @@ class ControlApi:
     ) -> tuple[dict[str, int | None], dict[str, list[str]]]:
         e = self.engine
         with e.lock:
-            cuts = {n: e.cut(n, epoch) for n in names}
+            cuts = {n: e.handoffs.cut(n, epoch) for n in names}
             quiet = {n: list(e.slots[n].quiet) for n in names if cuts[n] is not None}
         return cuts, quiet
 
@@ -799,7 +799,8 @@ class ControlApi:
         def release(among: list[str]) -> dict[str, Snapshot | None]:
             with e.lock:
                 return {
-                    n: e.release(n, epoch, at[n], grace, quiet=vouched.get(n, ())) for n in among
+                    n: e.handoffs.release(n, epoch, at[n], grace, quiet=vouched.get(n, ()))
+                    for n in among
                 }
 
         # up to ``wait`` seconds for events past the cut here: no round trip a try. Each
@@ -853,7 +854,7 @@ class ControlApi:
             snaps = await self._locked(read_bundle, body, self.limits.bundle, admit)
         del body
         request[BODY] = bytearray()
-        names = await self._locked(self.engine.adopt_many, epoch, snaps)  # all or nothing
+        names = await self._locked(self.engine.handoffs.adopt_many, epoch, snaps)  # all or nothing
         self.on_routes()
         _record(epoch, "adopted", names)
         return web.json_response(AdoptAnswer(active=names))

@@ -34,7 +34,6 @@ from edgerv.core.reactions import Reaction
 from edgerv.core.robots import ros_namespace
 from edgerv.handler.budget import MemoryBudget, monitor_cost
 from edgerv.handler.clock import Clock, SystemClock
-from edgerv.handler.handoff_state import HandoffState
 from edgerv.handler.handoff_steps import HandoffSteps
 from edgerv.handler.reach import Reach
 from edgerv.handler.slot import MonitorSlot
@@ -94,9 +93,9 @@ class Reactor(Protocol):
     def react(self, handler: str, due: Sequence[tuple[Verdict, Reaction]]) -> None: ...
 
 
-class Engine(HandoffSteps):
-    """All monitors of one handler. Thread-safe. The handoff's steps are mixed in from
-    :mod:`edgerv.handler.handoff_steps`."""
+class Engine:
+    """All monitors of one handler. Thread-safe. The handoff's steps are its
+    :attr:`handoffs` (:mod:`edgerv.handler.handoff_steps`)."""
 
     def __init__(
         self,
@@ -186,6 +185,7 @@ class Engine(HandoffSteps):
         # (1: every one): how many more messages, and rounds, until the next timed one
         self.random = random.Random()
         self.sample_costs(COST_SAMPLE)
+        self.handoffs = HandoffSteps(self)  # hold, receive, cut, release, adopt, settle
 
     def sample_costs(self, every: int) -> None:
         """Time 1 in ``every`` messages and rounds, at random, for the monitors' costs."""
@@ -270,7 +270,7 @@ class Engine(HandoffSteps):
             if self.budget is not None:
                 self.budget.commit(compiled.name, monitor_cost(compiled.spec))
             if active:
-                self._activate(slot)
+                self.activate(slot)
             self.routes_version += 1
             return old is None
 
@@ -336,13 +336,13 @@ class Engine(HandoffSteps):
                     f"monitor '{name}' is in a handoff ({slot.handoff}); abort it first"
                 )
             if active and slot.runtime is None:
-                self._activate(slot)
+                self.activate(slot)
             elif not active and slot.runtime is not None:
                 self.router.remove(name)
                 slot.runtime = None
             self.routes_version += 1
 
-    def _activate(self, slot: MonitorSlot) -> None:
+    def activate(self, slot: MonitorSlot) -> None:
         slot.runtime = MonitorRuntime(slot.compiled)
         self.router.add(slot.runtime)
         self.watched[slot.name] = slot  # (a flush or pressure left from before: settled)
@@ -381,7 +381,7 @@ class Engine(HandoffSteps):
                 return False
             admit = self._admit
             if self.in_handoff:
-                self._note_firsts(batch)
+                self.handoffs.note_firsts(batch)
             if len(batch) >= COLUMNS_FROM:
                 woke = self._ingest_columns(batch, now, admit)
             else:
@@ -579,7 +579,7 @@ class Engine(HandoffSteps):
         from them, a window earlier. Each is ingested after, in the same topic order."""
         if batch and self.in_handoff:
             with self.lock:
-                self._note_firsts(batch)
+                self.handoffs.note_firsts(batch)
 
     def note_reaction(self, monitor: str, problem: str | None) -> None:
         """The reactor's outcome of one reaction of ``monitor``: done (None) or why not."""
@@ -664,8 +664,8 @@ class Engine(HandoffSteps):
         """Release event buffers that waited longer than ``flush_after``; update pressure."""
         now = self.clock.monotonic() if now is None else now
         with self.lock:
-            self._precompress()
-            self._expire_handoffs(now)
+            self.handoffs.precompress()
+            self.handoffs.expire(now)
             self.advance_clocks(self.clock.wall_ns())
             watched = self.watched
             for slot in [*watched.values()]:
@@ -746,7 +746,7 @@ class Engine(HandoffSteps):
                     self.doze_until = None
                 verdicts = self._take_reached() + self._evaluate(EVALUATE_CHUNK)
                 if self.in_handoff:
-                    self._precompress()
+                    self.handoffs.precompress()
                 replan, self.replan = self.replan, False
             now = time.monotonic()
             if now >= next_tick:
@@ -799,10 +799,10 @@ class Engine(HandoffSteps):
         # a step not taken when due (everything was not drained up to it yet): once a period
         return max(due, soon) if due <= now else due
 
-    def _set_handoff(self, slot: MonitorSlot, role: HandoffState | None) -> None:
-        """(A handoff's step: the scheduler ticks every period while one is under way, and
-        plans anew when one ends: a restored monitor may have a clock step due.)"""
-        super()._set_handoff(slot, role)
+    def handoff_changed(self, slot: MonitorSlot) -> None:
+        """A handoff's step changed ``slot``'s state: the scheduler ticks every period
+        while one is under way, and plans anew when one ends (a restored monitor may have
+        a clock step due)."""
         self.watched[slot.name] = slot  # (it may hold events or letters restored)
         self.changes += 1
         self.wake_ingest()  # (it waits IDLE_WAIT_SECONDS no more while one is under way)

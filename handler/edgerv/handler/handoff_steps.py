@@ -3,8 +3,9 @@ adopt, commit, abort, and the handler's own undoing of a handoff no driver finis
 
 Each step is one call with the handoff's epoch, under the engine's lock; the state it
 changes is the monitor's :class:`~edgerv.handler.handoff_state.HandoffState` and the
-handoff fields of its :class:`~edgerv.handler.slot.MonitorSlot`. The engine mixes this
-class in: the steps share its lock, slots, router and scheduler queue. The HTTP API
+handoff fields of its :class:`~edgerv.handler.slot.MonitorSlot`. The engine holds them
+(``Engine.handoffs``), and they share its lock, slots, router and scheduler queue
+(:class:`HandoffHost`). The HTTP API
 parses and encodes (snapshots travel as objects here), the wire form is
 :mod:`edgerv.core.handoff`'s.
 """
@@ -15,7 +16,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Collection, Iterable, Sequence
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 from edgerv.control.wire import HANDOFF_EXPIRES
 from edgerv.core.handoff import HandoffError, Snapshot, cut_point
@@ -47,8 +48,10 @@ def _whereabouts(slot: MonitorSlot) -> str:
     return "already runs here" if slot.runtime is not None else "does not run here"
 
 
-class HandoffSteps:
-    """The steps, as methods of the engine that mixes them in (its state, declared here)."""
+class HandoffHost(Protocol):
+    """What the steps share with the engine that holds them: its lock and scheduler's
+    condition, its clock, slots, router and queues, and what its ROS layer says of each
+    topic (the engine's attributes of these names)."""
 
     lock: threading.RLock
     ready: threading.Condition
@@ -66,12 +69,22 @@ class HandoffSteps:
     matched: Callable[[str], bool] | None
     drained_at: int | None
 
-    def _activate(self, slot: MonitorSlot) -> None:
-        raise NotImplementedError  # the engine's: a runtime for the slot, routed
+    def activate(self, slot: MonitorSlot) -> None:
+        """A runtime for ``slot``, routed."""
 
-    def _note_firsts(self, batch: Sequence[tuple[Any, ...]]) -> None:
+    def handoff_changed(self, slot: MonitorSlot) -> None:
+        """``slot``'s handoff state changed (a step, or one undone)."""
+
+
+class HandoffSteps:
+    """The steps on one engine (``Engine.handoffs``): each takes its lock."""
+
+    def __init__(self, engine: HandoffHost) -> None:
+        self.engine = engine
+
+    def note_firsts(self, batch: Sequence[tuple[Any, ...]]) -> None:
         """H2 notes its first stamp on each topic of a receiving monitor (for the cut)."""
-        for slot in self.in_handoff.values():
+        for slot in self.engine.in_handoff.values():
             firsts, topics = slot.first_stamps, slot.compiled.spec.topics
             if slot.handoff == RECEIVING and len(firsts) < len(topics):
                 for item in batch:
@@ -82,7 +95,7 @@ class HandoffSteps:
     # -- handoff (docs/protocol.md): each step is a call; epochs fence stale ones -----------
 
     def _slot(self, name: str) -> MonitorSlot:
-        slot = self.slots.get(name)
+        slot = self.engine.slots.get(name)
         if slot is None:
             raise HandoffError(f"no monitor '{name}' here")
         return slot
@@ -93,8 +106,8 @@ class HandoffSteps:
         """H1, step 2a: stop scheduling the monitor, keep buffering its events.
 
         ``peer`` names the receiver: whoever settles an interrupted handoff asks it."""
-        now = self.clock.monotonic() if now is None else now
-        with self.lock:
+        now = self.engine.clock.monotonic() if now is None else now
+        with self.engine.lock:
             slot = self._slot(name)
             if epoch <= slot.epoch:
                 raise HandoffError(f"epoch {epoch} is not newer than {slot.epoch}")
@@ -113,11 +126,11 @@ class HandoffSteps:
             # scheduler compresses it while the handoff goes on (a partial batch, as
             # flushAfter releases one), so that the release has only the rest to do.
             slot.prehold = len(slot.runtime.events)
-            self.waiting.pop(name, None)
+            self.engine.waiting.pop(name, None)
 
     def receive(self, name: str, epoch: int) -> None:
         """H2, step 3: subscribe and hold the monitor's events, without scheduling it."""
-        with self.lock:
+        with self.engine.lock:
             slot = self._slot(name)
             if epoch <= slot.epoch:
                 raise HandoffError(f"epoch {epoch} is not newer than {slot.epoch}")
@@ -125,11 +138,11 @@ class HandoffSteps:
                 raise HandoffError(f"monitor '{name}' {_whereabouts(slot)}")
             slot.epoch, slot.first_stamps, slot.vouched = epoch, {}, {}
             self._set_handoff(slot, RECEIVING)
-            self._activate(slot)
+            self.engine.activate(slot)
             assert slot.runtime is not None
             # H2 holds its events raw: they are compressed after H1's, from H1's state
             slot.runtime.hold()
-            self.routes_version += 1
+            self.engine.routes_version += 1
 
     def cut(self, name: str, epoch: int, wall: int | None = None) -> int | None:
         """H2, step 4: the cut once every topic delivered an event or is vouched for,
@@ -139,18 +152,18 @@ class HandoffSteps:
         its subscription was seen matched with every publisher of the topic (none at
         all: from its subscription): from then on every message published on it
         reaches H2, so that moment plus ``settle`` stands for its first stamp."""
-        wall = self.clock.wall_ns() if wall is None else wall
-        with self.lock:
+        wall = self.engine.clock.wall_ns() if wall is None else wall
+        with self.engine.lock:
             slot = self._handoff_slot(name, epoch, RECEIVING)
             topics, firsts = slot.compiled.spec.topics, dict(slot.first_stamps)
             quiet = []
             for topic in topics:
-                if topic in firsts or self.matched is None:
+                if topic in firsts or self.engine.matched is None:
                     continue
-                if not self.matched(topic):  # a new publisher, or not subscribed yet
+                if not self.engine.matched(topic):  # a new publisher, or not subscribed yet
                     slot.vouched.pop(topic, None)
                     continue
-                since = slot.vouched.setdefault(topic, wall) + self.settle_ns
+                since = slot.vouched.setdefault(topic, wall) + self.engine.settle_ns
                 if wall >= since:
                     firsts[topic] = since
                     quiet.append(topic)
@@ -190,8 +203,8 @@ class HandoffSteps:
         aborted (H1 resumes from both: nothing lost).
         A repeated release (its answer was lost) gets the same snapshot again.
         """
-        now = self.clock.monotonic() if now is None else now
-        with self.lock:
+        now = self.engine.clock.monotonic() if now is None else now
+        with self.engine.lock:
             slot = self._slot(name)
             if slot.handoff == RELEASED and slot.epoch == epoch and slot.released:
                 return slot.released
@@ -210,8 +223,8 @@ class HandoffSteps:
             # (A topic is delivered in order: once an event past the cut came, every event
             # at or before it did, also those that came before the hold.)
             topics = slot.compiled.spec.topics
-            newest = [self.newest.get(t, cut) for t in topics]
-            quiet_since = max([slot.held_at] + [self.heard.get(t, 0.0) for t in topics])
+            newest = [self.engine.newest.get(t, cut) for t in topics]
+            quiet_since = max([slot.held_at] + [self.engine.heard.get(t, 0.0) for t in topics])
             waiting = [
                 t
                 for t, n in zip(topics, newest, strict=True)
@@ -249,7 +262,9 @@ class HandoffSteps:
         if not slot.waiting_on and not waiting:
             return "at once"
         topics = ", ".join(
-            f"{t} (reach {self.stamp_lag[t] / 1e6:.0f} ms)" if t in self.stamp_lag else t
+            f"{t} (reach {self.engine.stamp_lag[t] / 1e6:.0f} ms)"
+            if t in self.engine.stamp_lag
+            else t
             for t in slot.waiting_on or waiting
         )
         given_up = f"; grace let go of {', '.join(waiting)}" if waiting else ""
@@ -272,14 +287,14 @@ class HandoffSteps:
         TAKE_PER_WAKE of each, so a busy topic's backlog can lag a slow one's stamps; the
         drained instant accounts for that. A topic that brought H2 a message and never
         one here waits for it."""
-        reach = self.stamp_lag.get(topic)
+        reach = self.engine.stamp_lag.get(topic)
         if reach is None and not vouched:
             return False
-        horizon = 0 if reach is None else max(reach, int(self.flush_after * 1e9))
-        stamp = cut + self.settle_ns + horizon
-        if self.drained_at is not None and self.drained_at >= stamp:
+        horizon = 0 if reach is None else max(reach, int(self.engine.flush_after * 1e9))
+        stamp = cut + self.engine.settle_ns + horizon
+        if self.engine.drained_at is not None and self.engine.drained_at >= stamp:
             return True
-        return vouched and bool(self.newest) and max(self.newest.values()) >= stamp
+        return vouched and bool(self.engine.newest) and max(self.engine.newest.values()) >= stamp
 
     def settle(
         self, step: Literal["commit", "abort"], epoch: int, names: Iterable[str]
@@ -287,12 +302,12 @@ class HandoffSteps:
         """:meth:`commit` or :meth:`abort` each of these monitors' handoff, their routes
         made anew once for all of them (Router.removing); each one's answer."""
         act = self.commit if step == "commit" else self.abort
-        with self.lock, self.router.removing():
+        with self.engine.lock, self.engine.router.removing():
             return {n: act(n, epoch) for n in names}
 
     def commit(self, name: str, epoch: int) -> str:
         """H1, after H2 adopted: let go of the snapshot and the held events."""
-        with self.lock:
+        with self.engine.lock:
             slot = self._slot(name)
             if slot.epoch != epoch:
                 raise HandoffError(f"no handoff of '{name}' with epoch {epoch} here")
@@ -314,7 +329,7 @@ class HandoffSteps:
         """:meth:`adopt` for a batch, all or nothing: every snapshot is checked and
         restored before any monitor is scheduled. Repeating an adoption is a no-op.
         Returns the monitors' names. (The API decodes them, outside the lock.)"""
-        with self.lock:
+        with self.engine.lock:
             restored = []
             for snap in snaps:
                 name = snap.monitor
@@ -366,7 +381,7 @@ class HandoffSteps:
         the sender resume a monitor that runs here or moved on from here: two copies.)
         An abort of a handoff newer than any it saw here fences that epoch.
         """
-        with self.lock:
+        with self.engine.lock:
             slot = self._slot(name)
             if slot.epoch != epoch:
                 if epoch in slot.adopted:
@@ -384,8 +399,8 @@ class HandoffSteps:
             if slot.handoff == SENDING:
                 rt.resume()
                 if len(rt.events) >= rt.threshold and rt.flush():
-                    self.waiting[name] = rt
-                    self.ready.notify()
+                    self.engine.waiting[name] = rt
+                    self.engine.ready.notify()
                 self._set_handoff(slot, None)
                 return "resumed"
             if slot.handoff == RELEASED:
@@ -399,31 +414,31 @@ class HandoffSteps:
 
     def _resume(self, restored: Sequence[tuple[MonitorSlot, MonitorRuntime]]) -> None:
         """Run restored runtimes in place of what their slots held."""
-        self.router.remove_many(slot.name for slot, _ in restored)
+        self.engine.router.remove_many(slot.name for slot, _ in restored)
         for slot, rt in restored:
             slot.runtime, slot.released = rt, None
             self._set_handoff(slot, None)
-            self.router.add(rt)
-            self.waiting[slot.name] = rt
-        self.routes_version += 1
-        self.ready.notify()
+            self.engine.router.add(rt)
+            self.engine.waiting[slot.name] = rt
+        self.engine.routes_version += 1
+        self.engine.ready.notify()
 
     def _let_go(self, slot: MonitorSlot) -> None:
-        self.router.remove(slot.name)
+        self.engine.router.remove(slot.name)
         slot.runtime, slot.released = None, None
         self._set_handoff(slot, None)
-        self.routes_version += 1
+        self.engine.routes_version += 1
 
-    def _expire_handoffs(self, now: float) -> None:
+    def expire(self, now: float) -> None:
         """Undo handoffs no driver finished: a sender that released nothing resumes, a
         receiver that adopted nothing lets go (both safe: a late step is fenced). A
         released one waits to be settled: the receiver may have adopted it."""
         expired = [
             slot
-            for slot in self.in_handoff.values()
+            for slot in self.engine.in_handoff.values()
             if slot.handoff in (SENDING, RECEIVING) and now - slot.handoff_since > HANDOFF_EXPIRES
         ]
-        with self.router.removing():
+        with self.engine.router.removing():
             for slot in expired:
                 log.warning(
                     "monitor %s: handoff %d %s for %.0f s with no next step: %s",
@@ -434,10 +449,10 @@ class HandoffSteps:
                     self.abort(slot.name, slot.epoch),
                 )
 
-    def _precompress(self) -> None:
+    def precompress(self) -> None:
         """Compress, a few ms at a time, what senders buffered before their hold."""
         until = time.perf_counter() + PREHOLD_SECONDS
-        for slot in self.in_handoff.values():
+        for slot in self.engine.in_handoff.values():
             if slot.prehold:
                 self._compress_prehold(slot)
                 if time.perf_counter() > until:
@@ -452,11 +467,12 @@ class HandoffSteps:
 
     def _set_handoff(self, slot: MonitorSlot, role: HandoffState | None) -> None:
         check_transition(slot.handoff, role)
-        slot.handoff, slot.handoff_since = role, self.clock.monotonic()
+        slot.handoff, slot.handoff_since = role, self.engine.clock.monotonic()
         if role is None:
-            self.in_handoff.pop(slot.name, None)
+            self.engine.in_handoff.pop(slot.name, None)
         else:
-            self.in_handoff[slot.name] = slot
+            self.engine.in_handoff[slot.name] = slot
+        self.engine.handoff_changed(slot)
 
     def _handoff_slot(self, name: str, epoch: int, role: HandoffState) -> MonitorSlot:
         slot = self._slot(name)

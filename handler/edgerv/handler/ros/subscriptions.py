@@ -108,7 +108,7 @@ class Subscriptions:
     def matched(self, topic: str) -> bool:
         """This handler's subscription to ``topic`` is matched with every publisher the
         ROS graph shows for it (with none, trivially): a receiver vouches for a silent
-        topic by it (Engine.cut; docs/protocol.md, "Silent topics"). Called from the API's
+        topic by it (Engine.handoffs.cut; docs/protocol.md, "Silent topics"). Called from the API's
         threads: the graph calls and the subscription take rclpy's handle locks."""
         sub = self.subs.get(topic)
         if sub is None:  # not subscribed yet (the ROS thread reconfigures) or any more
