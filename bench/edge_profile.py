@@ -13,6 +13,7 @@ would take live), and with --cprofile the top functions. ``--monitors``: another
 monitors over the same topics (``make demo``'s 450: its ``demo-output/monitors.yaml``);
 ``--held``: every monitor held by a handoff's sender from the start (what the edge pays
 while it moves them away; run it for about 1.5 s of robot time, the buffers' capacity).
+``--diagnostics``: and the /diagnostics thread's looks (:class:`Diagnostics`), a stage.
 """
 
 from __future__ import annotations
@@ -101,11 +102,59 @@ def messages(seconds: float) -> list[tuple[int, str, bytes]]:
     return out
 
 
+class Diagnostics:
+    """The diagnostics thread's looks (edgerv.handler.ros.diagnostics.Diagnostics._loop)
+    on the simulated clock, without ROS: woken by a violation (Health.write, a verdict
+    sink) or at the instant its Pacer asks, each a Health.due and the array's CDR bytes
+    (what it publishes). The CPU pacing is the Pacer's; the Breather's sleeps are not
+    taken (they cost no CPU)."""
+
+    def __init__(self, engine: Any, clock: SimulatedClock) -> None:
+        from edgerv.handler.health import Health, Pacer
+
+        self.engine, self.clock = engine, clock
+        self.health = Health("edge", clock=clock)
+        engine.sinks.append(self.health)
+        self.pacer = Pacer(self.health.config.period, start=clock.monotonic())
+        self.next_look = clock.monotonic()
+        self.looks = self.updates = self.published = 0
+
+    def due(self) -> bool:
+        return self.health.changed.is_set() or self.clock.monotonic() >= self.next_look
+
+    def read(self, fingerprint: object, names: Any = None) -> Any:
+        from edgerv.handler.health import read_engine
+
+        some = {} if names is None else {"names": names}  # (the code before took none)
+        return read_engine(self.engine, fingerprint=fingerprint, **some)
+
+    def look(self) -> None:
+        from edgerv.handler.ros.cdr_out import encode_diagnostic_array
+
+        health, pacer, now = self.health, self.pacer, self.clock.monotonic()
+        if now < pacer.not_before:  # the CPU budget comes first, a violation or not
+            self.next_look = pacer.not_before
+            return
+        health.changed.clear()
+        started = time.thread_time()
+        update = pacer.update_due(now)
+        statuses = health.due(self.read, None, now, update)
+        if statuses is not None:
+            encode_diagnostic_array(statuses, self.clock.ns)
+            health.published(statuses)
+            self.published += 1
+        self.looks += 1
+        self.updates += update
+        pacer.worked(now, time.thread_time() - started, update)
+        self.next_look = now + pacer.wait(now, health.next_change(now))
+
+
 def run(
     seconds: float,
     profiler: cProfile.Profile | None,
     monitors: Path = CASE_STUDY,
     held: bool = False,
+    diagnostics: bool = False,
 ) -> dict[str, float]:
     from edgerv.core.cdr import compile_reader
     from edgerv.core.documents import load_monitors
@@ -114,6 +163,7 @@ def run(
 
     clock = SimulatedClock()
     engine = Engine("edge", flush_after=0.5, clock=clock)
+    diagnosing = Diagnostics(engine, clock) if diagnostics else None
     for spec in load_monitors(monitors):
         engine.put(engine.compile(spec), active=True)
         if held:
@@ -122,7 +172,8 @@ def run(
     readers = {t: compile_reader(r.msg_type, r.fields) for t, r in routes.items()}
     msgs = messages(seconds)
     reorder: ReorderWindow[Any] = ReorderWindow(0.02)
-    spent = dict.fromkeys(("read", "reorder", "ingest", "evaluate", "tick"), 0.0)
+    stages = ("read", "reorder", "ingest", "evaluate", "tick")
+    spent = dict.fromkeys(stages + (("diagnostics",) if diagnostics else ()), 0.0)
     verdicts = 0
     next_tick = clock.ns
     pc = time.process_time
@@ -139,12 +190,20 @@ def run(
         engine.ingest(batch)
         engine.drained_at = ns
         t3 = pc()
-        verdicts += len(engine.evaluate())
+        reached = engine.evaluate()
+        if diagnosing is not None:
+            engine.emit(reached)
+        verdicts += len(reached)
         t4 = pc()
         if ns >= next_tick:
-            verdicts += len(engine.tick())
+            ticked = engine.tick()
+            engine.emit(ticked)  # (the verdict sinks: the diagnostics' Health among them)
+            verdicts += len(ticked)
             next_tick = ns + 50_000_000
         t5 = pc()
+        if diagnosing is not None and diagnosing.due():
+            diagnosing.look()
+            spent["diagnostics"] += pc() - t5
         spent["read"] += t1 - t0
         spent["reorder"] += t2 - t1
         spent["ingest"] += t3 - t2
@@ -155,6 +214,8 @@ def run(
     out = {k: 100 * v / seconds for k, v in spent.items()}  # % of a core
     out["messages"] = len(msgs)
     out["verdicts"] = verdicts
+    if diagnosing is not None:
+        out["looks"], out["updates"] = diagnosing.looks, diagnosing.updates
     return out
 
 
@@ -190,6 +251,9 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--cprofile", action="store_true")
     ap.add_argument("--monitors", type=Path, default=CASE_STUDY)
     ap.add_argument("--held", action="store_true")
+    ap.add_argument(
+        "--diagnostics", action="store_true", help="and the /diagnostics thread's looks"
+    )
     ap.add_argument("--commit", action="store_true", help="time the commit of all instead")
     args = ap.parse_args(argv)
     if args.commit:
@@ -197,13 +261,15 @@ def main(argv: list[str]) -> None:
         print("commit of all, ms: " + ", ".join(f"{k} {v:.1f}" for k, v in took.items()))
         return
     profiler = cProfile.Profile() if args.cprofile else None
-    res = run(args.seconds, profiler, args.monitors, args.held)
-    total = sum(v for k, v in res.items() if k not in ("messages", "verdicts"))
+    res = run(args.seconds, profiler, args.monitors, args.held, args.diagnostics)
+    counts = ("messages", "verdicts", "looks", "updates")
+    total = sum(v for k, v in res.items() if k not in counts)
     print(
         f"{res['messages']} messages, {res['verdicts']} verdicts in {args.seconds:g} s of robot "
         f"time; % of a core: "
-        + ", ".join(f"{k} {v:.2f}" for k, v in res.items() if k not in ("messages", "verdicts"))
+        + ", ".join(f"{k} {v:.2f}" for k, v in res.items() if k not in counts)
         + f"; total {total:.2f}"
+        + (f"; {res['looks']} looks, {res['updates']} updates" if args.diagnostics else "")
     )
     if profiler is not None:
         pstats.Stats(profiler, stream=sys.stdout).sort_stats("tottime").print_stats(25)

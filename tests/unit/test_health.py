@@ -16,6 +16,7 @@ from edgerv.handler.engine import Engine
 from edgerv.handler.health import (
     BREATH_SECONDS,
     CHECK_SECONDS,
+    MONITOR_PREFIX,
     Breather,
     DiagnosticsConfig,
     Health,
@@ -628,3 +629,112 @@ def test_the_handlers_diagnostics_flags() -> None:
                       ("--diagnostics-stale", "soon")):  # fmt: skip
         with pytest.raises(SystemExit):
             p.parse_args(["--name", "e", flag, bad])
+
+
+# -- a look between two checks of every monitor reads only what woke it ------------------
+
+
+def _levels_run(seed: int) -> tuple[int, int, int]:
+    """A busy handler's diagnostics over a minute of random traffic (violations, holds
+    ending, monitors going stale and coming back, one removed and one added, some
+    defined anew): the
+    looks of the diagnostics thread (an update every second, a check of every monitor
+    at least every CHECK_SECONDS, and looks between as a violation or the time wakes
+    them: Health.due) against a reference that checks every monitor at every look.
+    Returns the looks made: of every monitor, of some, and those that read nothing."""
+    import random
+
+    rng = random.Random(seed)
+    rig = Rig(period=1.0, hold=rng.choice([0.5, 2.0, 10.0]), stale=rng.choice([0.0, 1.5, 10.0]))
+    reference = Health("edge", rig.health.config, clock=rig.clock)
+    rig.engine.sinks.append(reference)
+    names = [f"m{i}" for i in range(rng.randint(2, 12))]
+    quiet = set(rng.sample(names, k=len(names) // 3))  # they read /quiet, which seldom speaks
+    signal = {"speed": {"topic": "/quiet", "type": "std_msgs/msg/Float64"}}
+
+    def define(name: str, assertion: str) -> None:
+        if name in quiet:
+            rig.engine.put(compiled(assertion, signal, name=name, sortThreshold=1), active=True)
+        else:
+            rig.put(assertion, name=name, sortThreshold=1)
+
+    for name in names:
+        define(name, f"always (speed < {rng.choice([100, 120, 150])})")
+    h, start = rig.health, rig.clock.monotonic()
+    whole = some = idle = 0
+    next_update = start
+    renewed: set[str] = set()  # redefined since h's last check of every monitor
+    for step in range(rng.randint(200, 400)):
+        rig.later(rng.choice([0.01, 0.05, 0.1, 0.2, 0.3]))
+        now = rig.clock.monotonic()
+        if rng.random() < 0.6:
+            rig.send(*[rng.uniform(0, 160) for _ in range(rng.randint(1, 4))])
+        if rng.random() < 0.03:
+            rig.stamp += 1000
+            rig.engine.ingest([(rig.stamp, "/quiet", [rng.uniform(0, 160)])])
+            rig.engine.emit(rig.engine.tick())
+        if step == 150:
+            rig.engine.remove(names[0])
+        if step == 160:
+            rig.put("always (speed < 90)", name="late")
+        for name in quiet:  # (their topic brings nothing: they go stale)
+            slot = rig.engine.slots.get(name)
+            if slot is not None and rng.random() < 0.005:
+                define(name, "always (speed < 100)")  # anew
+                renewed.add(MONITOR_PREFIX + name)
+        update = now >= next_update
+        if update:
+            next_update = now + 1.0
+        fingerprint = rig.engine.fingerprint()
+        statuses = h.due(
+            lambda fp, some_names: read_engine(rig.engine, fingerprint=fp, names=some_names),
+            fingerprint,
+            now,
+            update,
+        )
+        expected = reference.check(read_engine(rig.engine), now)
+        made_whole = h._whole_at == now
+        if statuses is None:
+            idle += not made_whole
+        else:
+            h.published(statuses)
+        whole += made_whole
+        some += statuses is not None and not made_whole
+
+        def staleness_apart(name: str, *shown: object) -> bool:
+            """Stale on one side (its level, or its text), and the two noticed the
+            monitor's last events at different reads (h reads it less often: "when they
+            last grew" is when a read saw them grow, on each side)."""
+            a, b = (x._tracks.get(name[len(MONITOR_PREFIX) :]) for x in (h, reference))
+            apart = a is not None and b is not None and a.last_event != b.last_event
+            stale = any(x == Level.STALE or "no event for over" in str(x) for x in shown)
+            return apart and stale
+
+        seen = {s.name: s for s in reference.statuses()}
+        for s in statuses or []:  # each status published is the reference's, level and text
+            if s.name.startswith("edgerv handler: "):  # (its rate is over "the last period",
+                assert s.level == seen[s.name].level  # whose base the two differ on)
+            elif s.name in seen and not staleness_apart(
+                s.name, s.level, seen[s.name].level, s.message, seen[s.name].message
+            ):
+                assert (s.level, s.message) == (seen[s.name].level, seen[s.name].message)
+        published = h._published
+        for name, level in expected.items():
+            if name not in published or staleness_apart(name, published[name], level):
+                continue  # (appears with the next update)
+            if made_whole:
+                assert published[name] == level, (seed, step, name)
+            elif published[name] != level and name not in renewed:
+                # but for a monitor defined anew, only a stale monitor that an event
+                # brought back waits for the next check of every monitor (no time and no
+                # violation makes it OK)
+                assert (published[name], level) == (Level.STALE, Level.OK), (seed, step, name)
+        if made_whole:
+            renewed.clear()
+    return whole, some, idle
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_a_look_reads_what_woke_it_and_publishes_what_a_whole_check_would(seed: int) -> None:
+    whole, some, idle = _levels_run(seed)
+    assert whole >= 10 and some + idle >= 10  # (both kinds of look were made)

@@ -282,7 +282,12 @@ def test_an_idle_update_sends_the_statuses_last_published_as_a_reading_would_giv
             e.ingest([(WALL, "/x", [2.0])], now=now)
             e.emit(e.evaluate())
         update = quarter % 4 == 0
-        statuses = h.due(lambda fp: read_engine(e, fingerprint=fp), e.fingerprint(), now, update)
+        statuses = h.due(
+            lambda fp, names: read_engine(e, fingerprint=fp, names=names),
+            e.fingerprint(),
+            now,
+            update,
+        )
         if statuses is None:
             assert not update
             continue
@@ -332,7 +337,12 @@ def test_a_change_of_level_sends_the_handlers_status_and_the_changed_ones_only()
 
     def due(now: float, update: bool) -> list[str] | None:
         clock.offset = now
-        statuses = h.due(lambda fp: read_engine(e, fingerprint=fp), e.fingerprint(), now, update)
+        statuses = h.due(
+            lambda fp, names: read_engine(e, fingerprint=fp, names=names),
+            e.fingerprint(),
+            now,
+            update,
+        )
         if statuses is None:
             return None
         h.published(statuses)

@@ -18,6 +18,7 @@ status's ``hardware_id``); the handler's own is ``edgerv handler: <name>``.
 from __future__ import annotations
 
 import bisect
+import itertools
 import math
 import threading
 import time
@@ -99,8 +100,9 @@ class Reading:
     """The handler at one instant: its active monitors and its counters. The ROS
     layer's own counts come with it (absent without ROS)."""
 
-    monitors: tuple[MonitorReading, ...]
+    monitors: tuple[MonitorReading, ...]  # the active ones (all, or some: Health.check_some)
     defined: int
+    active: int  # monitors active here (all of them)
     messages: int  # messages ingested, all topics
     lost: Mapping[str, int]  # topic -> messages lost before the handler took them
     ingest_lag: float
@@ -126,14 +128,17 @@ def read_engine(
     rosout_failures: int = 0,
     coalesced: Mapping[str, int] | None = None,
     fingerprint: object = None,
+    names: Collection[str] | None = None,
 ) -> Reading:
     """A :class:`Reading` of ``engine``'s active monitors (:func:`edgerv.handler.reading.
-    read`: the lock held a few hundred monitors at a time), with the ROS layer's counts."""
-    engine_reading = read(engine)
+    read`: the lock held a few hundred monitors at a time), with the ROS layer's counts;
+    of those of ``names`` only, if given."""
+    engine_reading = read(engine, names)
     deadline = engine.deadline.report(time.monotonic_ns()) if engine.deadline else None
     return Reading(
         engine_reading.active(),
         engine_reading.defined,
+        engine_reading.running,
         sum(engine_reading.messages.values()),
         engine_reading.lost,
         engine_reading.ingest_lag,
@@ -182,6 +187,7 @@ class _Track:
     violations: int  # at the last reading
     violated_at: float | None = None  # when the handler last reached a violation
     violation: Verdict | None = None  # that violation, when known
+    checked: float = -math.inf  # when a check last read it (Health.woken)
 
 
 class _Sample(NamedTuple):
@@ -238,6 +244,7 @@ class Health:
         # at _checked_at; "no event for over X": X one of _stale_edges
         self._times: list[float] | None = None
         self._checked_at = 0.0
+        self._whole_at = -math.inf  # the last check of every monitor
         stale = self.config.stale
         self._stale_edges = [stale, *(s for s in STALE_STEPS if s > stale)] if stale > 0 else []
         # each monitor's last status values and what they were made of: made again only
@@ -263,12 +270,14 @@ class Health:
 
     # -- readings ------------------------------------------------------------------------
 
-    def _update(self, reading: Reading, now: float) -> _Sample:
+    def _update(self, reading: Reading, now: float, whole: bool = True) -> _Sample:
         """Track each monitor of ``reading``; return the base sample of "the last period"
-        (the newest at least a period old, else the oldest kept) and keep this one."""
+        (the newest at least a period old, else the oldest kept) and, ``whole`` (a reading
+        of every active monitor), keep this one; else (some monitors: :meth:`check_some`)
+        the others' tracks stay as they are."""
         with self._lock:
             violated, self._violated = self._violated, {}
-        tracks: dict[str, _Track] = {}
+        tracks: dict[str, _Track] = {} if whole else self._tracks
         for m in reading.monitors:
             seen = m.events + m.dropped
             t = self._tracks.get(m.name)
@@ -284,9 +293,12 @@ class Health:
                 t.violated_at = now
                 t.violation = last if last is not None and last.verdict == "violated" else None
             t.violations = m.violations
+            t.checked = now
             tracks[m.name] = t
         self._tracks = tracks
         self._times, self._checked_at = None, now  # (next_change: made anew)
+        if not whole:
+            return self._base(now)
         sample = _Sample(
             now,
             reading.messages,
@@ -296,6 +308,16 @@ class Health:
             reading.coalesced,
         )
         return self._keep(sample)
+
+    def _base(self, now: float) -> _Sample:
+        """The base of "the last period" at ``now``, of the samples kept (some)."""
+        samples, since = self._samples, now - self.config.period
+        base = samples[0]
+        for sample in itertools.islice(samples, 1, None):
+            if sample.at > since:
+                break
+            base = sample
+        return base
 
     def _keep(self, sample: _Sample) -> _Sample:
         """Keep ``sample``; return the base of "the last period" at its instant (the
@@ -392,6 +414,20 @@ class Health:
         """Take ``reading`` (made at ``now``) into account; return each status's level by
         its name. :meth:`statuses` then builds the statuses of this reading."""
         base = self._update(reading, now)
+        levels = self._levels(reading, base, now)
+        self._whole_at = now
+        self._settle(reading.fingerprint, base, now, levels)
+        return levels
+
+    def check_some(self, reading: Reading, now: float) -> dict[str, Level]:
+        """:meth:`check` of the monitors of ``reading`` only (those :meth:`woken` names,
+        between two checks of all of them), and of the handler: their levels."""
+        levels = self._levels(reading, self._update(reading, now, whole=False), now)
+        self._unpublished = self.level_changed(levels)
+        self._quiet_until = None  # (settled: only by a check of every monitor)
+        return levels
+
+    def _levels(self, reading: Reading, base: _Sample, now: float) -> dict[str, Level]:
         tracks = self._tracks
         problems = {}
         for m in breathing(reading.monitors, self.breathe):
@@ -400,9 +436,25 @@ class Health:
             )
         problems[HANDLER_PREFIX + self.handler] = self._handler_problems(reading, base, now)
         self._last = (reading, base, now, problems)
-        levels = {name: worst(level for level, _ in p) for name, p in problems.items()}
-        self._settle(reading.fingerprint, base, now, levels)
-        return levels
+        return {name: worst(level for level, _ in p) for name, p in problems.items()}
+
+    def woken(self, now: float) -> set[str]:
+        """The monitors whose level may have changed since a check last read them other
+        than by what a check of all of them finds: those violated since (:meth:`write`),
+        and those whose hold ended or that passed a stale step since (:meth:`next_change`'s
+        instants)."""
+        with self._lock:
+            names = set(self._violated)
+        hold, edges = self.config.hold, self._stale_edges
+        for name, t in self._tracks.items():  # (as _monitor_problems reads them)
+            v = t.violated_at
+            if v is not None and t.checked - v < hold <= now - v:
+                names.add(name)
+                continue
+            was, quiet = t.checked - t.last_event, now - t.last_event
+            if any(was < e <= quiet for e in edges):
+                names.add(name)
+        return names
 
     def _settle(
         self, fingerprint: object, base: _Sample, now: float, levels: Mapping[str, Level]
@@ -520,7 +572,7 @@ class Health:
     ) -> Status:
         span = now - base.at
         rate = _rate(reading.messages - base.messages, span)
-        active = len(reading.monitors)
+        active = reading.active
         message = "; ".join(text for _, text in problems) or (
             f"{active} of {reading.defined} monitors active, {rate} messages/s"
         )
@@ -587,7 +639,7 @@ class Health:
 
     def due(
         self,
-        read: Callable[[object], Reading],
+        read: Callable[[object, Collection[str] | None], Reading],
         fingerprint: object,
         now: float,
         update: bool,
@@ -603,8 +655,16 @@ class Health:
         the statuses last published were made by a check that was itself settled (its
         "last period" began after the last change), those, the very list (what a reading
         would give again: tests/unit/test_idle_wakeups.py), which the caller sends again
-        as it sent them, only its stamp new. ``read(fingerprint)``: a reading, when one
-        is needed."""
+        as it sent them, only its stamp new.
+
+        Not settled, every monitor is checked at an update and at least every
+        CHECK_SECONDS; a look between those (a violation woke it, or a hold ends or a
+        monitor goes stale: :meth:`next_change`) reads and checks only the monitors that
+        woke it (:meth:`woken`), and the handler's counts: a look costs what changed, not
+        the hundreds of monitors that did not (a level another monitor reached
+        meanwhile is published by the next check of all, within CHECK_SECONDS).
+        ``read(fingerprint, names)``: a reading of the active monitors (None: all of
+        them, else those of ``names``), when one is needed."""
         if self.settled(fingerprint, now):
             if not update:
                 return None
@@ -613,9 +673,16 @@ class Health:
                 # reading would have (the base of "the last period" later on)
                 self._keep(self._samples[-1]._replace(at=now))
                 return self._sent
-        levels = self.check(read(fingerprint), now)
-        if update:
-            return self.statuses()
+        if update or now - self._whole_at >= CHECK_SECONDS or not self._samples:
+            levels = self.check(read(fingerprint, None), now)
+            if update:
+                return self.statuses()
+        else:  # between two checks of every monitor: those a violation or the time woke
+            names = self.woken(now)
+            if not names:
+                self._sent_settled = False  # (not settled: a status may show otherwise)
+                return None
+            levels = self.check_some(read(fingerprint, names), now)
         changed = self.changed_levels(levels)
         if not changed:
             self._sent_settled = False  # a status may show otherwise (an age's step)

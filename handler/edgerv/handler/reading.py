@@ -13,7 +13,7 @@ waits for the engine), and the handoff's steps (they change the slots, under the
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -102,12 +102,14 @@ class MonitorReading(NamedTuple):
 
 @dataclass(frozen=True)
 class EngineReading:
-    """The engine at one read: every monitor defined here (in definition order; one
-    removed or redefined while it was read is left out) and the counters."""
+    """The engine at one read: every monitor defined here, or those asked for (in
+    definition order; one removed or redefined while it was read is left out), and the
+    counters."""
 
     handler: str
     monitors: tuple[MonitorReading, ...]
-    defined: int  # monitors defined when the read began
+    defined: int  # monitors defined when the read began (all, if some were read)
+    running: int  # of those, active here
     messages: Mapping[str, int]  # topic -> messages ingested
     lost: Mapping[str, int]  # topic -> messages lost before the handler took them
     taking_ns: Mapping[str, int]  # topic -> CPU spent taking and decoding its messages
@@ -120,12 +122,19 @@ class EngineReading:
         return tuple(m for m in self.monitors if m.active)
 
 
-def read(engine: Engine) -> EngineReading:
-    """A frozen reading of ``engine``. The lock is held for at most READ_CHUNK monitors at
-    a time, with READ_PAUSE between two holds: the take loop and the scheduler wait for
-    it no longer than that, whatever the number of monitors."""
+def read(engine: Engine, names: Collection[str] | None = None) -> EngineReading:
+    """A frozen reading of ``engine``: of every monitor defined here, or of those of
+    ``names`` (``defined`` counts them all). The lock is held for at most READ_CHUNK
+    monitors at a time, with READ_PAUSE between two holds: the take loop and the scheduler
+    wait for it no longer than that, whatever the number of monitors."""
     with engine.lock:
-        slots = list(engine.slots.values())
+        defined = engine.slots
+        if names is None:
+            slots = list(defined.values())
+        else:
+            slots = [slot for n in names if (slot := defined.get(n)) is not None]
+        count = len(defined)
+        running = None if names is None else sum(1 for slot in defined.values() if slot.active)
         messages = dict(engine.messages)
         lost = dict(engine.lost)
         taking = dict(engine.taking_ns)
@@ -196,8 +205,11 @@ def read(engine: Engine) -> EngineReading:
                         ),
                     )
                 )
+    got = tuple(monitors)
+    if running is None:
+        running = sum(1 for m in got if m.active)
     return EngineReading(
-        engine.name, tuple(monitors), len(slots), messages, lost, taking, routed, lag, reach
+        engine.name, got, count, running, messages, lost, taking, routed, lag, reach
     )
 
 

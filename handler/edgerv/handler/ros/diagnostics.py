@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Collection
 from typing import Any
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -83,8 +84,11 @@ class Diagnostics:
             tuple(self.outbox.coalesced().items()) if self.outbox is not None else None,
         )
 
-    def _reading_now(self, fingerprint: object = None) -> Reading:
-        """The engine and this node's own counts, for the statuses."""
+    def _reading_now(
+        self, fingerprint: object = None, names: Collection[str] | None = None
+    ) -> Reading:
+        """The engine (its monitors, or those of ``names``) and this node's own counts,
+        for the statuses."""
         subscriptions = self.subscriptions
         publishers = {
             topic: sub.publishers
@@ -99,6 +103,7 @@ class Diagnostics:
             rosout_failures=self.rosout.failures,
             coalesced=self.outbox.coalesced() if self.outbox is not None else None,
             fingerprint=fingerprint,
+            names=names,
         )
 
     def diagnose(self, update: bool) -> list[Status] | None:
