@@ -146,6 +146,10 @@ def test_a_pinned_monitor_started_above_its_home_tier_goes_home_once_it_can() ->
     assert moved([edge(0.95, a=busy(1)), idle("cloud", "cloud-1", a=off)]) == []  # never up
     moving = MonitorLoad(active=True, in_handoff=True)
     assert moved([idle("cloud", "cloud-1", a=moving), edge(0.3, a=off)]) == []  # (moving)
+    # in a handoff that another handler reports (its receiver, holding it): not moved
+    # again before that handoff is settled, as no plan moves a monitor any handler moves
+    receiving = MonitorLoad(active=False, in_handoff=True)
+    assert moved([cloud, fog, edge(0.3, a=receiving, b=off)]) == []
 
 
 def test_bad_configuration_is_refused() -> None:

@@ -486,6 +486,9 @@ def plan(
             moved.add(m)
             memory.last_move[m] = now
 
+    # being moved right now (by anyone: another driver, the operator, an earlier round)
+    in_handoff = {m for h in handlers for m, load in h.monitors.items() if load.in_handoff}
+
     # Home: a monitor that runs above where it would start now goes there, in one move,
     # when it is pinned (it started above its home tier, which had no handler then;
     # pinned, it is never moved otherwise) or its tier is now too far for its
@@ -494,7 +497,7 @@ def plan(
         for m in sorted(h.active()):
             p = placements.get(m, Placement())
             pinned = p.migrate == "pinned"
-            if m in moved or h.monitors[m].in_handoff:
+            if m in moved or m in in_handoff:
                 continue
             if not pinned and tier_allowed(h.tier, p, c):
                 continue
@@ -503,9 +506,6 @@ def plan(
                 moves.append(Move(m, h.name, home.name, "pinned home" if pinned else "latency"))
                 moved.add(m)
                 memory.last_move[m] = now
-
-    # being moved right now (by anyone: another driver, the operator, an earlier round)
-    in_handoff = {m for h in handlers for m, load in h.monitors.items() if load.in_handoff}
 
     def movable(name: str, tier: str, to: HandlerReport) -> bool:
         p = placements.get(name, Placement())
