@@ -335,7 +335,7 @@ class Health:
         """The conditions that make ``m`` other than OK, each with its level and why."""
         problems: list[tuple[Level, str]] = []
         last = m.last_verdict
-        if m.state == "halted" and last is not None and last.verdict == "violated":
+        if m.halted and last is not None and last.verdict == "violated":  # (m is active)
             problems.append((Level.ERROR, f"halted after it was {_verdict_text(last)}"))
         elif t.violated_at is not None and now - t.violated_at < self.config.hold:
             what = "violated" if t.violation is None else _verdict_text(t.violation)
@@ -358,11 +358,14 @@ class Health:
             problems.append(
                 (Level.WARN, f"{dropped} events dropped in the last {span:.1f} s (buffer full)")
             )
-        silent = [topic for topic in m.topics if reading.publishers.get(topic, 1) == 0]
+        topics = m.compiled.spec.topics
+        publishers = reading.publishers
+        silent = [topic for topic in topics if publishers.get(topic, 1) == 0]
         if silent:
             problems.append((Level.WARN, f"no publisher on {', '.join(silent)}"))
-        for topic in m.topics:
-            n = reading.incompatible.get(topic, 0)
+        incompatible = reading.incompatible
+        for topic in topics if incompatible else ():
+            n = incompatible.get(topic, 0)
             if n:
                 problems.append((Level.WARN, f"{n} publisher(s) of {topic} with incompatible QoS"))
         return problems
@@ -517,19 +520,19 @@ class Health:
         problems: list[tuple[Level, str]],
     ) -> Status:
         problems = sorted(problems, key=lambda p: -RANK[p[0]])  # the worst first
-        last = m.last_verdict
+        last, state = m.last_verdict, m.state
         if problems:
             message = "; ".join(text for _, text in problems)
         elif last is None:
-            message = m.state  # pending: no verdict yet
-        elif m.state == "satisfied":
+            message = state  # pending: no verdict yet
+        elif state == "satisfied":
             message = _verdict_text(last)
-        elif m.state == "violated":  # the hold is over and no step came since
+        elif state == "violated":  # the hold is over and no step came since
             message = f"{_verdict_text(last)}; no step since"
-        elif m.state == "halted":
+        elif state == "halted":
             message = f"halted after it was {_verdict_text(last)}"
         else:
-            message = f"{m.state} (last verdict: {_verdict_text(last)})"
+            message = f"{state} (last verdict: {_verdict_text(last)})"
         before = base.monitors.get(m.name)
         if before is not None and before[0] == m.instance and now > base.at:
             rate = _rate(m.events - before[1], now - base.at)
@@ -542,8 +545,10 @@ class Health:
             self._statuses_now[m.name] = kept
             return Status(level, MONITOR_PREFIX + m.name, message, self.handler, kept[1])
         handoff = f" (handoff: {m.handoff})" if m.handoff else ""
+        spec = m.compiled.spec
+        tier, buffered = spec.placement.tier, m.buffered
         values = (
-            ("state", m.state),
+            ("state", state),
             ("step", str(m.step)),
             ("last verdict", f"{last.verdict} at step {last.step}" if last else "none"),
             ("last verdict stamp", stamp_text(last.stamp) if last else ""),
@@ -551,17 +556,22 @@ class Health:
             ("satisfactions", str(m.satisfactions)),
             ("events", str(m.events)),
             ("events per second", rate),
-            ("buffer fill", f"{m.buffered / m.capacity:.0%} ({m.buffered} of {m.capacity})"),
+            ("buffer fill", f"{buffered / m.capacity:.0%} ({buffered} of {m.capacity})"),
             ("dropped events", str(m.dropped)),
             ("late events", str(m.late)),
             ("migration wanted", "yes" if m.migration_wanted else "no"),
-            ("tier", (m.tier or "lowest") + (" (pinned)" if m.migrate == "pinned" else "")),
+            (
+                "tier",
+                (tier or "lowest") + (" (pinned)" if spec.placement.migrate == "pinned" else ""),
+            ),
             ("epoch", f"{m.epoch}{handoff}"),
             ("migrations", f"{m.moved_in} here, {m.moved_out} away"),
-            ("topics", ", ".join(m.topics)),
+            ("topics", ", ".join(spec.topics)),
             (
                 "reactions",
-                f"{m.reactions} done, {m.reaction_failures} failed" if m.reacts else "off",
+                f"{m.reactions} done, {m.reaction_failures} failed"
+                if spec.on_violation is not None
+                else "off",
             ),
         )
         self._statuses_now[m.name] = (key, values)

@@ -82,23 +82,6 @@ class MonitorReading(NamedTuple):
         """Events in its buffer plus letters not yet evaluated."""
         return self.buffered_events + self.buffered_letters
 
-    @property
-    def topics(self) -> tuple[str, ...]:
-        return tuple(self.compiled.spec.topics)
-
-    @property
-    def tier(self) -> str | None:
-        return self.compiled.spec.placement.tier
-
-    @property
-    def migrate(self) -> str:
-        return self.compiled.spec.placement.migrate
-
-    @property
-    def reacts(self) -> bool:
-        """spec.onViolation is written."""
-        return self.compiled.spec.on_violation is not None
-
 
 @dataclass(frozen=True)
 class EngineReading:
