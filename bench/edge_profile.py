@@ -129,6 +129,7 @@ class Diagnostics:
         return read_engine(self.engine, fingerprint=fingerprint, **some)
 
     def look(self) -> None:
+        from edgerv.handler import health as health_module
         from edgerv.handler.ros.cdr_out import encode_diagnostic_array
 
         health, pacer, now = self.health, self.pacer, self.clock.monotonic()
@@ -138,7 +139,9 @@ class Diagnostics:
         health.changed.clear()
         started = time.thread_time()
         update = pacer.update_due(now)
-        statuses = health.due(self.read, None, now, update)
+        counts = getattr(health_module, "alarm_counts", None)  # (the code before had none)
+        alarms = None if counts is None else counts(self.engine, health.stale_topics())
+        statuses = health.due(self.read, None, now, update, *(() if counts is None else (alarms,)))
         if statuses is not None:
             encode_diagnostic_array(statuses, self.clock.ns)
             health.published(statuses)

@@ -274,12 +274,14 @@ def test_drops_are_counted_and_logged_as_one_at_a_time(caplog: pytest.LogCapture
     """The warnings at the 1st, 10th, 100th, 1000th and every 10,000th dropped event, for
     drops counted a batch at a time."""
     rng = random.Random(1)
-    for _ in range(200):
+    engine = Engine("edge")
+    for i in range(200):
         start, count = rng.choice([0, 5, 99, 998, 9_990, 19_999, 123_456]), rng.randint(1, 25_000)
         got, want = _Slot(start), _Slot(start)
         caplog.clear()
         with caplog.at_level(logging.WARNING, logger="edgerv.handler"):
-            Engine._dropped(got, count)  # type: ignore[arg-type]
+            engine._dropped(got, count)  # type: ignore[arg-type]
+        assert engine.alarms == i + 1  # (a drop may change a status's level: health.py)
         logged = [r.getMessage() for r in caplog.records]
         expected = []
         for _ in range(count):

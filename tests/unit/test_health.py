@@ -23,6 +23,7 @@ from edgerv.handler.health import (
     Level,
     Pacer,
     Status,
+    alarm_counts,
     read_engine,
     stamp_text,
     worst,
@@ -634,14 +635,16 @@ def test_the_handlers_diagnostics_flags() -> None:
 # -- a look between two checks of every monitor reads only what woke it ------------------
 
 
-def _levels_run(seed: int) -> tuple[int, int, int]:
+def _levels_run(seed: int, alarms: bool) -> tuple[int, int, int]:
     """A busy handler's diagnostics over a minute of random traffic (violations, holds
     ending, monitors going stale and coming back, one removed and one added, some
     defined anew): the
     looks of the diagnostics thread (an update every second, a check of every monitor
     at least every CHECK_SECONDS, and looks between as a violation or the time wakes
     them: Health.due) against a reference that checks every monitor at every look.
-    Returns the looks made: of every monitor, of some, and those that read nothing."""
+    With ``alarms`` (as the ROS layer does), a check of every monitor between updates is
+    made only when alarm_counts changed. Returns the looks made: of every monitor, of
+    some, and those that read nothing."""
     import random
 
     rng = random.Random(seed)
@@ -691,6 +694,7 @@ def _levels_run(seed: int) -> tuple[int, int, int]:
             fingerprint,
             now,
             update,
+            alarm_counts(rig.engine, h.stale_topics()) if alarms else None,
         )
         expected = reference.check(read_engine(rig.engine), now)
         made_whole = h._whole_at == now
@@ -734,7 +738,55 @@ def _levels_run(seed: int) -> tuple[int, int, int]:
     return whole, some, idle
 
 
+@pytest.mark.parametrize("alarms", [False, True], ids=["polled", "alarmed"])
 @pytest.mark.parametrize("seed", range(12))
-def test_a_look_reads_what_woke_it_and_publishes_what_a_whole_check_would(seed: int) -> None:
-    whole, some, idle = _levels_run(seed)
+def test_a_look_reads_what_woke_it_and_publishes_what_a_whole_check_would(
+    seed: int, alarms: bool
+) -> None:
+    whole, some, idle = _levels_run(seed, alarms)
     assert whole >= 10 and some + idle >= 10  # (both kinds of look were made)
+
+
+def test_the_alarm_counts_change_with_what_changes_a_level_and_not_with_traffic() -> None:
+    """alarm_counts, which lets a check of every monitor between updates be skipped:
+    steady traffic leaves it as it is; each thing that may change a level other than a
+    violation or time changes it."""
+    rig = Rig()
+    rig.put(name="small", sortThreshold=8, bufferCapacity=8)
+    rig.put(name="cap")
+    e = rig.engine
+    e.flush_after = 1e9  # (its sort buffer stays full: no flush by time)
+    seen = [alarm_counts(e)]
+
+    def differs(stale: tuple[str, ...] = ()) -> None:
+        now = alarm_counts(e, stale)
+        assert now != seen[-1], now
+        seen.append(alarm_counts(e))
+
+    rig.send(1.0, 2.0, 3.0)  # traffic: 3 of 8 wait in the small one's sort buffer
+    assert alarm_counts(e) == seen[-1]
+    rig.send(4.0, 5.0)  # 5 of 8: past HIGH_WATER at the tick
+    differs()
+    rig.later(PRESSURE)  # full for long enough: migration wanted
+    e.emit(e.tick())
+    assert e.slots["small"].migration_wanted
+    differs()
+    rig.put(name="tiny", sortThreshold=3, bufferCapacity=3)
+    seen.append(alarm_counts(e))
+    e.ingest([(rig.stamp + i, "/speed", [1.0]) for i in range(1, 6)])  # 2 of 5 dropped
+    assert e.slots["tiny"].dropped == 2
+    differs()
+    e.note_reaction("cap", "the service did not answer")
+    differs()
+    e.lost["/speed"] = 3
+    differs()
+    rig.put(name="other")  # a monitor defined
+    differs()
+    e.remove("other")
+    differs()
+    stale = alarm_counts(e, ("/speed",))
+    rig.send(1.0)  # a message on a stale monitor's topic
+    assert alarm_counts(e, ("/speed",)) != stale
+
+
+PRESSURE = engine_module.PRESSURE_SECONDS

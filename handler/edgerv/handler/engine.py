@@ -136,6 +136,10 @@ class Engine:
         # would change nothing while it stays (no monitor buffers anything, none has a
         # clock: next_tick_due); None: the plan was not one
         self.idle_plan: tuple[object, ...] | None = None
+        # bumped by what may change a status's level other than a verdict, a message or a
+        # route, or time: a dropped event, a buffer past or back under HIGH_WATER, a
+        # migration wanted or no longer, a reaction's outcome (health.alarm_counts)
+        self.alarms = 0
         # bumped by whatever changes a monitor's state but a message or a route: an
         # evaluation, a flush or a change of pressure, a handoff's step, a reaction's
         # outcome (the diagnostics skip their check while it and those stay: Health.settled)
@@ -429,10 +433,10 @@ class Engine:
         slot.admitted += 1
         return True
 
-    @staticmethod
-    def _dropped(slot: MonitorSlot, count: int) -> None:
+    def _dropped(self, slot: MonitorSlot, count: int) -> None:
         """Count ``count`` events that found ``slot``'s buffer full, and log the 1st, 10th,
         100th, 1000th and every 10,000th (as each would be, one at a time)."""
+        self.alarms += 1
         before = slot.dropped
         slot.dropped = after = before + count
         marks = [m for m in (1, 10, 100, 1000) if before < m <= after]
@@ -588,6 +592,7 @@ class Engine:
             if slot is None:
                 return  # removed since
             self.changes += 1
+            self.alarms += 1
             if problem is None:
                 slot.reactions += 1
             else:
@@ -694,9 +699,12 @@ class Engine:
                 self.changes += 1
                 fill = rt.buffered / slot.capacity
                 if fill >= HIGH_WATER:
-                    slot.full_since = slot.full_since if slot.full_since is not None else now
+                    if slot.full_since is None:
+                        slot.full_since = now
+                        self.alarms += 1
                     if now - slot.full_since >= PRESSURE_SECONDS and not slot.migration_wanted:
                         slot.migration_wanted = True
+                        self.alarms += 1
                         log.warning(
                             "monitor %s: buffer %.0f%% full for %.1f s: migration wanted",
                             slot.name,
@@ -704,9 +712,12 @@ class Engine:
                             now - slot.full_since,
                         )
                 else:
-                    slot.full_since = None
-                    if fill < LOW_WATER:
+                    if slot.full_since is not None:
+                        slot.full_since = None
+                        self.alarms += 1
+                    if fill < LOW_WATER and slot.migration_wanted:
                         slot.migration_wanted = False
+                        self.alarms += 1
             return self._evaluate(EVALUATE_CHUNK)
 
     def emit(self, verdicts: Sequence[Verdict]) -> None:

@@ -152,6 +152,30 @@ def read_engine(
     )
 
 
+def alarm_counts(engine: Engine, stale_topics: Iterable[str] = ()) -> tuple[object, ...]:
+    """A few counters of ``engine`` that change whenever a status's level may change
+    other than by a violation or by time alone (which wake a look themselves:
+    :meth:`Health.woken`): the engine's alarms (a dropped event, a buffer past or back
+    under HIGH_WATER, a migration wanted or no longer, a reaction's outcome), its routes
+    (a monitor defined, redefined, removed, activated), the messages lost, the messages
+    on ``stale_topics`` (a stale monitor's events coming back) and whether the deadline
+    is at risk. Read without the engine's lock: each is one attribute or one copy.
+    Health.due checks every monitor between updates only when these changed."""
+    deadline = engine.deadline
+    at_risk = None
+    if deadline is not None:
+        d = deadline.report(time.monotonic_ns())
+        at_risk = d["p95Ms"] is not None and d["p95Ms"] >= d["budgetMs"]
+    messages = engine.messages
+    return (
+        engine.alarms,
+        engine.routes_version,
+        tuple(list(engine.lost.items())),
+        tuple(messages.get(t, 0) for t in sorted(stale_topics)),
+        at_risk,
+    )
+
+
 def _duration(seconds: float) -> str:
     """``seconds`` as "10 s", "1 min", "1 h", "1 d" (whole units where they are)."""
     for unit, size in (("d", 86400.0), ("h", 3600.0), ("min", 60.0)):
@@ -245,6 +269,8 @@ class Health:
         self._times: list[float] | None = None
         self._checked_at = 0.0
         self._whole_at = -math.inf  # the last check of every monitor
+        self._alarms: object = None  # alarm_counts at it (None: not given)
+        self._stale: dict[str, Sequence[str]] = {}  # stale monitors' topics, as last checked
         stale = self.config.stale
         self._stale_edges = [stale, *(s for s in STALE_STEPS if s > stale)] if stale > 0 else []
         # each monitor's last status values and what they were made of: made again only
@@ -425,18 +451,26 @@ class Health:
     def check_some(self, reading: Reading, now: float) -> dict[str, Level]:
         """:meth:`check` of the monitors of ``reading`` only (those :meth:`woken` names,
         between two checks of all of them), and of the handler: their levels."""
-        levels = self._levels(reading, self._update(reading, now, whole=False), now)
+        levels = self._levels(reading, self._update(reading, now, whole=False), now, whole=False)
         self._unpublished = self.level_changed(levels)
         self._quiet_until = None  # (settled: only by a check of every monitor)
         return levels
 
-    def _levels(self, reading: Reading, base: _Sample, now: float) -> dict[str, Level]:
-        tracks = self._tracks
+    def _levels(
+        self, reading: Reading, base: _Sample, now: float, whole: bool = True
+    ) -> dict[str, Level]:
+        tracks, stale = self._tracks, self._stale
+        if whole:
+            stale.clear()
         problems = {}
         for m in breathing(reading.monitors, self.breathe):
-            problems[MONITOR_PREFIX + m.name] = self._monitor_problems(
+            found = problems[MONITOR_PREFIX + m.name] = self._monitor_problems(
                 m, tracks[m.name], base, reading, now
             )
+            if any(level == Level.STALE for level, _ in found):
+                stale[m.name] = m.compiled.spec.topics
+            elif not whole:
+                stale.pop(m.name, None)
         problems[HANDLER_PREFIX + self.handler] = self._handler_problems(reading, base, now)
         self._last = (reading, base, now, problems)
         return {name: worst(level for level, _ in p) for name, p in problems.items()}
@@ -458,6 +492,11 @@ class Health:
             if any(was < e <= quiet for e in edges):
                 names.add(name)
         return names
+
+    def stale_topics(self) -> set[str]:
+        """The topics of the monitors stale at their last check (:func:`alarm_counts`:
+        their events coming back change a level)."""
+        return {t for topics in self._stale.values() for t in topics}
 
     def _settle(
         self, fingerprint: object, base: _Sample, now: float, levels: Mapping[str, Level]
@@ -653,6 +692,7 @@ class Health:
         fingerprint: object,
         now: float,
         update: bool,
+        alarms: object = None,
     ) -> list[Status] | None:
         """One look (the diagnostics thread's), at ``now``: the statuses to publish, else
         None. ``update``: the periodic update is due (every status, as diagnostic_updater
@@ -667,12 +707,14 @@ class Health:
         would give again: tests/unit/test_idle_wakeups.py), which the caller sends again
         as it sent them, only its stamp new.
 
-        Not settled, every monitor is checked at an update and at least every
-        CHECK_SECONDS; a look between those (a violation woke it, or a hold ends or a
-        monitor goes stale: :meth:`next_change`) reads and checks only the monitors that
-        woke it (:meth:`woken`), and the handler's counts: a look costs what changed, not
-        the hundreds of monitors that did not (a level another monitor reached
-        meanwhile is published by the next check of all, within CHECK_SECONDS).
+        Not settled, every monitor is checked at an update, and every CHECK_SECONDS
+        when ``alarms`` (:func:`alarm_counts` and the ROS layer's counts; None: not known)
+        changed since the last such check; a look between those (a violation woke it, or
+        a hold ends or a monitor goes stale: :meth:`next_change`) reads and checks only
+        the monitors that woke it (:meth:`woken`), and the handler's counts: a look costs
+        what changed, not the hundreds of monitors that did not. (A level no alarm
+        counts, one "in the last period" that time brings back to OK, is published by the
+        next update.)
         ``read(fingerprint, names)``: a reading of the active monitors (None: all of
         them, else those of ``names``), when one is needed."""
         if self.settled(fingerprint, now):
@@ -683,8 +725,12 @@ class Health:
                 # reading would have (the base of "the last period" later on)
                 self._keep(self._samples[-1]._replace(at=now))
                 return self._sent
-        if update or now - self._whole_at >= CHECK_SECONDS or not self._samples:
+        polled = now - self._whole_at >= CHECK_SECONDS and (
+            alarms is None or alarms != self._alarms
+        )
+        if update or polled or not self._samples:
             levels = self.check(read(fingerprint, None), now)
+            self._alarms = alarms
             if update:
                 return self.statuses()
         else:  # between two checks of every monitor: those a violation or the time woke

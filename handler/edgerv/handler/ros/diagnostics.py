@@ -13,7 +13,15 @@ from typing import Any
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from edgerv.handler.engine import Engine
-from edgerv.handler.health import Breather, Health, Pacer, Reading, Status, read_engine
+from edgerv.handler.health import (
+    Breather,
+    Health,
+    Pacer,
+    Reading,
+    Status,
+    alarm_counts,
+    read_engine,
+)
 from edgerv.handler.outbox import Outbox
 from edgerv.handler.ros.cdr_out import encode_diagnostic_array, restamp_diagnostic_array
 from edgerv.handler.ros.messages import message_class
@@ -72,14 +80,22 @@ class Diagnostics:
         """A few counters that change whenever anything a status shows may have
         (Health.settled): the engine's (Engine.fingerprint) and this node's counts; None
         with --deadline (its window's percentiles change with time alone)."""
-        engine, subscriptions = self.engine, self.subscriptions
-        if engine.deadline is not None:
+        if self.engine.deadline is not None:
             return None
+        return (self.engine.fingerprint(), self._counts())
+
+    def alarms(self) -> object:
+        """What a level other than a violation's or time's may change with
+        (health.alarm_counts), and this node's counts."""
+        return (alarm_counts(self.engine, self.health.stale_topics()), self._counts())
+
+    def _counts(self) -> tuple[object, ...]:
+        """This node's own counts that statuses show."""
+        subscriptions = self.subscriptions
         return (
-            engine.fingerprint(),
             tuple((t, s.publishers) for t, s in list(subscriptions.subs.items())),
-            tuple(subscriptions.qos_problems.items()),
-            tuple(subscriptions.bad_messages.items()),
+            tuple(list(subscriptions.qos_problems.items())),
+            tuple(list(subscriptions.bad_messages.items())),
             self.rosout.failures,
             tuple(self.outbox.coalesced().items()) if self.outbox is not None else None,
         )
@@ -113,8 +129,9 @@ class Diagnostics:
         bytes, with a new stamp: nothing is read, made or encoded again."""
         health = self.health
         now = health.clock.monotonic()
-        fingerprint = self.fingerprint()  # (taken before the reading: a change meanwhile
-        statuses = health.due(self._reading_now, fingerprint, now, update)  # shows next)
+        # (taken before the reading: a change meanwhile shows next)
+        fingerprint, alarms = self.fingerprint(), self.alarms()
+        statuses = health.due(self._reading_now, fingerprint, now, update, alarms)
         if statuses is None:
             return None
         stamp = self.node.get_clock().now().nanoseconds
