@@ -5,9 +5,11 @@ itself: /diagnostics (:mod:`edgerv.handler.health`), Prometheus
 (:mod:`edgerv.handler.metrics`), ``GET /v1/monitors`` (:func:`monitor_report`) and the
 typed load report of ``GET /v1/load`` (:func:`load_report`).
 
-What stays outside it, on purpose: the liveness probe's count of active monitors and the
-typed verdicts' glance at a slot's assertion (read without the lock, so that neither ever
-waits for the engine), and the handoff's steps (they change the slots, under the lock).
+What stays outside it, on purpose: the liveness probe's count of active monitors, the
+typed verdicts' glance at a slot's assertion and the diagnostics' glance at a few of the
+engine's counters (``Engine.fingerprint``, ``health.alarm_counts``: whether a reading is
+needed at all), each read without the lock so that none ever waits for the engine; and
+the handoff's steps (they change the slots, under the lock).
 """
 
 from __future__ import annotations
