@@ -189,8 +189,9 @@ def test_every_face_renders_the_one_reading(seed: int) -> None:
 def test_the_read_takes_the_lock_a_chunk_at_a_time_and_leaves_out_what_changed_meanwhile(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """Between two holds of the lock (READ_PAUSE), the engine goes on: a monitor removed
-    or redefined then is left out of this reading (the next one has it as it is)."""
+    """Paced (the diagnostics'), between two holds of the lock (READ_PAUSE), the engine
+    goes on: a monitor removed or redefined then is left out of this reading (the next
+    one has it as it is). Not paced (the API's), one hold."""
     monkeypatch.setattr(reading_module, "READ_CHUNK", 3)
     e = Engine("edge", flush_after=1e9)
     for i in range(8):
@@ -220,11 +221,14 @@ def test_the_read_takes_the_lock_a_chunk_at_a_time_and_leaves_out_what_changed_m
 
     monkeypatch.setattr(e, "lock", Counting())
     monkeypatch.setattr(reading_module.time, "sleep", pause)
-    reading = read(e)
+    reading = read(e, paced=True)
     assert [m.name for m in reading.monitors] == ["m0", "m1", "m2", "m3", "m6", "m7"]
     assert reading.defined == 8
     assert len(holds) == 1 + 3 and pauses == [reading_module.READ_PAUSE] * 2
+    holds.clear()
+    whole = read(e)
+    assert len(holds) == 1 and len(pauses) == 2 and len(whole.monitors) == 7
     monkeypatch.setattr(e, "lock", lock)
-    again = read(e)
+    again = read(e, paced=True)
     assert [m.name for m in again.monitors] == ["m0", "m1", "m2", "m3", "m5", "m6", "m7"]
     assert again.monitors[4].compiled.spec.sort_threshold == 4

@@ -131,9 +131,10 @@ def read_engine(
     names: Collection[str] | None = None,
 ) -> Reading:
     """A :class:`Reading` of ``engine``'s active monitors (:func:`edgerv.handler.reading.
-    read`: the lock held a few hundred monitors at a time), with the ROS layer's counts;
+    read`, paced: the lock held a few hundred monitors at a time), with the ROS layer's
+    counts;
     of those of ``names`` only, if given."""
-    engine_reading = read(engine, names)
+    engine_reading = read(engine, names, paced=True)
     deadline = engine.deadline.report(time.monotonic_ns()) if engine.deadline else None
     return Reading(
         engine_reading.active(),
