@@ -76,18 +76,19 @@ class Diagnostics:
         health.breathe = self.breather
         self._thread: threading.Thread | None = None
 
-    def fingerprint(self) -> object:
+    def fingerprint(self, counts: tuple[object, ...]) -> object:
         """A few counters that change whenever anything a status shows may have
-        (Health.settled): the engine's (Engine.fingerprint) and this node's counts; None
-        with --deadline (its window's percentiles change with time alone)."""
+        (Health.settled): the engine's (Engine.fingerprint) and this node's ``counts``
+        (:meth:`_counts`); None with --deadline (its window's percentiles change with time
+        alone)."""
         if self.engine.deadline is not None:
             return None
-        return (self.engine.fingerprint(), self._counts())
+        return (self.engine.fingerprint(), counts)
 
-    def alarms(self) -> object:
+    def alarms(self, counts: tuple[object, ...]) -> object:
         """What a level other than a violation's or time's may change with
-        (health.alarm_counts), and this node's counts."""
-        return (alarm_counts(self.engine, self.health.stale_topics()), self._counts())
+        (health.alarm_counts), and this node's ``counts``."""
+        return (alarm_counts(self.engine, self.health.stale_topics()), counts)
 
     def _counts(self) -> tuple[object, ...]:
         """This node's own counts that statuses show."""
@@ -130,7 +131,8 @@ class Diagnostics:
         health = self.health
         now = health.clock.monotonic()
         # (taken before the reading: a change meanwhile shows next)
-        fingerprint, alarms = self.fingerprint(), self.alarms()
+        counts = self._counts()
+        fingerprint, alarms = self.fingerprint(counts), self.alarms(counts)
         statuses = health.due(self._reading_now, fingerprint, now, update, alarms)
         if statuses is None:
             return None
