@@ -31,8 +31,10 @@ class ManualClock:
 @contextlib.contextmanager
 def robot_feed(engines: Sequence[Any]) -> Iterator[None]:
     """Every engine hears the robot's two topics while the block runs: /a (true) and /x
-    (0 to 6) half a millisecond of stamps apart, a pair every 2 ms, from a thread."""
-    stop = threading.Event()
+    (0 to 6) half a millisecond of stamps apart, a pair every 2 ms, from a thread. The
+    block starts once every engine has heard the first pair, however busy the machine
+    (a handoff started before that would have no letters to carry)."""
+    stop, heard = threading.Event(), threading.Event()
 
     def publish() -> None:
         stamp = 0
@@ -41,11 +43,14 @@ def robot_feed(engines: Sequence[Any]) -> Iterator[None]:
             batch = [(stamp, "/a", [True]), (stamp + 500_000, "/x", [float(stamp % 7)])]
             for e in engines:
                 e.ingest(batch)
+            heard.set()
             time.sleep(0.002)
 
     feeder = threading.Thread(target=publish, daemon=True)
     feeder.start()
     try:
+        if not heard.wait(30.0):
+            raise TimeoutError("the robot's feed thread did not run in 30 s")
         yield
     finally:
         stop.set()
