@@ -150,7 +150,7 @@ def test_the_deadline_of_a_load_report_becomes_the_policys_reading() -> None:
         "messagesTotal": 400,
     }
     (r,), _, _ = build_reports({edge: parse_load(report)}, {})
-    assert r.deadline == DeadlineReading(budget=0.125, p95=0.13, count=40, misses=3)
+    assert r.deadline == DeadlineReading(budget=0.125, p95=0.13, count=40, misses=3, last=0.099)
     empty = {"budgetMs": 125.0, "count": 0, "p95Ms": None}
     assert deadline_reading(empty) == DeadlineReading(0.125, None, 0)
     for odd in (None, "fast", [], {"count": 4}, {"budgetMs": "125", "count": 4}):

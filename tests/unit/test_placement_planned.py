@@ -15,6 +15,7 @@ from edgerv.control.placement import (
     MonitorLoad,
     PolicyConfig,
     PolicyMemory,
+    deadline_moved,
     plan,
 )
 from edgerv.control.wire import LoadReport
@@ -145,6 +146,36 @@ def test_what_comes_home_lets_the_deadlines_window_refill_before_it_counts() -> 
     assert plan([transient, cloud()], {}, config, memory, now=1 + wait) == []
     assert plan([transient, cloud()], {}, config, memory, now=1 + 2 * wait - 0.1) == []
     assert len(plan([transient, cloud()], {}, config, memory, now=1 + 2 * wait)) > 0
+
+
+def test_the_backlog_a_move_leaves_drains_before_the_deadline_counts_again() -> None:
+    """A move for the deadline leaves outputs queued behind late ones; they drain after
+    it, late, and fill the window. Once a poll reads the loop caught up (its newest
+    makespan within the budget) the deadline waits deadline_wait after that, so the
+    drained backlog's p95 sends nothing more up (make demo's orchestrated phase moved
+    its last 196 monitors on it, 1.2 s after the loop was back on time). A loop never
+    read caught up counts again after the first wait: the move was not enough."""
+    wait = CONFIG.deadline_wait
+
+    def late(p95_ms: float, last_ms: float, monitors: dict[str, MonitorLoad]) -> HandlerReport:
+        reading = DeadlineReading(BUDGET, p95_ms / 1000, 40, 20, last_ms / 1000)
+        return HandlerReport("edge-1", "edge", 0.5, 0.0, monitors, reading, 0.45)
+
+    for caught_up in (True, False):
+        memory = PolicyMemory()
+        first = plan([late(160.0, 170.0, SIX), cloud()], {}, CONFIG, memory, now=0)
+        assert first and len(first) < len(SIX)
+        rest = {m: load for m, load in SIX.items() if m not in {mv.monitor for mv in first}}
+        # the orchestrator: the handoff ended at 0.5
+        deadline_moved(memory, "edge-1", 0.5)
+        last = 110.0 if caught_up else 180.0
+        assert plan([late(200.0, last, rest), cloud()], {}, CONFIG, memory, now=1.0) == []
+        draining = late(190.0, 112.0 if caught_up else 175.0, rest)
+        again = plan([draining, cloud()], {}, CONFIG, memory, now=0.5 + wait)
+        assert bool(again) is not caught_up, caught_up
+        if caught_up:
+            assert plan([draining, cloud()], {}, CONFIG, memory, now=1.0 + wait - 0.1) == []
+            assert plan([draining, cloud()], {}, CONFIG, memory, now=1.0 + wait)
 
 
 def test_inside_the_band_nothing_moves_either_way() -> None:

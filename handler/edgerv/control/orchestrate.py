@@ -42,7 +42,9 @@ from edgerv.control.placement import (
     PolicyConfig,
     PolicyMemory,
     deadline_at_risk,
+    deadline_moved,
     deadline_ratio,
+    deadline_waits,
     edge_state,
     is_loaded,
     is_pressured,
@@ -79,13 +81,17 @@ def deadline_reading(value: object) -> DeadlineReading | None:
     something else: the policy then goes without it."""
     if not isinstance(value, Mapping):
         return None
-    budget, p95, count, misses = (
-        _number(value.get(k)) for k in ("budgetMs", "p95Ms", "count", "misses")
+    budget, p95, count, misses, last = (
+        _number(value.get(k)) for k in ("budgetMs", "p95Ms", "count", "misses", "lastMs")
     )
     if budget is None or count is None:
         return None
     return DeadlineReading(
-        budget / 1000, None if p95 is None else p95 / 1000, int(count), int(misses or 0)
+        budget / 1000,
+        None if p95 is None else p95 / 1000,
+        int(count),
+        int(misses or 0),
+        None if last is None else last / 1000,
     )
 
 
@@ -314,13 +320,18 @@ def _stuck(
             f"{h.name} is under pressure ({pressure}) but runs no monitor",
             ("nothing to shed", *key),
         )
-    left = still_waits(memory.deadline_moved, h, c, now)
+    left = deadline_waits(memory, h, c, now)
     if not is_loaded(h, c) and left:
+        since = (
+            "the loop caught up with the outputs queued behind the move"
+            if h.name in memory.deadline_caught_up
+            else "the handoff"
+        )
         return Idle(
             "hysteresis",
             f"hysteresis holds: {h.name}'s deadline is at risk ({pressure}), but monitors "
             f"were moved for its deadline: it counts again in {left:.1f} s, once its window "
-            f"holds makespans measured since the handoff (--deadline-wait {c.deadline_wait:g} s)",
+            f"holds makespans measured since {since} (--deadline-wait {c.deadline_wait:g} s)",
             ("hysteresis", *key),
         )
     left = still_waits(memory.lag_moved, h, c, now)
@@ -839,7 +850,7 @@ class Orchestrator:
             settle = {"deadline": (source, 0.0), "calm below": (destination, 1.0)}.get(reason)
             if settle is not None and settle[0] in self.memory.deadline_moved:
                 waits = settle[1] * self.config.deadline_wait  # (PolicyMemory.deadline_moved)
-                self.memory.deadline_moved[settle[0]] = time.monotonic() + waits
+                deadline_moved(self.memory, settle[0], time.monotonic() + waits)
         for lever in self.levers:
             done.extend(self._budget(lever, reports, where, now))
         return done

@@ -18,7 +18,11 @@ migration protocol moves.
   load (reason ``deadline``; before the monitors' rates are known the deadline
   alone moves nothing). After such a shed the handler's deadline pressure is not
   acted on for ``deadline_wait`` seconds: its window must first fill with
-  makespans measured after the move. A handler under any pressure receives no
+  makespans measured after the move. And once the loop has caught up with the backlog
+  the move left (the newest makespan a poll reads is within the budget again), not
+  until ``deadline_wait`` after that: the outputs that queued behind late ones drain
+  after the move, late, and their makespans would read as pressure the move has
+  already relieved (:func:`deadline_waits`). A handler under any pressure receives no
   monitors. Robots that ask one shared handler for more than the room below its CPU
   target share that room, least served first (:func:`_shared_fairly`).
 * **Down** (beyond the paper): a monitor above its home tier comes back one tier
@@ -74,6 +78,7 @@ class DeadlineReading:
     p95: float | None  # None: no makespan in the window
     count: int  # makespans in the window
     misses: int = 0  # of those, longer than the budget
+    last: float | None = None  # the newest makespan in the window (None: none)
 
 
 @dataclass(frozen=True)
@@ -199,6 +204,10 @@ class PolicyMemory:
     # orchestrator sets it again when the handoff ends. Its deadline counts again once its
     # window holds makespans measured since (deadline_wait): not the handoff's own.
     deadline_moved: dict[str, float] = field(default_factory=dict)
+    # handler -> when a poll after that move first read the loop caught up (its newest
+    # makespan within the budget): its window holds the drained backlog's late makespans
+    # until deadline_wait after it (deadline_waits)
+    deadline_caught_up: dict[str, float] = field(default_factory=dict)
     # handler -> when monitors were last shed from it for its ingest lag: the lag it
     # reports drains only once the handler has caught up with its backlog, so it is not
     # acted on again for deadline_wait (the rounds meanwhile would read the old backlog)
@@ -257,10 +266,46 @@ def is_calm(h: HandlerReport, c: PolicyConfig) -> bool:
 
 
 def still_waits(moved: Mapping[str, float], h: HandlerReport, c: PolicyConfig, now: float) -> float:
-    """Seconds until ``h``'s deadline pressure (``moved``: PolicyMemory.deadline_moved)
-    or ingest lag (PolicyMemory.lag_moved) counts again after monitors were moved for
-    it: ``deadline_wait`` after that move; 0 once it has passed, or with none."""
+    """Seconds until ``h``'s ingest lag (``moved``: PolicyMemory.lag_moved) counts again
+    after monitors were moved for it: ``deadline_wait`` after that move; 0 once it has
+    passed, or with none."""
     return max(0.0, c.deadline_wait - (now - moved.get(h.name, -math.inf)))
+
+
+def deadline_moved(memory: PolicyMemory, handler: str, at: float) -> None:
+    """Monitors were moved for ``handler``'s deadline, or onto it, ending at ``at``: its
+    deadline waits (:func:`deadline_waits`) from then, the loop not caught up yet."""
+    memory.deadline_moved[handler] = at
+    memory.deadline_caught_up.pop(handler, None)
+
+
+def deadline_waits(memory: PolicyMemory, h: HandlerReport, c: PolicyConfig, now: float) -> float:
+    """Seconds until ``h``'s deadline pressure counts again after monitors were moved
+    for it (or onto it): ``deadline_wait`` after that move, and, once a poll has read the
+    loop caught up with the backlog the move left (:func:`note_caught_up`), until
+    ``deadline_wait`` after that: the window then holds only makespans of outputs that
+    did not queue behind the move's. A loop never read caught up counts again after the
+    first wait: still late then, the move was not enough. 0 with no move."""
+    moved = memory.deadline_moved.get(h.name)
+    if moved is None:
+        return 0.0
+    since = max(moved, memory.deadline_caught_up.get(h.name, -math.inf))
+    return max(0.0, c.deadline_wait - (now - since))
+
+
+def note_caught_up(memory: PolicyMemory, h: HandlerReport, now: float) -> None:
+    """The first poll after a move for ``h``'s deadline whose newest makespan is within
+    the budget: the loop has caught up with the outputs queued behind late ones."""
+    moved, d = memory.deadline_moved.get(h.name), h.deadline
+    if (
+        moved is not None
+        and moved <= now
+        and h.name not in memory.deadline_caught_up
+        and d is not None
+        and d.last is not None
+        and d.last <= d.budget
+    ):
+        memory.deadline_caught_up[h.name] = now
 
 
 def tier_allowed(tier: str, placement: Placement, c: PolicyConfig) -> bool:
@@ -466,6 +511,7 @@ def plan(
             memory.calm_since.setdefault(h.name, now)
         else:
             memory.calm_since.pop(h.name, None)
+        note_caught_up(memory, h, now)
     for h in handlers:  # what each monitor costs where it runs (planned home at it)
         for m, load in h.monitors.items():
             if load.active and load.cpu is not None:
@@ -540,7 +586,7 @@ def plan(
     asks: list[_Ask] = []
     for h in sorted(handlers, key=lambda h: (rank[h.tier], h.name)):
         loaded = is_loaded(h, c)
-        deadline = deadline_at_risk(h, c) and not still_waits(memory.deadline_moved, h, c, now)
+        deadline = deadline_at_risk(h, c) and not deadline_waits(memory, h, c, now)
         if not (loaded or deadline) or rank[h.tier] + 1 >= len(c.tiers):
             continue
         up = c.tiers[rank[h.tier] + 1]
@@ -591,7 +637,7 @@ def plan(
             if now - memory.last_down.get(m, float("-inf")) < c.cooldown_seconds:
                 memory.bounces[m] = memory.bounces.get(m, 0) + 1  # it came down too soon
         if ask.names and ask.deadline:
-            memory.deadline_moved[ask.source.name] = now  # its window must refill first
+            deadline_moved(memory, ask.source.name, now)  # its window must refill first
         if ask.names and ask.lag:
             memory.lag_moved[ask.source.name] = now  # its backlog must drain first
 
@@ -675,7 +721,7 @@ def plan(
                     moved.add(m)
                     memory.last_move[m] = memory.last_down[m] = now
                 if names:  # its deadline counts again once the handoff has settled
-                    memory.deadline_moved[destination.name] = now + c.deadline_wait
+                    deadline_moved(memory, destination.name, now + c.deadline_wait)
                 continue
             for m in candidates:
                 if budget <= 0:
