@@ -28,13 +28,28 @@ class ManualClock:
         self.offset += seconds
 
 
+class Feed:
+    """The robot's feed running (:func:`robot_feed`): how many pairs every engine heard."""
+
+    def __init__(self) -> None:
+        self.rounds = 0
+        self.heard = threading.Condition()
+
+    def wait_round(self, timeout: float = 30.0) -> None:
+        """Until every engine has heard one more pair from now, however busy the machine."""
+        with self.heard:
+            target = self.rounds + 1
+            if not self.heard.wait_for(lambda: self.rounds >= target, timeout):
+                raise TimeoutError(f"the robot's feed thread heard nothing in {timeout:g} s")
+
+
 @contextlib.contextmanager
-def robot_feed(engines: Sequence[Any]) -> Iterator[None]:
+def robot_feed(engines: Sequence[Any]) -> Iterator[Feed]:
     """Every engine hears the robot's two topics while the block runs: /a (true) and /x
     (0 to 6) half a millisecond of stamps apart, a pair every 2 ms, from a thread. The
     block starts once every engine has heard the first pair, however busy the machine
     (a handoff started before that would have no letters to carry)."""
-    stop, heard = threading.Event(), threading.Event()
+    stop, feed = threading.Event(), Feed()
 
     def publish() -> None:
         stamp = 0
@@ -43,15 +58,18 @@ def robot_feed(engines: Sequence[Any]) -> Iterator[None]:
             batch = [(stamp, "/a", [True]), (stamp + 500_000, "/x", [float(stamp % 7)])]
             for e in engines:
                 e.ingest(batch)
-            heard.set()
+            with feed.heard:
+                feed.rounds += 1
+                feed.heard.notify_all()
             time.sleep(0.002)
 
     feeder = threading.Thread(target=publish, daemon=True)
     feeder.start()
     try:
-        if not heard.wait(30.0):
-            raise TimeoutError("the robot's feed thread did not run in 30 s")
-        yield
+        with feed.heard:
+            if not feed.heard.wait_for(lambda: feed.rounds > 0, 30.0):
+                raise TimeoutError("the robot's feed thread did not run in 30 s")
+        yield feed
     finally:
         stop.set()
         feeder.join()

@@ -16,6 +16,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from prometheus_client import CollectorRegistry
@@ -36,7 +37,7 @@ from edgerv.handler.engine import Engine
 from edgerv.handler.limits import Limits
 from edgerv.handler.main import add_arguments, serving_tls
 from kit.documents import compiled
-from kit.engines import robot_feed
+from kit.engines import Feed, robot_feed
 from kit.pki import NAME, Pki, make_pki
 
 TOKEN = "test-token"
@@ -156,6 +157,21 @@ def api_open(api: ControlApi) -> int:
     return got[0]
 
 
+class HoldsThroughARound(HandlerClient):
+    """A sender whose hold lasts while the robot publishes one more pair, however busy the
+    machine: the events it holds meanwhile cross as the snapshot's letters."""
+
+    def __init__(self, feed: Feed, *args: Any) -> None:
+        super().__init__(*args)
+        self.feed = feed
+
+    def handoff(self, step: str, *args: Any, **kwargs: Any) -> tuple[int, bytes]:
+        answer = super().handoff(step, *args, **kwargs)
+        if step == "hold":
+            self.feed.wait_round()
+        return answer
+
+
 def test_a_migration_runs_over_https(pki: Pki) -> None:
     edge, cloud = Engine("edge", flush_after=1e9), Engine("cloud", flush_after=1e9)
     monitor = compiled("always (a -> x < 5)", {"a": "bool", "x": "float"})
@@ -163,9 +179,10 @@ def test_a_migration_runs_over_https(pki: Pki) -> None:
     cloud.put(monitor, active=False)
     apis = [serve(e, pki) for e in (edge, cloud)]
     try:
-        with robot_feed([edge, cloud]):
+        with robot_feed([edge, cloud]) as feed:
             tls = ClientTls(str(pki.ca), NAME)
-            source, destination = (HandlerClient(f"127.0.0.1:{a.port}", TOKEN, tls) for a in apis)
+            source = HoldsThroughARound(feed, f"127.0.0.1:{apis[0].port}", TOKEN, tls)
+            destination = HandlerClient(f"127.0.0.1:{apis[1].port}", TOKEN, tls)
             moved = migrate(source, destination, ["m"], 5.0, 0.5)
         assert moved.letters > 0
         assert not edge.slots["m"].active and cloud.slots["m"].active
