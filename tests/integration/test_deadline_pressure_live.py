@@ -74,7 +74,7 @@ def test_the_makespan_of_a_stamped_command_stream_is_in_the_load_report(
         reading = deadline(handler)
         assert set(reading) == {
             "topic", "budgetMs", "windowSeconds", "count", "misses", "p50Ms", "p95Ms",
-            "maxMs", "lastMs", "missesTotal", "messagesTotal",
+            "maxMs", "lastMs", "serviceP95Ms", "missesTotal", "messagesTotal",
         }  # fmt: skip
         assert (reading["topic"], reading["budgetMs"], reading["windowSeconds"]) == (
             "/cmd",
@@ -82,6 +82,9 @@ def test_the_makespan_of_a_stamped_command_stream_is_in_the_load_report(
             2.0,
         )
         assert 135 <= reading["p95Ms"] <= 200, reading
+        # each input was captured 140 ms before its command, the command before it 50 ms
+        # before that: it waited 90 ms behind it, and was served in the 50 ms between
+        assert 45 <= reading["serviceP95Ms"] <= 100, reading
         assert reading["misses"] > 0, reading
         assert "measuring the makespan of /cmd (geometry_msgs/msg/TwistStamped)" in handler.stderr
         assert (handler.metric("edgerv_deadline_misses_total", topic="/cmd") or 0) > 0

@@ -117,9 +117,36 @@ def test_the_window_reads_count_misses_percentiles_max_and_last() -> None:
         "p95Ms": 150.0,
         "maxMs": 150.0,
         "lastMs": 126.0,
+        # outputs 50 ms apart, inputs 90-150 ms before: each waited for the one before
+        # but the first (its whole 100 ms), so each is served in 50 ms
+        "serviceP95Ms": 100.0,
         "missesTotal": 4,
         "messagesTotal": 10,
     }
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_service_times_are_the_makespans_without_the_backlog(seed: int) -> None:
+    """A loop that serves its inputs one at a time, in order (an input every period,
+    captured at its stamp; each served for its service time after the later of its
+    capture and the previous output): while it is slower than its inputs its outputs
+    queue and their makespans grow, but the window's service p95 is that of the service
+    times the loop was given, whatever the backlog; and with no backlog, the makespans'."""
+    rng = random.Random(seed)
+    period = 125 * MS
+    served = [rng.randrange(80, 170) * MS for _ in range(16)]  # some slower than the period
+    w = MakespanWindow("/cmd", period, window_ns=60 * S)
+    published, spans = 0, []
+    for k, service in enumerate(served):
+        stamp = 10 * S + k * period
+        published = max(stamp, published) + service
+        spans.append(published - stamp)
+        w.add(published, stamp, taken_ns=k)
+    got = w.stats(len(served))
+    assert got.p95 == percentile(sorted(spans), 0.95)
+    assert got.service_p95 == percentile(sorted(served), 0.95)
+    if any(a != b for a, b in zip(spans, served, strict=True)):
+        assert got.p95 is not None and got.p95 > got.service_p95  # (the backlog's)
 
 
 def test_a_makespan_equal_to_the_budget_is_no_miss() -> None:

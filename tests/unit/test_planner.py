@@ -41,8 +41,9 @@ def edge(
     handler: float | None = None,
     work: float | None = None,
     topics: Mapping[str, float] | None = None,
+    service: float | None = None,
 ) -> EdgeState:
-    return EdgeState(headroom, DEADLINE, p95, cloud_ms, handler, work, dict(topics or {}))
+    return EdgeState(headroom, DEADLINE, p95, cloud_ms, handler, work, dict(topics or {}), service)
 
 
 def on(
@@ -117,8 +118,11 @@ def instances(
     handler = draw(st.one_of(st.none(), st.integers(0, 300_000).map(lambda b: (here + b) / MICRO)))
     # and the real-time task's CPU per output, when measured: up to 1.2 deadlines' worth
     work = draw(st.one_of(st.none(), st.integers(0, 120).map(lambda p: DEADLINE * p / 100)))
+    # and its service times' p95, when reported: 50% to 100% of the makespans'
+    service = draw(st.one_of(st.none(), st.integers(50, 100).map(lambda p: p95 * p / 100)))
     headroom = max(0, room) / MICRO / (1 - config.margin)
-    return ms, edge(headroom, p95, handler=handler, work=work, topics=topics), config
+    state = edge(headroom, p95, handler=handler, work=work, topics=topics, service=service)
+    return ms, state, config
 
 
 AT_RISK = instances(st.integers(100, 150), 4, 0.8)  # ratio 1.0 .. 1.5, most on the edge
@@ -149,13 +153,22 @@ def allowed(e: EdgeState, c: PlannerConfig) -> int:
     return microcores(e.headroom * (1 - c.margin))
 
 
+def sized(e: EdgeState, c: PlannerConfig) -> float:
+    """The p95 over the deadline, or the service times' where smaller (no backlog in
+    them); late, never below the high mark."""
+    ratio = e.ratio
+    assert ratio is not None
+    served = ratio if e.service_p95 is None else min(ratio, e.service_p95 / e.deadline)
+    return served if ratio < c.high else max(served, c.high)
+
+
 def calm(e: EdgeState, c: PlannerConfig) -> float:
     """Processor sharing: the task's output takes its work W over the 1 - h of the core
-    the handler leaves it; W read off the p95 (W = p95 (1 - h)), and when W is measured,
-    the smaller of the two handler CPUs."""
-    ratio, h = e.ratio, e.handler_cpu
-    assert ratio is not None and h is not None
-    read_off = 1.0 - (1.0 - h) * ratio / c.low
+    the handler leaves it; W read off the p95 (W = p95 (1 - h): the service times' when
+    reported), and when W is measured, the smaller of the two handler CPUs."""
+    h = e.handler_cpu
+    assert h is not None
+    read_off = 1.0 - (1.0 - h) * sized(e, c) / c.low
     if e.task_work is None:
         return read_off
     return min(read_off, 1.0 - e.task_work / (c.low * e.deadline))
@@ -165,7 +178,7 @@ def need(ms: Sequence[MonitorCost], e: EdgeState, c: PlannerConfig) -> int:
     v, ratio, h = verification(ms, e.topic_costs), e.ratio, e.handler_cpu
     assert ratio is not None
     if h is None:  # the share of verification by which the p95 is over the calm mark
-        shed = math.ceil(v * (1 - c.low / ratio))
+        shed = math.ceil(v * (1 - c.low / sized(e, c)))
     else:  # the handler's CPU above the calm mark's
         shed = math.ceil(max(0.0, h - calm(e, c)) * MICRO)
     return max(v - allowed(e, c), shed)
@@ -504,6 +517,24 @@ def test_the_deadline_is_sized_by_the_p95_and_the_measured_work_whichever_asks_m
     assert 1 - 0.8 * 1.02 / 0.95 > 1 - 0.105 / (0.95 * 0.125)  # the work asks for more
     assert near.target_microcores == math.ceil(free * MICRO)
     assert len(near.up) == math.ceil(round(free, 6) / 0.01) == 9
+
+
+def test_a_late_loops_backlog_is_not_read_as_sharing_when_its_service_times_are_known() -> None:
+    """The reading above, its outputs queued behind late ones (p95 210%), with their
+    service times' p95 reported at 110% (core.deadline: the makespans less the waits
+    behind the previous output): read off those, 1 - 0.71 * 1.1 / 0.95 = 0.178 cores may
+    stay; by the work 0.158; the one asking more: 0.132 cores to free, 14 of the 20, not
+    all. Late with service times under the deadline (90%: the backlog alone is late), the
+    plan still frees what brings a p95 at the high mark to the calm mark."""
+    ms = [on("edge", f"m{i:02d}", 0.01, 10.0) for i in range(20)]
+    queued = plan_moves(ms, EdgeState(0.2, 0.125, 0.2628, 40.0, 0.29, 0.1, {}, 0.1375), ROOMY)
+    free = 0.29 - min(1 - 0.71 * 1.1 / 0.95, 1 - 0.1 / (0.95 * 0.125))
+    assert queued.target_microcores == math.ceil(free * MICRO)
+    assert len(queued.up) == math.ceil(round(free, 6) / 0.01) == 14
+    draining = plan_moves(ms, EdgeState(0.2, 0.125, 0.2628, 40.0, 0.29, None, {}, 0.1125), ROOMY)
+    free = 0.29 - (1 - 0.71 * 1.0 / 0.95)
+    assert draining.target_microcores == math.ceil(free * MICRO)
+    assert len(draining.up) == math.ceil(round(free, 6) / 0.01) == 4
 
 
 def test_what_comes_home_keeps_the_p95_not_the_mean_under_the_calm_mark() -> None:

@@ -81,8 +81,9 @@ def deadline_reading(value: object) -> DeadlineReading | None:
     something else: the policy then goes without it."""
     if not isinstance(value, Mapping):
         return None
-    budget, p95, count, misses, last = (
-        _number(value.get(k)) for k in ("budgetMs", "p95Ms", "count", "misses", "lastMs")
+    budget, p95, count, misses, last, service = (
+        _number(value.get(k))
+        for k in ("budgetMs", "p95Ms", "count", "misses", "lastMs", "serviceP95Ms")
     )
     if budget is None or count is None:
         return None
@@ -92,6 +93,7 @@ def deadline_reading(value: object) -> DeadlineReading | None:
         int(count),
         int(misses or 0),
         None if last is None else last / 1000,
+        None if service is None else service / 1000,
     )
 
 

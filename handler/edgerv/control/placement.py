@@ -79,6 +79,9 @@ class DeadlineReading:
     count: int  # makespans in the window
     misses: int = 0  # of those, longer than the budget
     last: float | None = None  # the newest makespan in the window (None: none)
+    # the 95th percentile of the outputs' service times: their makespans less the waits
+    # behind the previous output (core.deadline); None: not reported
+    service_p95: float | None = None
 
 
 @dataclass(frozen=True)
@@ -394,6 +397,7 @@ def edge_state(
         headroom=max(0.0, h.headroom),
         deadline=d.budget,
         p95=d.p95 if informs(d, c) else None,
+        service_p95=d.service_p95 if informs(d, c) else None,
         cloud_latency_ms=c.tier_latency_ms.get(above, 0.0) if above else 0.0,
         handler_cpu=h.cpu,
         task_work=h.task_work,

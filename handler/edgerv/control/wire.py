@@ -258,6 +258,7 @@ def _deadline(d: object) -> DeadlineLoad | None:
         "p95Ms": _number_or_none(d, "p95Ms", w),
         "maxMs": _number_or_none(d, "maxMs", w),
         "lastMs": _number_or_none(d, "lastMs", w),
+        "serviceP95Ms": _number_or_none(d, "serviceP95Ms", w),
         "missesTotal": _whole(d, "missesTotal", w, 0),
         "messagesTotal": _whole(d, "messagesTotal", w, 0),
     }

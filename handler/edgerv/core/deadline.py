@@ -9,9 +9,18 @@ the deadline when the makespan is longer than DURATION (the budget).
 
 :class:`MakespanWindow` keeps the makespans of the last ``window`` of publish
 time and answers with their count, misses, median, 95th percentile, maximum and
-the last one: the reading the orchestration policy weighs against the budget
+the last one, and the 95th percentile of the task's *service times* (below): the
+reading the orchestration policy weighs against the budget
 (:mod:`edgerv.control.placement`, "deadline pressure"). No ROS here: the handler's
 ROS layer feeds it what it takes.
+
+An output's **service time** is its makespan less the time its input waited for the
+task's previous output: its publication minus the later of its ``header.stamp`` and the
+previous output's publication. A task that handles its inputs one at a time, in order,
+has service times equal to its makespans while it keeps up; once it falls behind, its
+outputs queue behind late ones and their makespans grow with the backlog, while their
+service times stay what sharing its CPU makes them (the planner sizes what to move from
+them, :func:`edgerv.core.planner.calm_cpu`).
 """
 
 from __future__ import annotations
@@ -81,6 +90,7 @@ class DeadlineLoad(TypedDict):
     p95Ms: float | None
     maxMs: float | None
     lastMs: float | None  # the newest in the window
+    serviceP95Ms: float | None  # the 95th percentile of their service times
     missesTotal: int  # since the handler started
     messagesTotal: int  # messages measured since the handler started
 
@@ -95,6 +105,7 @@ class MakespanStats:
     p95: int | None
     max: int | None
     last: int | None
+    service_p95: int | None = None  # the 95th percentile of the service times
 
 
 def percentile(ordered: list[int], q: float) -> int:
@@ -130,7 +141,8 @@ class MakespanWindow:
         self.relative = relative  # (DeadlineOption.relative)
         self.budget_ns = budget_ns
         self.window_ns = window_ns
-        self._entries: deque[tuple[int, int]] = deque(maxlen=max_entries)  # (published, span)
+        # (published, makespan, service time)
+        self._entries: deque[tuple[int, int, int]] = deque(maxlen=max_entries)
         self._newest: tuple[int, int] | None = None  # (published, taken) of the newest
         self._lock = threading.Lock()
         self.messages_total = 0
@@ -149,7 +161,9 @@ class MakespanWindow:
                 self.unstamped += 1
                 return False
             span = published_ns - stamp_ns
-            self._entries.append((published_ns, span))
+            previous = self._newest[0] if self._newest is not None else stamp_ns
+            service = published_ns - max(stamp_ns, min(previous, published_ns))
+            self._entries.append((published_ns, span, service))
             if self._newest is None or published_ns >= self._newest[0]:
                 self._newest = (published_ns, taken_ns)
             self.messages_total += 1
@@ -186,7 +200,8 @@ class MakespanWindow:
         """The reading at ``now_ns`` (monotonic, the clock of :meth:`add`'s ``taken_ns``)."""
         with self._lock:
             self._evict(now_ns)
-            spans = [span for _, span in self._entries]
+            spans = [span for _, span, _ in self._entries]
+            services = sorted(service for _, _, service in self._entries)
         if not spans:
             return MakespanStats(0, 0, None, None, None, None)
         ordered = sorted(spans)
@@ -197,6 +212,7 @@ class MakespanWindow:
             p95=percentile(ordered, 0.95),
             max=ordered[-1],
             last=spans[-1],
+            service_p95=percentile(services, 0.95),
         )
 
     def report(self, now_ns: int) -> DeadlineLoad:
@@ -214,6 +230,7 @@ class MakespanWindow:
             p95Ms=_ms(s.p95),
             maxMs=_ms(s.max),
             lastMs=_ms(s.last),
+            serviceP95Ms=_ms(s.service_p95),
             missesTotal=misses_total,
             messagesTotal=messages_total,
         )

@@ -19,7 +19,9 @@ arriving) and *allowed* ``headroom * (1 - margin)``:
   1)``: the real-time task shares its CPU with the handler, so its makespan stretches by
   ``1 / (1 - h)`` (processor sharing: the paper's 200 monitors at 15% of a core took the
   demo's loop from 102 to 121 ms, 102 / 0.85 = 120); bringing the p95 to the calm mark
-  ``low`` takes ``h`` down to ``1 - (1 - h) * ratio / low``. Without ``handler_cpu``,
+  ``low`` takes ``h`` down to ``1 - (1 - h) * ratio / low`` (sized from the service
+  times' p95 where that is smaller: a late loop's backlog is not sharing, :func:`sizing`).
+  Without ``handler_cpu``,
   ``shed = verification * (1 - low / ratio)``, the share of it by which the p95 is over
   the calm mark (a first-order model). Movable: on the edge, not pinned, not in a
   handoff, ``maxLatencyMs`` (if any) at least the cloud's latency. The plan frees at
@@ -151,8 +153,13 @@ class EdgeState:
     # messages, taking and decoding them), whatever number of monitors read it: freed when
     # the last of them leaves the edge, paid again when the first comes home
     topic_costs: Mapping[str, float] = field(default_factory=dict)
+    # the 95th percentile of its outputs' service times (their makespans less the waits
+    # behind the previous output: edgerv.core.deadline), seconds; None: not measured
+    service_p95: float | None = None
 
     def __post_init__(self) -> None:
+        if self.service_p95 is not None and not _finite_at_least(self.service_p95, 0.0):
+            raise ValueError(f"service p95 {self.service_p95} is not >= 0 seconds")
         for topic, cost in self.topic_costs.items():
             if not _finite_at_least(cost, 0.0):
                 raise ValueError(f"topic {topic}: ingestion {cost} is not >= 0 cores")
@@ -259,27 +266,54 @@ def _charge(item: tuple[str, float]) -> tuple[str, int]:
     return item[0], microcores(item[1])
 
 
+def sizing(edge: EdgeState, c: PlannerConfig, ratio: float) -> float:
+    """The ratio what moves is sized from: ``ratio``, or, measured, the service times' p95
+    over the deadline where that is smaller: the makespans without the backlog a late
+    loop queues (sharing the CPU stretches a loop's service times; its backlog stretches
+    its makespans further, and drains once they are short enough again). Late
+    (``ratio >= high``), at least ``high``: late makespans always free something (a
+    loop whose deadline is longer than its inputs' period can queue with service times
+    within it)."""
+    sized = ratio if edge.service_p95 is None else min(ratio, edge.service_p95 / edge.deadline)
+    return max(sized, c.high) if ratio >= c.high else sized
+
+
 def calm_cpu(edge: EdgeState, c: PlannerConfig, ratio: float) -> float | None:
     """The handler's CPU (cores) at which the real-time task's p95 sits at the calm mark
     ``low``, the two sharing a core (processor sharing: the task's output takes its work
     ``W`` over the ``1 - h`` of the core the handler leaves it), read off the p95 itself,
-    ``W = p95 * (1 - h)``: ``1 - (1 - h) * ratio / low``. Given the task's measured work
+    ``W = p95 * (1 - h)``: ``1 - (1 - h) * ratio / low``, ``ratio`` as :func:`sizing`
+    reads it (the service times where they are measured). Given the task's measured work
     (``task_work``), the smaller of that and ``1 - W / (low * deadline)``: the measured
     work is the task's mean over the last poll, which follows a change of the task's load
     sooner than the p95's window does, but not the loop's spread, which the p95 carries
     (the demo's loop: a p95 at 102% of its deadline where its work alone says 95%); and
-    the deadline is the p95's. Far past its deadline the read-off over-asks (outputs queue
-    behind late ones: the p95 grows more than sharing alone would make it): the plan then
-    moves more than the deadline needs, at once, and what fits comes home once the loop is
-    calm. None without ``handler_cpu``. May be below 0: no share of the core keeps the
-    deadline."""
+    the deadline is the p95's. Past its deadline a loop's outputs queue behind late ones:
+    its makespans' p95 grows more than sharing alone would make it, and read off it the
+    plan would move more than the deadline needs (make demo: all 450 where the 254 at the
+    IMU's rate were enough); its service times' does not. None without ``handler_cpu``.
+    May be below 0: no share of the core keeps the deadline."""
     h = edge.handler_cpu
     if h is None:
         return None
-    read_off = 1.0 - (1.0 - h) * ratio / c.low
+    read_off = 1.0 - (1.0 - h) * sizing(edge, c, ratio) / c.low
     if edge.task_work is None:
         return read_off
     return min(read_off, 1.0 - edge.task_work / (c.low * edge.deadline))
+
+
+def _read_off(edge: EdgeState, c: PlannerConfig, ratio: float) -> str:
+    """What the deadline's share of a plan up was read off, in words ("" without the
+    handler's CPU)."""
+    h, calm = edge.handler_cpu, calm_cpu(edge, c, ratio)
+    if h is None or calm is None:
+        return ""
+    served = "" if edge.service_p95 is None else f", service times' p95 {edge.service_p95:.4g} s"
+    work = "" if edge.task_work is None else f", the task's work {edge.task_work:.4g} s an output"
+    return (
+        f" (the handler at {_cores(microcores(h))}, calm at {calm:.3g} cores: read off a "
+        f"ratio of {sizing(edge, c, ratio):.0%}{served}{work})"
+    )
 
 
 def deadline_shed(edge: EdgeState, c: PlannerConfig, verification: int, ratio: float) -> int:
@@ -288,7 +322,7 @@ def deadline_shed(edge: EdgeState, c: PlannerConfig, verification: int, ratio: f
     is over the calm mark."""
     h, calm = edge.handler_cpu, calm_cpu(edge, c, ratio)
     if h is None or calm is None:
-        return math.ceil(verification * (1 - c.low / ratio))
+        return math.ceil(verification * (1 - c.low / sizing(edge, c, ratio)))
     return math.ceil(max(0.0, h - calm) * MICRO)
 
 
@@ -344,6 +378,7 @@ def _up(
     sizing = (
         f"verification takes {_cores(verification)} on the edge, the headroom less its "
         f"{c.margin:.0%} margin allows {_cores(allowed)}: {_cores(need)} to free"
+        + _read_off(edge, c, ratio)
     )
     if need <= 0:  # (the task's measured work: the handler's CPU is not what makes it late)
         return Plan((), (), "none", f"{at_risk}, but by the real-time task's work {sizing}", 0)
