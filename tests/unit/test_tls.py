@@ -157,18 +157,23 @@ def api_open(api: ControlApi) -> int:
     return got[0]
 
 
-class HoldsThroughARound(HandlerClient):
-    """A sender whose hold lasts while the robot publishes one more pair, however busy the
-    machine: the events it holds meanwhile cross as the snapshot's letters."""
+class HeldFirst(HandlerClient):
+    """A handler of a move whose receiver subscribes only once the sender holds and the
+    robot has published one more pair, however busy the machine: the events between
+    are the sender's alone, and cross as the snapshot's letters (migrate sends the two
+    steps at once; the receiver first, it hears all the sender holds, none are letters)."""
 
-    def __init__(self, feed: Feed, *args: Any) -> None:
+    def __init__(self, held: threading.Event, feed: Feed, *args: Any) -> None:
         super().__init__(*args)
-        self.feed = feed
+        self.held, self.feed = held, feed
 
     def handoff(self, step: str, *args: Any, **kwargs: Any) -> tuple[int, bytes]:
+        if step == "receive" and not self.held.wait(30.0):
+            raise TimeoutError("the sender did not hold in 30 s")
         answer = super().handoff(step, *args, **kwargs)
         if step == "hold":
             self.feed.wait_round()
+            self.held.set()
         return answer
 
 
@@ -181,8 +186,10 @@ def test_a_migration_runs_over_https(pki: Pki) -> None:
     try:
         with robot_feed([edge, cloud]) as feed:
             tls = ClientTls(str(pki.ca), NAME)
-            source = HoldsThroughARound(feed, f"127.0.0.1:{apis[0].port}", TOKEN, tls)
-            destination = HandlerClient(f"127.0.0.1:{apis[1].port}", TOKEN, tls)
+            held = threading.Event()
+            source, destination = (
+                HeldFirst(held, feed, f"127.0.0.1:{a.port}", TOKEN, tls) for a in apis
+            )
             moved = migrate(source, destination, ["m"], 5.0, 0.5)
         assert moved.letters > 0
         assert not edge.slots["m"].active and cloud.slots["m"].active
