@@ -538,7 +538,8 @@ def handler_budget(
     within [floor, ceiling] (a budget outside is brought in at once); else, by the
     module's processor-sharing model with ``h = handler_cpu``:
 
-    * **At risk** (``ratio >= high``): ``1 - (1 - h) * ratio / low``, the handler's CPU at
+    * **At risk** (``ratio >= high``): ``1 - (1 - h) * ratio / low`` (:func:`calm_cpu`:
+      ``ratio`` as :func:`sizing` reads it, and the task's work), the handler's CPU at
       which the p95 is at the calm mark; never raised.
     * **Calm** (``ratio <= low``): what the real-time tasks leave the handler less the
       margin, ``(headroom + h - verification) * (1 - margin)`` (the headroom counts the
