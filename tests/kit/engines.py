@@ -47,8 +47,8 @@ class Feed:
 def robot_feed(engines: Sequence[Any]) -> Iterator[Feed]:
     """Every engine hears the robot's two topics while the block runs: /a (true) and /x
     (0 to 6) half a millisecond of stamps apart, a pair every 2 ms, from a thread. The
-    block starts once every engine has heard the first pair, however busy the machine
-    (a handoff started before that would have no letters to carry)."""
+    block starts once every engine has heard the first pair, however busy the machine;
+    :meth:`Feed.wait_round` waits for one more."""
     stop, feed = threading.Event(), Feed()
 
     def publish() -> None:

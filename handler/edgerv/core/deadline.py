@@ -201,7 +201,7 @@ class MakespanWindow:
         with self._lock:
             self._evict(now_ns)
             spans = [span for _, span, _ in self._entries]
-            services = sorted(service for _, _, service in self._entries)
+            services = [service for _, _, service in self._entries]
         if not spans:
             return MakespanStats(0, 0, None, None, None, None)
         ordered = sorted(spans)
@@ -212,7 +212,7 @@ class MakespanWindow:
             p95=percentile(ordered, 0.95),
             max=ordered[-1],
             last=spans[-1],
-            service_p95=percentile(services, 0.95),
+            service_p95=percentile(sorted(services), 0.95),
         )
 
     def report(self, now_ns: int) -> DeadlineLoad:

@@ -20,7 +20,7 @@ arriving) and *allowed* ``headroom * (1 - margin)``:
   ``1 / (1 - h)`` (processor sharing: the paper's 200 monitors at 15% of a core took the
   demo's loop from 102 to 121 ms, 102 / 0.85 = 120); bringing the p95 to the calm mark
   ``low`` takes ``h`` down to ``1 - (1 - h) * ratio / low`` (sized from the service
-  times' p95 where that is smaller: a late loop's backlog is not sharing, :func:`sizing`).
+  times' p95 where that is smaller: a late loop's backlog is not sharing, :func:`sized_ratio`).
   Without ``handler_cpu``,
   ``shed = verification * (1 - low / ratio)``, the share of it by which the p95 is over
   the calm mark (a first-order model). Movable: on the edge, not pinned, not in a
@@ -266,7 +266,7 @@ def _charge(item: tuple[str, float]) -> tuple[str, int]:
     return item[0], microcores(item[1])
 
 
-def sizing(edge: EdgeState, c: PlannerConfig, ratio: float) -> float:
+def sized_ratio(edge: EdgeState, c: PlannerConfig, ratio: float) -> float:
     """The ratio what moves is sized from: ``ratio``, or, measured, the service times' p95
     over the deadline where that is smaller: the makespans without the backlog a late
     loop queues (sharing the CPU stretches a loop's service times; its backlog stretches
@@ -282,7 +282,7 @@ def calm_cpu(edge: EdgeState, c: PlannerConfig, ratio: float) -> float | None:
     """The handler's CPU (cores) at which the real-time task's p95 sits at the calm mark
     ``low``, the two sharing a core (processor sharing: the task's output takes its work
     ``W`` over the ``1 - h`` of the core the handler leaves it), read off the p95 itself,
-    ``W = p95 * (1 - h)``: ``1 - (1 - h) * ratio / low``, ``ratio`` as :func:`sizing`
+    ``W = p95 * (1 - h)``: ``1 - (1 - h) * ratio / low``, ``ratio`` as :func:`sized_ratio`
     reads it (the service times where they are measured). Given the task's measured work
     (``task_work``), the smaller of that and ``1 - W / (low * deadline)``: the measured
     work is the task's mean over the last poll, which follows a change of the task's load
@@ -296,7 +296,7 @@ def calm_cpu(edge: EdgeState, c: PlannerConfig, ratio: float) -> float | None:
     h = edge.handler_cpu
     if h is None:
         return None
-    read_off = 1.0 - (1.0 - h) * sizing(edge, c, ratio) / c.low
+    read_off = 1.0 - (1.0 - h) * sized_ratio(edge, c, ratio) / c.low
     if edge.task_work is None:
         return read_off
     return min(read_off, 1.0 - edge.task_work / (c.low * edge.deadline))
@@ -312,7 +312,7 @@ def _read_off(edge: EdgeState, c: PlannerConfig, ratio: float) -> str:
     work = "" if edge.task_work is None else f", the task's work {edge.task_work:.4g} s an output"
     return (
         f" (the handler at {_cores(microcores(h))}, calm at {calm:.3g} cores: read off a "
-        f"ratio of {sizing(edge, c, ratio):.0%}{served}{work})"
+        f"ratio of {sized_ratio(edge, c, ratio):.0%}{served}{work})"
     )
 
 
@@ -322,7 +322,7 @@ def deadline_shed(edge: EdgeState, c: PlannerConfig, verification: int, ratio: f
     is over the calm mark."""
     h, calm = edge.handler_cpu, calm_cpu(edge, c, ratio)
     if h is None or calm is None:
-        return math.ceil(verification * (1 - c.low / sizing(edge, c, ratio)))
+        return math.ceil(verification * (1 - c.low / sized_ratio(edge, c, ratio)))
     return math.ceil(max(0.0, h - calm) * MICRO)
 
 
@@ -539,7 +539,7 @@ def handler_budget(
     module's processor-sharing model with ``h = handler_cpu``:
 
     * **At risk** (``ratio >= high``): ``1 - (1 - h) * ratio / low`` (:func:`calm_cpu`:
-      ``ratio`` as :func:`sizing` reads it, and the task's work), the handler's CPU at
+      ``ratio`` as :func:`sized_ratio` reads it, and the task's work), the handler's CPU at
       which the p95 is at the calm mark; never raised.
     * **Calm** (``ratio <= low``): what the real-time tasks leave the handler less the
       margin, ``(headroom + h - verification) * (1 - margin)`` (the headroom counts the
